@@ -1,0 +1,176 @@
+"""Scenario models: everything a run needs, validated once at the edge.
+
+A scenario is a TOML file (see ``config/scenarios/``); :func:`config.loader.load_scenario` reads it,
+applies ``--set key=value`` overrides and reports errors with file, line and field. Every model
+forbids unknown keys so that a misspelt key is an error, not a silently ignored value.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from config.agent_params import ControlSpec, EstimatorSpec
+
+Vec2 = tuple[float, float]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class LoadSpec(_Strict):
+    """The rigid planar load. Body frame: origin at the polygon's centroid, axes along the polygon's."""
+
+    shape: Literal["rectangle", "polygon"] = "rectangle"
+    width: float = Field(4.0, gt=0, description="rectangle side along body x (m)")
+    height: float = Field(2.2, gt=0, description="rectangle side along body y (m)")
+    vertices: list[Vec2] | None = Field(None, description="polygon vertices, body frame (m), counter-clockwise")
+    mass: float = Field(50.0, gt=0, description="kg")
+    inertia: float | None = Field(
+        None, gt=0, description="about the CoM (kg m^2); default: uniform density over the shape"
+    )
+    com_offset: Vec2 = Field((0.0, 0.0), description="CoM relative to the centroid, body frame (m)")
+
+    @model_validator(mode="after")
+    def _shape_has_geometry(self) -> LoadSpec:
+        if self.shape == "polygon" and (self.vertices is None or len(self.vertices) < 3):
+            raise ValueError("shape = 'polygon' needs 'vertices' with at least 3 points")
+        return self
+
+
+class ContactSpec(_Strict):
+    """Where the agents hold the load. ``perimeter`` spaces n points evenly along the outline."""
+
+    layout: Literal["perimeter", "explicit"] = "perimeter"
+    start: float = Field(0.0, ge=0, lt=1, description="perimeter layout: first point as a fraction of the outline")
+    points: list[Vec2] | None = Field(None, description="explicit layout: body-frame points (m), one per agent")
+
+
+class NoiseSpec(_Strict):
+    sigma_v: float = Field(0.3, ge=0, description="std of additive Gaussian noise on each velocity component (m/s)")
+
+
+class GraphSpec(_Strict):
+    """The undirected communication graph; agents numbered from 0 in contact order."""
+
+    topology: Literal["line", "ring", "complete", "explicit"] = "line"
+    edges: list[tuple[int, int]] | None = Field(None, description="explicit topology: [i, j] pairs")
+
+    @model_validator(mode="after")
+    def _explicit_has_edges(self) -> GraphSpec:
+        if self.topology == "explicit" and not self.edges:
+            raise ValueError("topology = 'explicit' needs a non-empty 'edges' list")
+        return self
+
+
+class LossSpec(_Strict):
+    """Packet loss on one directed link. ``gilbert_elliott`` is a two-state (good/bad) Markov chain."""
+
+    model: Literal["none", "bernoulli", "gilbert_elliott"] = "none"
+    p: float = Field(0.0, ge=0, le=1, description="bernoulli: loss probability")
+    p_good_to_bad: float = Field(0.01, ge=0, le=1)
+    p_bad_to_good: float = Field(0.2, ge=0, le=1)
+    loss_good: float = Field(0.0, ge=0, le=1)
+    loss_bad: float = Field(0.8, ge=0, le=1)
+
+
+class LinkSpec(_Strict):
+    """Fault model applied at the receiving end of every directed agent-to-agent link.
+
+    Delays are in ticks in lockstep mode and in seconds in real-time mode; jitter is uniform in
+    [0, jitter] added to the fixed delay.
+    """
+
+    delay_ticks: int = Field(0, ge=0)
+    jitter_ticks: int = Field(0, ge=0)
+    delay_s: float = Field(0.0, ge=0)
+    jitter_s: float = Field(0.0, ge=0)
+    loss: LossSpec = LossSpec()
+    duplicate: float = Field(0.0, ge=0, le=1, description="probability that a delivered message arrives twice")
+
+
+class InitialSpec(_Strict):
+    position: Vec2 = (0.0, 0.0)
+    angle: float = 0.0
+    v_c: Vec2 = Field((0.0, 0.0), description="CoM velocity at t = 0 (m/s)")
+    omega: float = Field(0.0, description="angular rate at t = 0 (rad/s)")
+
+
+class TimingSpec(_Strict):
+    """Waits of the daemons. A timeout is counted in summary.json, never fatal."""
+
+    startup_timeout_s: float = Field(30.0, gt=0, description="wait for every daemon to come alive")
+    wrench_timeout_s: float = Field(2.0, gt=0, description="lockstep: simulator waits this long for a wrench")
+    neighbour_timeout_s: float = Field(2.0, gt=0, description="lockstep: agent waits this long for a neighbour")
+
+
+class Scenario(_Strict):
+    name: str = "unnamed"
+    n: int = Field(10, ge=2, le=1000, description="number of agents")
+    dt: float = Field(0.01, gt=0, description="tick length (s)")
+    duration: float = Field(60.0, gt=0, description="simulated time (s)")
+    seed: int = Field(0, ge=0)
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    load: LoadSpec = LoadSpec()
+    contacts: ContactSpec = ContactSpec()
+    noise: NoiseSpec = NoiseSpec()
+    graph: GraphSpec = GraphSpec()
+    link: LinkSpec = LinkSpec()
+    initial: InitialSpec = InitialSpec()
+    control: ControlSpec = ControlSpec()
+    estimator: EstimatorSpec = EstimatorSpec()
+    timing: TimingSpec = TimingSpec()
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Scenario:
+        if self.contacts.layout == "explicit":
+            if self.contacts.points is None or len(self.contacts.points) != self.n:
+                raise ValueError(f"contacts.points must list exactly n = {self.n} points")
+        for i, j in self.graph.edges or ():
+            if not (0 <= i < self.n and 0 <= j < self.n) or i == j:
+                raise ValueError(f"graph.edges: [{i}, {j}] is not a pair of distinct agents in 0..{self.n - 1}")
+        if not _connected(self.n, self.edges()):
+            raise ValueError("graph: the communication graph must be connected")
+        return self
+
+    @property
+    def ticks(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    def edges(self) -> list[tuple[int, int]]:
+        """Undirected edges (i < j), sorted."""
+        n = self.n
+        topo = self.graph.topology
+        if topo == "line":
+            e = [(i, i + 1) for i in range(n - 1)]
+        elif topo == "ring":
+            e = [(i, i + 1) for i in range(n - 1)] + ([(0, n - 1)] if n > 2 else [])
+        elif topo == "complete":
+            e = [(i, j) for i in range(n) for j in range(i + 1, n)]
+        else:
+            e = [(min(i, j), max(i, j)) for i, j in self.graph.edges or ()]
+        return sorted(set(e))
+
+    def neighbours(self) -> list[list[int]]:
+        nb: list[list[int]] = [[] for _ in range(self.n)]
+        for i, j in self.edges():
+            nb[i].append(j)
+            nb[j].append(i)
+        return [sorted(x) for x in nb]
+
+
+def _connected(n: int, edges: list[tuple[int, int]]) -> bool:
+    adj: list[list[int]] = [[] for _ in range(n)]
+    for i, j in edges:
+        adj[i].append(j)
+        adj[j].append(i)
+    seen = {0}
+    stack = [0]
+    while stack:
+        for j in adj[stack.pop()]:
+            if j not in seen:
+                seen.add(j)
+                stack.append(j)
+    return len(seen) == n
