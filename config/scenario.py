@@ -17,7 +17,8 @@ Vec2 = tuple[float, float]
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # allow_inf_nan=False: a NaN or inf in a pose, a size or a delay would silently poison the plant.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class LoadSpec(_Strict):
@@ -26,7 +27,11 @@ class LoadSpec(_Strict):
     shape: Literal["rectangle", "polygon"] = "rectangle"
     width: float = Field(4.0, gt=0, description="rectangle side along body x (m)")
     height: float = Field(2.2, gt=0, description="rectangle side along body y (m)")
-    vertices: list[Vec2] | None = Field(None, description="polygon vertices, body frame (m), counter-clockwise")
+    vertices: list[Vec2] | None = Field(
+        None,
+        description="polygon vertices (m), counter-clockwise, simple; the body frame is re-centred on their area"
+        " centroid, so any origin may be used",
+    )
     mass: float = Field(50.0, gt=0, description="kg")
     inertia: float | None = Field(
         None, gt=0, description="about the CoM (kg m^2); default: uniform density over the shape"
@@ -37,6 +42,10 @@ class LoadSpec(_Strict):
     def _shape_has_geometry(self) -> LoadSpec:
         if self.shape == "polygon" and (self.vertices is None or len(self.vertices) < 3):
             raise ValueError("shape = 'polygon' needs 'vertices' with at least 3 points")
+        if self.shape == "polygon" and self.vertices is not None:
+            problem = _polygon_problem(self.vertices)
+            if problem:
+                raise ValueError(f"vertices: {problem}")
         return self
 
 
@@ -92,8 +101,8 @@ class LinkSpec(_Strict):
 
 
 class InitialSpec(_Strict):
-    position: Vec2 = (0.0, 0.0)
-    angle: float = 0.0
+    position: Vec2 = Field((0.0, 0.0), description="CoM position at t = 0, world frame (m)")
+    angle: float = Field(0.0, description="body x axis from world x at t = 0, counter-clockwise (rad)")
     v_c: Vec2 = Field((0.0, 0.0), description="CoM velocity at t = 0 (m/s)")
     omega: float = Field(0.0, description="angular rate at t = 0 (rad/s)")
 
@@ -104,6 +113,12 @@ class TimingSpec(_Strict):
     startup_timeout_s: float = Field(30.0, gt=0, description="wait for every daemon to come alive")
     wrench_timeout_s: float = Field(2.0, gt=0, description="lockstep: simulator waits this long for a wrench")
     neighbour_timeout_s: float = Field(2.0, gt=0, description="lockstep: agent waits this long for a neighbour")
+
+
+class RecordSpec(_Strict):
+    """What the run directory keeps. Samples (the measured data) are always kept at full rate."""
+
+    every_ticks: int = Field(1, ge=1, description="keep estimates, pairs and truth every this many ticks")
 
 
 class Scenario(_Strict):
@@ -122,17 +137,25 @@ class Scenario(_Strict):
     control: ControlSpec = ControlSpec()
     estimator: EstimatorSpec = EstimatorSpec()
     timing: TimingSpec = TimingSpec()
+    record: RecordSpec = RecordSpec()
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
+        # Messages start with the dotted field they concern: config.loader turns that prefix into the
+        # error's field and file line (a model-level validator has no location of its own).
         if self.contacts.layout == "explicit":
-            if self.contacts.points is None or len(self.contacts.points) != self.n:
-                raise ValueError(f"contacts.points must list exactly n = {self.n} points")
+            pts = self.contacts.points
+            if pts is None or len(pts) != self.n:
+                got = "none" if pts is None else len(pts)
+                raise ValueError(f"contacts.points: must list exactly n = {self.n} points (got {got})")
+            if len(set(pts)) != len(pts):
+                raise ValueError("contacts.points: contact points must be distinct")
         for i, j in self.graph.edges or ():
             if not (0 <= i < self.n and 0 <= j < self.n) or i == j:
                 raise ValueError(f"graph.edges: [{i}, {j}] is not a pair of distinct agents in 0..{self.n - 1}")
         if not _connected(self.n, self.edges()):
-            raise ValueError("graph: the communication graph must be connected")
+            field = "graph.edges" if self.graph.topology == "explicit" else "graph"
+            raise ValueError(f"{field}: the communication graph must be connected (agents 0..{self.n - 1})")
         return self
 
     @property
@@ -159,6 +182,46 @@ class Scenario(_Strict):
             nb[i].append(j)
             nb[j].append(i)
         return [sorted(x) for x in nb]
+
+
+def _polygon_problem(vertices: list[Vec2]) -> str | None:
+    """Why the outline cannot be a load (None if it can): degenerate, clockwise or self-intersecting."""
+    m = len(vertices)
+    cross2 = sum(
+        vertices[k][0] * vertices[(k + 1) % m][1] - vertices[(k + 1) % m][0] * vertices[k][1] for k in range(m)
+    )
+    if cross2 == 0 or len(set(vertices)) != m:
+        return "the polygon is degenerate (zero area or repeated vertices)"
+    if cross2 < 0:
+        return "the vertices run clockwise; list them counter-clockwise"
+    for a in range(m):
+        for b in range(a + 2, m):
+            if a == 0 and b == m - 1:
+                continue  # adjacent through the closing edge
+            if _segments_cross(vertices[a], vertices[(a + 1) % m], vertices[b], vertices[(b + 1) % m]):
+                return f"the outline intersects itself (edges {a} and {b})"
+    return None
+
+
+def _segments_cross(p1: Vec2, p2: Vec2, q1: Vec2, q2: Vec2) -> bool:
+    """Closed-segment intersection test (touching counts: a pinched outline is not simple either)."""
+
+    def orient(a: Vec2, b: Vec2, c: Vec2) -> float:
+        return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+    def on_segment(a: Vec2, b: Vec2, c: Vec2) -> bool:
+        return min(a[0], b[0]) <= c[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= c[1] <= max(a[1], b[1])
+
+    d1, d2 = orient(q1, q2, p1), orient(q1, q2, p2)
+    d3, d4 = orient(p1, p2, q1), orient(p1, p2, q2)
+    if ((d1 > 0 > d2) or (d1 < 0 < d2)) and ((d3 > 0 > d4) or (d3 < 0 < d4)):
+        return True
+    return (
+        (d1 == 0 and on_segment(q1, q2, p1))
+        or (d2 == 0 and on_segment(q1, q2, p2))
+        or (d3 == 0 and on_segment(p1, p2, q1))
+        or (d4 == 0 and on_segment(p1, p2, q2))
+    )
 
 
 def _connected(n: int, edges: list[tuple[int, int]]) -> bool:

@@ -60,3 +60,28 @@ class Estimate:
     agent: int
     values: dict[str, float]
     pairs: dict[int, tuple[float, float]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Control:
+    """Simulator -> everyone: run lifecycle notices. ``kind`` is 'start', 'progress' or 'done'."""
+
+    kind: str
+    tick: int
+    ticks: int
+
+
+@dataclass(frozen=True, slots=True)
+class AgentReport:
+    """Agent -> simulator when the run ends: its receive-side counters, for summary.json.
+
+    ``links`` maps each sender to that link's counters (sent, delivered, dropped, duplicated, late,
+    malformed); ``drops`` counts rejected messages by reason; ``timeouts`` counts lockstep waits that
+    ran out.
+    """
+
+    agent: int
+    links: dict[int, dict[str, int]]
+    drops: dict[str, int]
+    timeouts: int
+    ticks: int

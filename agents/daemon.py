@@ -1,0 +1,226 @@
+"""The agent daemon: schedules one pure ``AgentCore`` over a transport.
+
+It owns no estimation logic. Per tick it waits (lockstep) for its measurement and for the live
+neighbours' previous-tick states, passes every neighbour message through the receive-side link
+model into a ``DelayLine``, steps the core with what the line releases, and publishes the core's
+state, wrench and estimate. Everything arriving from outside is decoded and validated here; a bad
+message is dropped and counted by reason, never raised.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections import Counter
+
+from coload.engine import deliver_tick
+from coload.world import build_agent, build_in_links
+from config.scenario import Scenario
+from net import keys
+from net.link import DelayLine, LinkStats
+from net.messages import AgentReport, Control, Measurement, StateMsg
+from net.schema import DecodeError, decode, encode
+from net.transport import Transport
+
+log = logging.getLogger("coload.agent")
+
+#: A measurement or state further ahead than this many ticks is treated as hostile.
+MAX_TICK_LEAD = 10_000
+
+
+class AgentDaemon:
+    def __init__(self, scenario: Scenario, agent_id: int, transport: Transport, run: str) -> None:
+        if not 0 <= agent_id < scenario.n:
+            raise ValueError(f"--id {agent_id} is not an agent of this scenario (0..{scenario.n - 1})")
+        self.scenario = scenario
+        self.id = agent_id
+        self.run_name = run
+        self.transport = transport
+        self.mode = scenario.mode
+        self.core = build_agent(scenario, agent_id)
+        self.neighbours = scenario.neighbours()[agent_id]
+        self.links = build_in_links(scenario, agent_id)
+        self.stats = {j: LinkStats() for j in self.neighbours}
+        self.line = DelayLine()
+        self.drops: Counter[str] = Counter()
+        self.timeouts = 0
+        self.next_tick = 0  # the tick the core steps next
+        self.pending_meas: dict[int, Measurement] = {}
+        self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
+        self.alive: set[int] = set()
+        # neighbours whose previous-tick state a lockstep step waits for: all of them at the start
+        # (the simulator starts only when every agent is up); a dead one leaves, and comes back
+        # with its first message after a restart
+        self.expect: set[int] = set(self.neighbours)
+        self.sim_alive = False
+        self.done = asyncio.Event()
+        self._timer: asyncio.TimerHandle | None = None
+        self._subs: list = []
+        self._k_state = keys.state(run, agent_id)
+        self._k_wrench = keys.wrench(run, agent_id)
+        self._k_estimate = keys.estimate(run, agent_id)
+        self.ticks_stepped = 0
+
+    # ---- lifecycle -------------------------------------------------------------------------
+    def start(self) -> None:
+        t, run, i = self.transport, self.run_name, self.id
+        self._subs.append(t.subscribe(keys.meas(run, i), self._on_meas))
+        for j in self.neighbours:
+            self._subs.append(t.subscribe(keys.state(run, j), self._on_state))
+        self._subs.append(t.subscribe(keys.sim_control(run), self._on_control))
+        self._subs.append(t.watch_alive(keys.alive_all(run), self._on_alive))
+        self._subs.append(t.declare_alive(keys.alive(run, "agent", i)))
+        log.info("agent %d up: neighbours %s, mode %s", i, self.neighbours, self.mode)
+
+    async def run(self) -> AgentReport:
+        self.start()
+        try:
+            await self.done.wait()
+        finally:
+            self.stop()
+        return self.report()
+
+    def stop(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        for s in reversed(self._subs):
+            s.close()
+        self._subs.clear()
+
+    def report(self) -> AgentReport:
+        return AgentReport(
+            agent=self.id,
+            links={j: st.as_dict() for j, st in self.stats.items()},
+            drops=dict(self.drops),
+            timeouts=self.timeouts,
+            ticks=self.ticks_stepped,
+        )
+
+    # ---- inputs ----------------------------------------------------------------------------
+    def _decode(self, payload: bytes, kind: type, link: int | None = None):
+        try:
+            return decode(payload, kind)
+        except DecodeError as exc:
+            self.drops[exc.reason] += 1
+            if link is not None:
+                self.stats[link].malformed += 1
+            return None
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        parsed = keys.parse_alive(key)
+        if parsed is None:
+            return
+        _, role, ident = parsed
+        if role == "sim":
+            self.sim_alive = alive
+            return
+        if role != "agent" or ident not in self.last_from:
+            return
+        if alive:
+            self.alive.add(ident)
+        else:
+            self.alive.discard(ident)
+            self.expect.discard(ident)
+            self._try_step()
+
+    def _on_control(self, _key: str, payload: bytes) -> None:
+        msg = self._decode(payload, Control)
+        if msg is None:
+            return
+        if msg.kind == "done":
+            self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))
+            self.done.set()
+
+    def _on_meas(self, _key: str, payload: bytes) -> None:
+        m = self._decode(payload, Measurement)
+        if m is None:
+            return
+        if m.agent != self.id:
+            self.drops["wrong_agent"] += 1
+            return
+        if m.tick < self.next_tick or m.tick in self.pending_meas:
+            self.drops["stale"] += 1
+            return
+        if m.tick > self.next_tick + MAX_TICK_LEAD:
+            self.drops["future"] += 1
+            return
+        if self.mode == "realtime" and m.tick > self.next_tick:
+            # act on the latest data: skip ticks we never got
+            self.pending_meas.clear()
+            self.next_tick = m.tick
+        self.pending_meas[m.tick] = m
+        self._try_step()
+
+    def _on_state(self, key: str, payload: bytes) -> None:
+        parsed = keys.parse_agent_key(key)
+        sender = parsed[1] if parsed else None
+        if sender not in self.last_from:
+            self.drops["unknown_sender"] += 1
+            return
+        msg = self._decode(payload, StateMsg, link=sender)
+        if msg is None:
+            return
+        if msg.sender != sender:
+            self.drops["spoofed_sender"] += 1
+            return
+        if msg.tick <= self.last_from[sender]:
+            self.drops["stale"] += 1
+            return
+        if msg.tick > self.next_tick + MAX_TICK_LEAD:
+            self.drops["future"] += 1
+            return
+        self.last_from[sender] = msg.tick
+        self.expect.add(sender)
+        st = self.stats[sender]
+        st.sent += 1
+        delays = self.links[sender].deliveries(msg.tick)
+        if not delays:
+            st.dropped += 1
+        for copy, d in enumerate(delays):
+            due = deliver_tick(msg.tick, d, self.scenario.dt, self.mode)
+            if due < self.next_tick:
+                st.late += 1
+            self.line.push(due, msg, copy)
+        st.delivered += len(delays)
+        st.duplicated += max(0, len(delays) - 1)
+        self._try_step()
+
+    # ---- stepping --------------------------------------------------------------------------
+    def _ready(self, k: int) -> bool:
+        if self.mode == "realtime" or k == 0:
+            return True
+        return all(self.last_from[j] >= k - 1 for j in self.expect)
+
+    def _try_step(self) -> None:
+        while self.next_tick in self.pending_meas:
+            k = self.next_tick
+            if not self._ready(k):
+                if self._timer is None:
+                    self._timer = asyncio.get_running_loop().call_later(
+                        self.scenario.timing.neighbour_timeout_s, self._on_timeout, k
+                    )
+                return
+            self._step(k)
+
+    def _on_timeout(self, k: int) -> None:
+        self._timer = None
+        if self.next_tick != k:
+            return
+        missing = [j for j in self.expect if self.last_from[j] < k - 1]
+        log.warning("agent %d: tick %d: no state from %s in time; stepping without", self.id, k, missing)
+        self.timeouts += 1
+        self.expect.difference_update(missing)  # back in once they speak again
+        self._try_step()
+
+    def _step(self, k: int) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        m = self.pending_meas.pop(k)
+        res = self.core.step(k, m.vx, m.vy, self.line.pop_due(k))
+        pub = self.transport.publish
+        pub(self._k_state, encode(res.state))
+        pub(self._k_wrench, encode(res.wrench))
+        pub(self._k_estimate, encode(res.estimate))
+        self.next_tick = k + 1
+        self.ticks_stepped += 1

@@ -1,0 +1,5 @@
+import sys
+
+from coload.cli import main
+
+sys.exit(main())

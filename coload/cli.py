@@ -1,0 +1,211 @@
+"""The ``coload`` command line: builds finished configs and hands them to the daemons and engines."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import os
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from config.loader import ScenarioError, load_scenario
+
+EXAMPLES = """examples:
+  coload run config/scenarios/paper-fig4.toml                  # router, simulator, 10 agents as processes
+  coload run config/scenarios/paper-fig4.toml --engine inproc  # the same in one process
+  coload run config/scenarios/quick.toml --set noise.sigma_v=0.1 --seed 3 --out runs/q3
+  coload report runs/q3
+  # by hand, in separate terminals:
+  coload router --listen tcp/127.0.0.1:7447
+  coload sim config/scenarios/quick.toml --connect tcp/127.0.0.1:7447 --run demo --out runs/demo
+  coload agent --id 0 config/scenarios/quick.toml --connect tcp/127.0.0.1:7447 --run demo
+"""
+
+
+def _add_scenario_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", type=Path, help="scenario TOML file (or a run directory's run.toml)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario field, dotted key, TOML value (repeatable), e.g. noise.sigma_v=0.1")
+    p.add_argument("--seed", type=int, help="run seed (overrides the scenario's)")
+    p.add_argument("--mode", choices=["lockstep", "realtime"], help="time mode (overrides the scenario's)")
+
+
+def _add_zenoh_args(p: argparse.ArgumentParser, router_default: bool = False) -> None:
+    g = p.add_argument_group("zenoh")
+    g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable)")
+    g.add_argument("--zenoh-mode", choices=["client", "peer", "router"],
+                   default="router" if router_default else "client", help="Zenoh session mode")
+    g.add_argument("--zenoh-config", type=Path, metavar="FILE",
+                   help="a Zenoh JSON5 config file; --connect/--listen are applied on top")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="coload",
+        description="Teams of robots that move an unknown load together and learn it as they go.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run a scenario: router, simulator and agents as processes, or in-process",
+                       description="Run a scenario end to end and leave a run directory.")
+    _add_scenario_args(p)
+    p.add_argument("--engine", choices=["zenoh", "inproc"], default="zenoh",
+                   help="zenoh: an embedded router, the simulator and one daemon per agent as separate OS "
+                        "processes; inproc: everything in this process with the in-memory link model")
+    p.add_argument("--out", type=Path, help="run directory (default: runs/NAME-seedS-DATE)")
+    p.add_argument("--no-report", action="store_true", help="do not draw report.png at the end")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("sim", help="run the simulator daemon (the plant and the recorder)",
+                       description="Run the simulator daemon; it records the run directory.")
+    _add_scenario_args(p)
+    _add_zenoh_args(p)
+    p.add_argument("--run", required=True, help="run name: the key-expression namespace shared by all daemons")
+    p.add_argument("--out", type=Path, required=True, help="run directory to write")
+
+    p = sub.add_parser("agent", help="run one agent daemon", description="Run the daemon of one agent.")
+    p.add_argument("--id", type=int, required=True, help="agent id (0..n-1)")
+    _add_scenario_args(p)
+    _add_zenoh_args(p)
+    p.add_argument("--run", required=True, help="run name: the key-expression namespace shared by all daemons")
+
+    p = sub.add_parser("router", help="run an embedded Zenoh router",
+                       description="Run a Zenoh router in this process (nothing to install).")
+    _add_zenoh_args(p, router_default=True)
+
+    p = sub.add_parser("report", help="draw report.png for a run directory and print its summary table",
+                       description="Draw report.png (true vs estimated quantities) and print a summary table.")
+    p.add_argument("run_dir", type=Path, help="a run directory")
+    p.add_argument("--out", type=Path, help="PNG path (default: RUN_DIR/report.png)")
+    return parser
+
+
+def _scenario(args: argparse.Namespace):
+    overrides = list(args.overrides)
+    if args.seed is not None:
+        overrides.append(f"seed={args.seed}")
+    if args.mode is not None:
+        overrides.append(f'mode="{args.mode}"')
+    return load_scenario(args.scenario, overrides)
+
+
+def _zenoh_conf(args: argparse.Namespace):
+    from net.zenoh_transport import zenoh_config
+
+    return zenoh_config(mode=args.zenoh_mode, connect=args.connect, listen=args.listen,
+                        config_file=args.zenoh_config)
+
+
+async def _serve(coro_factory, transport_factory):
+    """Runs a daemon until it finishes or SIGINT/SIGTERM arrives."""
+    loop = asyncio.get_running_loop()
+    transport = transport_factory(loop)
+    task = asyncio.ensure_future(coro_factory(transport))
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, task.cancel)
+    try:
+        return await task
+    except asyncio.CancelledError:
+        return None
+    finally:
+        transport.close()
+
+
+def cmd_agent(args: argparse.Namespace) -> int:
+    from agents.daemon import AgentDaemon
+    from net.zenoh_transport import ZenohTransport
+
+    scenario = _scenario(args)
+    conf = _zenoh_conf(args)
+    report = asyncio.run(_serve(
+        lambda t: AgentDaemon(scenario, args.id, t, args.run).run(),
+        lambda loop: ZenohTransport(conf, loop),
+    ))
+    return 0 if report is not None else 130
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from net.zenoh_transport import ZenohTransport
+    from simulator.daemon import SimDaemon
+
+    scenario = _scenario(args)
+    conf = _zenoh_conf(args)
+    summary = asyncio.run(_serve(
+        lambda t: SimDaemon(scenario, t, args.run, args.out).run(),
+        lambda loop: ZenohTransport(conf, loop),
+    ))
+    if summary is None:
+        return 130
+    print(f"run directory: {args.out}")
+    return 0
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    from net.zenoh_transport import run_router
+
+    listen = args.listen or ["tcp/127.0.0.1:7447"]
+    return run_router(listen, config_file=args.zenoh_config)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from coload.report import make_report
+
+    if not args.run_dir.is_dir():
+        print(f"coload report: {args.run_dir}: not a directory", file=sys.stderr)
+        return 2
+    path, table = make_report(args.run_dir, args.out)
+    print(table)
+    print(f"report: {path}")
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from coload.orchestrate import default_run_dir, run_inproc_cli, run_processes
+
+    scenario = _scenario(args)
+    run_dir = args.out or default_run_dir(scenario)
+    if args.engine == "inproc":
+        summary = run_inproc_cli(scenario, run_dir, quiet=args.quiet)
+    else:
+        summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose)
+    if summary is None:
+        return 1
+    if not args.no_report:
+        from coload.report import make_report
+
+        path, table = make_report(run_dir)
+        print(table)
+        print(f"report: {path}")
+    print(f"run directory: {run_dir}")
+    return 0
+
+
+COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+    if args.command in ("sim", "agent", "router"):
+        level = min(level, logging.INFO)
+    logging.basicConfig(level=level, format=f"%(asctime)s {args.command}[{os.getpid()}] %(levelname)s %(message)s")
+    try:
+        return COMMANDS[args.command](args)
+    except ScenarioError as exc:
+        print(f"coload {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

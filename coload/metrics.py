@@ -1,0 +1,354 @@
+"""Estimation-error metrics of a run (paper 000, Sec. VIII-A) as pure functions on arrays.
+
+The array functions (:func:`eerd`, :func:`eec`, ...) know nothing about files, so they can be tested
+on hand-made numbers and reused by campaigns; :func:`error_series` and :func:`final_errors` apply
+them to a :class:`~coload.rundir_format.RunData` and produce the ``errors`` block of summary.json.
+Every key of that block is defined in ``docs/run-directory.md``.
+
+Conventions
+-----------
+* ``truth_zi`` has shape (T, n, 2): z_i = p_Ci - p_G; hence z_ij = z_i - z_j = p_Ci - p_Cj.
+* Estimates are NaN where an agent reported nothing. Aggregates over agents propagate NaN (a sum
+  with a missing term is unknown); :func:`hold_last` turns "agent was down" into "its last
+  estimate still stands", which is what :func:`final_errors` uses.
+* On edge (i, j) both ends estimate the relative position: i holds z_ij_hat, j holds z_ji_hat.
+  EERD's edge term is the mean of |z_ij - z_ij_hat|^2 over the ends that reported (j's estimate
+  enters as -z_ji_hat). When both ends agree this is exactly the paper's sum over i < j, and it does
+  not depend on how agents happen to be numbered when they disagree.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from coload.rundir_format import RunData
+
+Edge = tuple[int, int]
+
+CONVERGED_FRACTION = 0.01
+"""EERD counts as converged below this fraction of its initial value (the 1 % line of the report)."""
+
+
+# --- array helpers -------------------------------------------------------------------------------
+def hold_last(values: np.ndarray) -> np.ndarray:
+    """Forward-fill NaNs along axis 0 (time), per column: a silent agent's last estimate still stands.
+
+    For arrays with trailing vector axes (e.g. (T, n, 2)) a row counts as missing if any component is.
+    """
+    values = np.asarray(values, dtype=float)
+    if values.shape[0] == 0:
+        return values.copy()
+    flat = values.reshape(values.shape[0], -1)
+    if values.ndim >= 3:
+        vec = values.shape[-1]
+        missing = np.isnan(flat.reshape(flat.shape[0], -1, vec)).any(axis=2)
+        missing = np.repeat(missing, vec, axis=1)
+    else:
+        missing = np.isnan(flat)
+    idx = np.where(~missing, np.arange(flat.shape[0])[:, None], 0)
+    np.maximum.accumulate(idx, axis=0, out=idx)
+    filled = flat[idx, np.arange(flat.shape[1])[None, :]]
+    # rows before the first report stay NaN
+    never = np.logical_and.accumulate(missing, axis=0)
+    filled[never] = np.nan
+    return filled.reshape(values.shape)
+
+
+def _check_times(times: np.ndarray, *arrays: np.ndarray) -> int:
+    t = len(times)
+    for a in arrays:
+        if a.shape[0] != t:
+            raise ValueError(f"array with {a.shape[0]} rows does not match {t} times")
+    return t
+
+
+def true_pairs(truth_zi: np.ndarray, edges: Sequence[Edge]) -> np.ndarray:
+    """z_ij = z_i - z_j for each edge, shape (T, E, 2)."""
+    truth_zi = np.asarray(truth_zi, dtype=float)
+    if not edges:
+        return np.zeros((truth_zi.shape[0], 0, 2))
+    i = np.array([e[0] for e in edges])
+    j = np.array([e[1] for e in edges])
+    return truth_zi[:, i] - truth_zi[:, j]
+
+
+def _sq(v: np.ndarray) -> np.ndarray:
+    return np.sum(np.square(v), axis=-1)
+
+
+def edge_errors(
+    times: np.ndarray,
+    truth_zi: np.ndarray,
+    est_pairs: Mapping[Edge, np.ndarray],
+    edges: Sequence[Edge],
+) -> np.ndarray:
+    """|z_ij - z_ij_hat|^2 per edge, shape (T, E): mean over the two ends that reported, NaN if neither did."""
+    z = true_pairs(truth_zi, edges)
+    _check_times(times, z)
+    out = np.full((len(times), len(edges)), np.nan)
+    nan2 = np.full((len(times), 2), np.nan)
+    for k, (i, j) in enumerate(edges):
+        from_i = np.asarray(est_pairs.get((i, j), nan2), dtype=float)
+        from_j = -np.asarray(est_pairs.get((j, i), nan2), dtype=float)
+        _check_times(times, from_i, from_j)
+        both = np.stack([_sq(z[:, k] - from_i), _sq(z[:, k] - from_j)], axis=1)
+        have = ~np.isnan(both)
+        count = have.sum(axis=1)
+        total = np.where(have, both, 0.0).sum(axis=1)
+        out[:, k] = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    return out
+
+
+def eerd(
+    times: np.ndarray,
+    truth_zi: np.ndarray,
+    est_pairs: Mapping[Edge, np.ndarray],
+    edges: Sequence[Edge],
+) -> np.ndarray:
+    """EERD(t) = sum over edges i<j of |z_ij(t) - z_ij_hat(t)|^2 (m^2), shape (T,).
+
+    ``est_pairs[(i, j)]`` is agent i's estimate of z_ij, shape (T, 2), NaN where absent. NaN at a time
+    where some edge has no estimate from either end.
+    """
+    return edge_errors(times, truth_zi, est_pairs, edges).sum(axis=1)
+
+
+def eerd_reference(truth_zi: np.ndarray, edges: Sequence[Edge]) -> np.ndarray:
+    """EERD with all estimates at zero, i.e. sum over edges of |z_ij|^2 (m^2): what EERD is at t = 0."""
+    return _sq(true_pairs(truth_zi, edges)).sum(axis=1)
+
+
+def eerd_per_agent(
+    times: np.ndarray,
+    truth_zi: np.ndarray,
+    est_pairs: Mapping[Edge, np.ndarray],
+    edges: Sequence[Edge],
+    n: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Agent i's own share: sum over its neighbours j of |z_ij - z_ij_hat (held by i)|^2, and its reference.
+
+    Returns ``(share, reference)``, both (T, n); reference is the same sum with zero estimates. An agent
+    without edges has share and reference 0.
+    """
+    truth_zi = np.asarray(truth_zi, dtype=float)
+    _check_times(times, truth_zi)
+    share = np.zeros((len(times), n))
+    ref = np.zeros((len(times), n))
+    nan2 = np.full((len(times), 2), np.nan)
+    for a, b in edges:
+        for i, j in ((a, b), (b, a)):
+            z = truth_zi[:, i] - truth_zi[:, j]
+            est = np.asarray(est_pairs.get((i, j), nan2), dtype=float)
+            share[:, i] += _sq(z - est)
+            ref[:, i] += _sq(z)
+    return share, ref
+
+
+def zi_error(truth_zi: np.ndarray, est_zi: np.ndarray) -> np.ndarray:
+    """|z_i_hat - z_i| per agent (m), shape (T, n); NaN where the agent did not report."""
+    return np.sqrt(_sq(np.asarray(est_zi, dtype=float) - np.asarray(truth_zi, dtype=float)))
+
+
+def eec(times: np.ndarray, truth_zi: np.ndarray, est_zi: np.ndarray) -> np.ndarray:
+    """EEC(t) = sum_i |z_i(t) - z_i_hat(t)|^2 (m^2), shape (T,)."""
+    est_zi = np.asarray(est_zi, dtype=float)
+    _check_times(times, est_zi, np.asarray(truth_zi))
+    return np.sum(np.square(zi_error(truth_zi, est_zi)), axis=1)
+
+
+def omega_error(truth_omega: np.ndarray, est_omega: np.ndarray) -> np.ndarray:
+    """omega_hat - omega per agent (rad/s), shape (T, n); truth_omega has shape (T,)."""
+    return np.asarray(est_omega, dtype=float) - np.asarray(truth_omega, dtype=float)[:, None]
+
+
+def time_to_converge(
+    times: np.ndarray,
+    values: np.ndarray,
+    initial: float | None = None,
+    fraction: float = CONVERGED_FRACTION,
+) -> float | None:
+    """First time after which ``values`` stay below ``fraction * initial`` until the end (None if never).
+
+    ``initial`` defaults to the first finite value. NaN samples (unknown) are skipped rather than
+    counted as excursions, so a gap in the recording does not reset convergence.
+    """
+    times = np.asarray(times, dtype=float)
+    values = np.asarray(values, dtype=float)
+    ok = np.isfinite(values)
+    times, values = times[ok], values[ok]
+    if len(values) == 0:
+        return None
+    if initial is None:
+        initial = float(values[0])
+    threshold = fraction * initial
+    above = np.flatnonzero(values >= threshold)
+    if len(above) == 0:
+        return float(times[0])
+    last = int(above[-1])
+    if last == len(values) - 1:
+        return None
+    return float(times[last + 1])
+
+
+# --- applied to a run ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ErrorSeries:
+    """Error time series of a run, aligned with truth; shared by :func:`final_errors` and the report.
+
+    ``est_t``-based arrays use the estimates grid; ``pair_t``-based ones the pairs grid. ``*_held``
+    arrays have silent agents' last estimates carried forward.
+    """
+
+    est_t: np.ndarray
+    pair_t: np.ndarray | None
+    eerd: np.ndarray | None  # (P,) on pair_t, held estimates
+    eerd_ref: np.ndarray | None  # (P,)
+    eerd_agent: np.ndarray | None  # (P, n)
+    eerd_agent_ref: np.ndarray | None  # (P, n)
+    eec: np.ndarray | None  # (K,) held estimates
+    zi_err: np.ndarray | None  # (K, n) as reported
+    zi_err_held: np.ndarray | None  # (K, n)
+    omega_true: np.ndarray | None  # (K,)
+    omega_hat: np.ndarray | None  # (K, n) as reported
+    omega_err: np.ndarray | None  # (K, n) as reported
+    truth_est_idx: np.ndarray  # (K,) truth row of each estimate time
+
+
+def _vec(table_cols: Mapping[str, np.ndarray], x: str, y: str) -> np.ndarray:
+    return np.stack([table_cols[x], table_cols[y]], axis=-1)
+
+
+def error_series(run: RunData) -> ErrorSeries:
+    """Compute every error time series the run's files allow (requires truth and estimates)."""
+    if run.truth is None or run.estimates is None:
+        raise ValueError(f"{run.path}: error metrics need truth.csv and estimates.csv")
+    est = run.estimates
+    ti = run.truth_index(est.t)
+    truth_zi_e = run.truth.zi[ti]
+    eerd_v = eerd_ref = eerd_a = eerd_a_ref = None
+    pair_t = None
+    if run.pairs is not None:
+        pair_t = run.pairs.t
+        pi = run.truth_index(pair_t)
+        truth_zi_p = run.truth.zi[pi]
+        held = {k: hold_last(v) for k, v in run.pairs.zij.items()}
+        eerd_v = eerd(pair_t, truth_zi_p, held, run.edges)
+        eerd_ref = eerd_reference(truth_zi_p, run.edges)
+        eerd_a, eerd_a_ref = eerd_per_agent(pair_t, truth_zi_p, held, run.edges, run.n)
+    eec_v = zi_err = zi_err_held = None
+    if est.has("zi_x", "zi_y"):
+        zi_hat = _vec(est.columns, "zi_x", "zi_y")
+        zi_err = zi_error(truth_zi_e, zi_hat)
+        zi_held = hold_last(zi_hat)
+        zi_err_held = zi_error(truth_zi_e, zi_held)
+        eec_v = eec(est.t, truth_zi_e, zi_held)
+    omega_true = omega_hat = omega_err = None
+    if est.has("omega") and "omega" in run.truth.columns:
+        omega_true = run.truth.columns["omega"][ti]
+        omega_hat = est.columns["omega"]
+        omega_err = omega_error(omega_true, omega_hat)
+    return ErrorSeries(
+        est_t=est.t,
+        pair_t=pair_t,
+        eerd=eerd_v,
+        eerd_ref=eerd_ref,
+        eerd_agent=eerd_a,
+        eerd_agent_ref=eerd_a_ref,
+        eec=eec_v,
+        zi_err=zi_err,
+        zi_err_held=zi_err_held,
+        omega_true=omega_true,
+        omega_hat=omega_hat,
+        omega_err=omega_err,
+        truth_est_idx=ti,
+    )
+
+
+def _num(x: Any) -> float | None:
+    """JSON-safe float: NaN/inf become None (strict JSON has no NaN)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _rms(values: np.ndarray) -> float | None:
+    """Root mean square over the finite entries; None when there are none."""
+    values = np.asarray(values, dtype=float)
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return None
+    return float(np.sqrt(np.mean(np.square(finite))))
+
+
+def _ratio(num: float | None, den: float | None) -> float | None:
+    if num is None or den is None or not den > 0:
+        return None
+    return _num(num / den)
+
+
+def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
+    """The ``errors`` block of summary.json (keys defined in docs/run-directory.md).
+
+    "Final" means the last estimate time, with a silent agent's last estimate standing; "window"
+    quantities use the estimates actually reported in the last ``window_s`` seconds.
+    """
+    s = error_series(run)
+    est = run.estimates
+    assert est is not None and run.truth is not None  # checked by error_series
+    n = run.n
+    out: dict[str, Any] = {}
+    if len(s.est_t) == 0:
+        return out
+    t_end = float(s.est_t[-1])
+    window = s.est_t >= t_end - window_s
+    out["t_final"] = t_end
+    out["window_s"] = float(window_s)
+
+    if s.zi_err_held is not None and s.zi_err is not None and s.eec is not None:
+        final = s.zi_err_held[-1]
+        out["zi_rms"] = _rms(final) if np.all(np.isfinite(final)) else None
+        out["zi_rms_window"] = _rms(s.zi_err[window])
+        out["zi_err_per_agent"] = [_num(v) for v in final]
+        out["eec_final"] = _num(s.eec[-1])
+
+    if s.omega_err is not None:
+        out["omega_rms"] = _rms(s.omega_err[window])
+        out["omega_rms_per_agent"] = [_rms(s.omega_err[window, i]) for i in range(n)]
+
+    if s.eerd is not None and s.eerd_ref is not None and s.pair_t is not None and len(s.pair_t):
+        initial = _num(s.eerd_ref[0])
+        final_eerd = _num(s.eerd[-1])
+        out["eerd_initial"] = initial
+        out["eerd_final"] = final_eerd
+        out["eerd_ratio"] = _ratio(final_eerd, initial)
+        out["eerd_converge_s"] = (
+            time_to_converge(s.pair_t, s.eerd, initial) if initial is not None else None
+        )
+        assert s.eerd_agent is not None and s.eerd_agent_ref is not None
+        out["eerd_ratio_per_agent"] = [
+            _ratio(_num(s.eerd_agent[-1, i]), _num(s.eerd_agent_ref[0, i])) for i in range(n)
+        ]
+
+    truth = run.truth.columns
+    ti = s.truth_est_idx
+    if est.has("J") and "inertia" in truth:
+        rel = (hold_last(est.columns["J"])[-1] - truth["inertia"][ti[-1]]) / truth["inertia"][ti[-1]]
+        out["J_rel"] = _rms(rel) if np.all(np.isfinite(rel)) else None
+    if est.has("m") and "mass" in truth:
+        rel = (hold_last(est.columns["m"])[-1] - truth["mass"][ti[-1]]) / truth["mass"][ti[-1]]
+        out["m_rel"] = _rms(rel) if np.all(np.isfinite(rel)) else None
+    if est.has("zc_x", "zc_y") and "zc_x" in truth and "zc_y" in truth:
+        zc_hat = hold_last(_vec(est.columns, "zc_x", "zc_y"))[-1]
+        err = np.sqrt(_sq(zc_hat - np.array([truth["zc_x"][ti[-1]], truth["zc_y"][ti[-1]]])))
+        out["zC_rms"] = _rms(err) if np.all(np.isfinite(err)) else None
+    if est.has("vc_x", "vc_y") and "vc_x" in truth and "vc_y" in truth:
+        vc_true = np.stack([truth["vc_x"][ti], truth["vc_y"][ti]], axis=1)[:, None, :]
+        err = np.sqrt(_sq(_vec(est.columns, "vc_x", "vc_y") - vc_true))
+        out["vC_rms"] = _rms(err[window])
+    return out

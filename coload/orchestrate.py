@@ -1,0 +1,197 @@
+"""``coload run``: starts the router, the simulator and the agents as OS processes, or runs in-process.
+
+Every daemon reads the same resolved ``run.toml`` from the run directory, so they cannot disagree on
+the scenario; their logs go to ``RUN_DIR/logs/``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+import selectors
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import IO, Any
+
+from config.loader import dump_scenario
+from config.scenario import Scenario
+
+
+class ProgressBar:
+    """A one-line progress display on stderr (a line per 10 % when stderr is not a terminal)."""
+
+    def __init__(self, label: str, quiet: bool = False) -> None:
+        self.label = label
+        self.quiet = quiet
+        self.tty = sys.stderr.isatty()
+        self.t0 = time.perf_counter()
+        self._last_decile = -1
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.quiet or total <= 0:
+            return
+        frac = done / total
+        wall = time.perf_counter() - self.t0
+        if self.tty:
+            bar = "#" * int(30 * frac)
+            sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%  tick {done}/{total}  {wall:6.1f}s wall")
+            if done >= total:
+                sys.stderr.write("\n")
+            sys.stderr.flush()
+        elif int(10 * frac) > self._last_decile:
+            self._last_decile = int(10 * frac)
+            print(f"{self.label}: {100 * frac:3.0f}% (tick {done}/{total}, {wall:.1f}s wall)", file=sys.stderr, flush=True)
+
+
+def default_run_dir(scenario: Scenario) -> Path:
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{scenario.name}-seed{scenario.seed}-{stamp}"
+
+
+def run_name_for(run_dir: Path) -> str:
+    """A key-expression-safe namespace for this run."""
+    base = re.sub(r"[^A-Za-z0-9_.-]+", "-", Path(run_dir).resolve().name).strip("-") or "run"
+    return f"{base}-{os.getpid()}"
+
+
+def run_inproc_cli(scenario: Scenario, run_dir: Path, quiet: bool = False) -> dict[str, Any]:
+    from coload.engine import run_inproc
+
+    return run_inproc(scenario, run_dir, progress=ProgressBar(f"{scenario.name} (inproc)", quiet))
+
+
+class _Children:
+    """The processes of one run; all of them are stopped on exit, whatever happens."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen] = {}
+        self._logs: list[IO] = []
+
+    def start(self, name: str, argv: list[str], pipe_stdout: bool = False) -> subprocess.Popen:
+        log = (self.log_dir / f"{name}.log").open("w")
+        self._logs.append(log)
+        proc = subprocess.Popen(
+            argv,
+            stdout=subprocess.PIPE if pipe_stdout else log,
+            stderr=log,
+            stdin=subprocess.DEVNULL,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+        self.procs[name] = proc
+        return proc
+
+    def crashed(self) -> list[str]:
+        return [n for n, p in self.procs.items() if p.poll() not in (None, 0)]
+
+    def stop(self, names: list[str] | None = None, grace: float = 5.0, let_finish: float = 0.0) -> None:
+        """Gives the processes ``let_finish`` s to exit on their own, then SIGTERM, then SIGKILL."""
+        procs = [self.procs[n] for n in (names or list(self.procs))]
+        deadline = time.monotonic() + let_finish
+        for p in procs:
+            try:
+                p.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                pass
+        for p in procs:
+            if p.poll() is None:
+                p.terminate()
+        deadline = time.monotonic() + grace
+        for p in procs:
+            try:
+                p.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+    def close(self) -> None:
+        self.stop()
+        for f in self._logs:
+            f.close()
+
+
+def _read_line(stream: IO[bytes], timeout: float) -> str | None:
+    sel = selectors.DefaultSelector()
+    sel.register(stream, selectors.EVENT_READ)
+    try:
+        if not sel.select(timeout):
+            return None
+        return stream.readline().decode(errors="replace").strip()
+    finally:
+        sel.close()
+
+
+def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0) -> dict[str, Any] | None:
+    """The real thing: an embedded Zenoh router, the simulator and n agent daemons, each its own process."""
+    from net import keys
+    from net.messages import Control
+    from net.schema import DecodeError, decode
+    from net.zenoh_transport import free_tcp_port, zenoh_config
+
+    import zenoh
+
+    run_dir = Path(run_dir)
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    toml = run_dir / "run.toml"
+    toml.write_text(dump_scenario(scenario), encoding="utf-8")
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    run = run_name_for(run_dir)
+    py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)
+    children = _Children(run_dir / "logs")
+    bar = ProgressBar(f"{scenario.name} (zenoh, {scenario.n} agents)", quiet)
+    try:
+        router = children.start("router", [*py, "router", "--listen", endpoint], pipe_stdout=True)
+        line = _read_line(router.stdout, 30.0)
+        if not line or not line.startswith("ready"):
+            print(f"coload run: the router did not come up (see {run_dir / 'logs' / 'router.log'})", file=sys.stderr)
+            return None
+        common = [str(toml), "--connect", endpoint, "--run", run]
+        sim = children.start("sim", [*py, "sim", *common, "--out", str(run_dir)])
+        for i in range(scenario.n):
+            children.start(f"agent-{i}", [*py, "agent", "--id", str(i), *common])
+
+        progressed = threading.Event()
+        state = {"tick": 0}
+
+        def on_control(sample: Any) -> None:  # Zenoh thread: record and signal, nothing more
+            try:
+                msg = decode(sample.payload.to_bytes(), Control)
+            except DecodeError:
+                return
+            state["tick"] = msg.tick
+            progressed.set()
+
+        conf = zenoh_config(mode="client", connect=[endpoint], listen=[])
+        with zenoh.open(conf) as session:
+            session.declare_subscriber(keys.sim_control(run), on_control)
+            # generous: start-up of n + 2 interpreters plus the run itself
+            budget = 120.0 + scenario.timing.startup_timeout_s + 50.0 * scenario.duration
+            deadline = time.monotonic() + budget
+            while sim.poll() is None:
+                if progressed.wait(0.5):
+                    progressed.clear()
+                    bar(state["tick"], scenario.ticks)
+                bad = children.crashed()
+                if bad:
+                    print(f"coload run: {', '.join(bad)} exited with an error (logs in {run_dir / 'logs'})",
+                          file=sys.stderr)
+                    if "sim" in bad:
+                        return None
+                if time.monotonic() > deadline:
+                    print("coload run: the run exceeded its time budget; stopping", file=sys.stderr)
+                    return None
+        bar(scenario.ticks, scenario.ticks)
+        if sim.returncode != 0:
+            print(f"coload run: the simulator failed (see {run_dir / 'logs' / 'sim.log'})", file=sys.stderr)
+            return None
+        agents = [n for n in children.procs if n.startswith("agent-")]
+        children.stop(agents, let_finish=10.0)
+        summary_path = run_dir / "summary.json"
+        return json.loads(summary_path.read_text())
+    finally:
+        children.close()

@@ -1,0 +1,131 @@
+"""Writes a run directory as the run goes (see docs/run-directory.md).
+
+Rows are buffered and flushed in blocks so that recording stays a small share of a tick; floats are
+written with ``repr`` so that they read back bit-identical (the engine-equality test relies on it).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from coload import rundir_format as fmt
+from config.loader import dump_scenario
+from config.scenario import Scenario
+from net.messages import Estimate
+
+_FLUSH_ROWS = 20_000
+
+
+class _Table:
+    def __init__(self, path: Path, header: list[str]) -> None:
+        self._file = path.open("w", encoding="utf-8", newline="")
+        self._file.write(",".join(header) + "\n")
+        self._rows: list[str] = []
+
+    def add(self, row: str) -> None:
+        self._rows.append(row)
+        if len(self._rows) >= _FLUSH_ROWS:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._rows:
+            self._file.write("\n".join(self._rows) + "\n")
+            self._rows.clear()
+        self._file.flush()
+
+    def close(self) -> None:
+        self.flush()
+        self._file.close()
+
+
+def _f(x: float) -> str:
+    return repr(float(x))
+
+
+class Recorder:
+    """One run directory. ``estimate_names`` fixes the columns of estimates.csv."""
+
+    def __init__(self, run_dir: Path, scenario: Scenario, estimate_names: tuple[str, ...]) -> None:
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        (self.run_dir / "logs").mkdir(exist_ok=True)
+        self.scenario = scenario
+        self.dt = scenario.dt
+        self.every = scenario.record.every_ticks
+        self.estimate_names = estimate_names
+        (self.run_dir / fmt.RUN_TOML).write_text(dump_scenario(scenario), encoding="utf-8")
+        self._samples = _Table(self.run_dir / fmt.SAMPLES_CSV, fmt.SAMPLES_HEADER)
+        self._estimates = _Table(self.run_dir / fmt.ESTIMATES_CSV, ["t", "agent", *estimate_names])
+        self._pairs = _Table(self.run_dir / fmt.PAIRS_CSV, fmt.PAIRS_HEADER)
+        truth_header = fmt.TRUTH_HEADER + [f"z{i}_{c}" for i in range(scenario.n) for c in ("x", "y")]
+        self._truth = _Table(self.run_dir / fmt.TRUTH_CSV, truth_header)
+        self.estimates_recorded = 0
+
+    def keeps(self, tick: int) -> bool:
+        return tick % self.every == 0
+
+    def sample(self, tick: int, agent: int, v: tuple[float, float], w: tuple[float, float, float]) -> None:
+        t = _f(tick * self.dt)
+        self._samples.add(f"{t},{agent},{_f(v[0])},{_f(v[1])},{_f(w[0])},{_f(w[1])},{_f(w[2])}")
+
+    def truth(self, truth: Any) -> None:
+        if not self.keeps(truth.tick):
+            return
+        zs = ",".join(f"{_f(x)},{_f(y)}" for x, y in truth.zi)
+        self._truth.add(
+            ",".join(
+                _f(v)
+                for v in (
+                    truth.t, truth.x, truth.y, truth.angle, truth.vc[0], truth.vc[1], truth.omega,
+                    truth.zc[0], truth.zc[1], truth.pg[0], truth.pg[1], truth.mass, truth.inertia,
+                )
+            )
+            + ","
+            + zs
+        )
+
+    def estimate(self, est: Estimate) -> None:
+        if not self.keeps(est.tick):
+            return
+        t = _f(est.tick * self.dt)
+        vals = est.values
+        self._estimates.add(
+            f"{t},{est.agent}," + ",".join(_f(vals.get(name, math.nan)) for name in self.estimate_names)
+        )
+        for j, (x, y) in sorted(est.pairs.items()):
+            self._pairs.add(f"{t},{est.agent},{j},{_f(x)},{_f(y)}")
+        self.estimates_recorded += 1
+
+    def flush(self) -> None:
+        for table in (self._samples, self._estimates, self._pairs, self._truth):
+            table.flush()
+
+    def close(self, summary: dict[str, Any]) -> dict[str, Any]:
+        """Closes the tables, adds the error metrics to ``summary`` and writes summary.json."""
+        for table in (self._samples, self._estimates, self._pairs, self._truth):
+            table.close()
+        from coload.metrics import final_errors
+
+        try:
+            summary["errors"] = final_errors(fmt.read_run(self.run_dir))
+        except (ValueError, OSError) as exc:  # a run too short to score still leaves its data
+            summary["errors"] = {}
+            summary.setdefault("warnings", []).append(f"errors not computed: {exc}")
+        write_summary(self.run_dir, summary)
+        return summary
+
+
+def write_summary(run_dir: Path, summary: dict[str, Any]) -> None:
+    path = Path(run_dir) / fmt.SUMMARY_JSON
+    path.write_text(json.dumps(summary, indent=2, sort_keys=False, default=_json_default) + "\n", encoding="utf-8")
+
+
+def _json_default(obj: Any) -> Any:
+    if hasattr(obj, "as_dict"):
+        return obj.as_dict()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")

@@ -1,0 +1,350 @@
+"""The run directory: file names, CSV headers and a strict reader.
+
+Engines import the constants below to write a run directory; analysis (:mod:`coload.metrics`,
+:mod:`coload.report`, ``coload diagnose``) reads it back with :func:`read_run`. Keeping both sides on
+the same constants is what stops the format from drifting. The format is documented for people in
+``docs/run-directory.md``.
+
+The reader is strict about structure (a malformed file raises :class:`RunFormatError` naming the
+file, line and column) and lenient about content that real runs produce: extra columns are
+ignored, rows may come in any order, estimates may be decimated or missing for ticks an agent was
+down, and an empty cell reads as NaN.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+# --- file names --------------------------------------------------------------------------------
+RUN_TOML = "run.toml"
+SAMPLES_CSV = "samples.csv"
+ESTIMATES_CSV = "estimates.csv"
+PAIRS_CSV = "pairs.csv"
+TRUTH_CSV = "truth.csv"
+SUMMARY_JSON = "summary.json"
+LOGS_DIR = "logs"
+REPORT_PNG = "report.png"
+
+# --- headers -----------------------------------------------------------------------------------
+SAMPLES_HEADER: tuple[str, ...] = ("t", "agent", "vx", "vy", "fx", "fy", "tau")
+"""Measured data: one row per agent per tick (the input format of ``coload diagnose`` too)."""
+
+ESTIMATES_KEY: tuple[str, ...] = ("t", "agent")
+ESTIMATE_NAMES: tuple[str, ...] = ("phase", "omega", "zi_x", "zi_y")
+"""Estimate columns written today; later estimators add any of :data:`KNOWN_ESTIMATE_NAMES`."""
+KNOWN_ESTIMATE_NAMES: tuple[str, ...] = (
+    "phase", "omega", "zi_x", "zi_y", "J", "m", "zc_x", "zc_y", "vc_x", "vc_y",
+)
+ESTIMATES_HEADER: tuple[str, ...] = ESTIMATES_KEY + ESTIMATE_NAMES
+
+PAIRS_HEADER: tuple[str, ...] = ("t", "agent", "neighbour", "zij_x", "zij_y")
+
+TRUTH_BASE_HEADER: tuple[str, ...] = (
+    "t", "x", "y", "angle", "vc_x", "vc_y", "omega", "zc_x", "zc_y", "pg_x", "pg_y", "mass", "inertia",
+)
+
+
+def truth_header(n: int) -> tuple[str, ...]:
+    """Full truth.csv header for ``n`` agents: the base columns, then ``z{i}_x, z{i}_y`` per agent."""
+    return TRUTH_BASE_HEADER + tuple(f"z{i}_{c}" for i in range(n) for c in ("x", "y"))
+
+
+TIME_DECIMALS = 9
+"""Times are matched after rounding to this many decimals (1 ns), so that the same tick written by
+different agents lands on one grid point despite float formatting."""
+
+
+class RunFormatError(ValueError):
+    """A run-directory file is missing or malformed; the message names file, line and column."""
+
+
+# --- data containers ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AgentTable:
+    """Long-format per-agent CSV pivoted onto a sorted time grid.
+
+    ``columns[name]`` has shape ``(len(t), n)``; NaN where an agent has no row at that time.
+    """
+
+    t: np.ndarray
+    columns: dict[str, np.ndarray]
+
+    def has(self, *names: str) -> bool:
+        return all(name in self.columns for name in names)
+
+
+@dataclass(frozen=True)
+class PairTable:
+    """pairs.csv pivoted: ``zij[(i, j)]`` is agent i's estimate of z_ij, shape ``(len(t), 2)``, NaN if absent."""
+
+    t: np.ndarray
+    zij: dict[tuple[int, int], np.ndarray]
+
+
+@dataclass(frozen=True)
+class TruthTable:
+    """truth.csv: ``columns[name]`` shape ``(len(t),)``; ``zi`` shape ``(len(t), n, 2)`` (z_i = p_Ci - p_G)."""
+
+    t: np.ndarray
+    columns: dict[str, np.ndarray]
+    zi: np.ndarray
+
+
+@dataclass(frozen=True)
+class RunData:
+    """Everything in a run directory, as arrays. Files a recording may lack (lab data has no truth) are None."""
+
+    path: Path
+    config: dict[str, Any]
+    n: int
+    dt: float
+    edges: tuple[tuple[int, int], ...]
+    samples: AgentTable | None = None
+    estimates: AgentTable | None = None
+    pairs: PairTable | None = None
+    truth: TruthTable | None = None
+    summary: dict[str, Any] | None = None
+    name: str = field(default="")
+
+    def truth_index(self, times: np.ndarray) -> np.ndarray:
+        """Index of the truth row nearest to each of ``times``; truth is recorded every tick, so this is exact."""
+        if self.truth is None:
+            raise RunFormatError(f"{self.path / TRUTH_CSV}: no truth recorded in this run")
+        tt = self.truth.t
+        if len(tt) == 0:
+            raise RunFormatError(f"{self.path / TRUTH_CSV}: no rows")
+        idx = np.clip(np.searchsorted(tt, times), 1, max(len(tt) - 1, 1))
+        if len(tt) == 1:
+            return np.zeros(len(times), dtype=int)
+        left = tt[idx - 1]
+        right = tt[idx]
+        return np.where(np.abs(times - left) <= np.abs(right - times), idx - 1, idx)
+
+
+# --- reading -----------------------------------------------------------------------------------
+def read_run(run_dir: str | Path) -> RunData:
+    """Read a run directory. ``run.toml`` and ``samples.csv`` are required; the rest is optional."""
+    path = Path(run_dir)
+    if not path.is_dir():
+        raise RunFormatError(f"{path}: not a directory")
+    config = read_config(path / RUN_TOML)
+    n = config["n"]
+    edges = tuple((int(i), int(j)) for i, j in config["edges"])
+    samples = read_agent_csv(path / SAMPLES_CSV, SAMPLES_HEADER, n)
+    estimates = _optional(path / ESTIMATES_CSV, lambda p: read_agent_csv(p, ESTIMATES_KEY, n))
+    pairs = _optional(path / PAIRS_CSV, lambda p: read_pairs_csv(p, n))
+    truth = _optional(path / TRUTH_CSV, lambda p: read_truth_csv(p, n))
+    summary = _optional(path / SUMMARY_JSON, _read_json)
+    return RunData(
+        path=path,
+        config=config,
+        n=n,
+        dt=float(config["dt"]),
+        edges=edges,
+        samples=samples,
+        estimates=estimates,
+        pairs=pairs,
+        truth=truth,
+        summary=summary,
+        name=str(config.get("name", path.name)),
+    )
+
+
+def _optional(path: Path, reader: Any) -> Any:
+    return reader(path) if path.exists() else None
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise RunFormatError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from exc
+
+
+def read_config(path: Path) -> dict[str, Any]:
+    """Parse run.toml and check the keys analysis depends on (``n``, ``dt``, ``edges``)."""
+    if not path.exists():
+        raise RunFormatError(f"{path}: missing (every run directory needs {RUN_TOML})")
+    try:
+        config = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise RunFormatError(f"{path}: invalid TOML: {exc}") from exc
+    for key in ("n", "dt", "edges"):
+        if key not in config:
+            raise RunFormatError(f"{path}: missing top-level key '{key}'")
+    n = config["n"]
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise RunFormatError(f"{path}: 'n' must be a positive integer, got {n!r}")
+    dt = config["dt"]
+    if not isinstance(dt, (int, float)) or isinstance(dt, bool) or not dt > 0:
+        raise RunFormatError(f"{path}: 'dt' must be a positive number, got {dt!r}")
+    edges = config["edges"]
+    if not isinstance(edges, list):
+        raise RunFormatError(f"{path}: 'edges' must be a list of [i, j] pairs")
+    for e in edges:
+        ok = (
+            isinstance(e, list)
+            and len(e) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v < n for v in e)
+            and e[0] != e[1]
+        )
+        if not ok:
+            raise RunFormatError(f"{path}: 'edges' entry {e!r} is not a pair of distinct agents in 0..{n - 1}")
+    return config
+
+
+@dataclass(frozen=True)
+class _Csv:
+    """A CSV file read as text: header, rows and the physical line number of each row (for messages)."""
+
+    path: Path
+    header: list[str]
+    rows: list[list[str]]
+    lines: list[int]
+
+    def column(self, name: str, *, integer: bool = False, allow_empty: bool = True) -> np.ndarray:
+        """One column as floats (or ints), raising with file, line and column on the first bad cell."""
+        k = self.header.index(name)
+        cells = [r[k].strip() for r in self.rows]
+        try:
+            if integer or not allow_empty:
+                raise ValueError  # take the checking path below
+            return np.asarray([c if c else "nan" for c in cells], dtype=float)
+        except ValueError:
+            pass
+        out = np.empty(len(cells), dtype=int if integer else float)
+        for r, cell in enumerate(cells):
+            out[r] = self._parse(cell, r, name, integer=integer, allow_empty=allow_empty)
+        return out
+
+    def _parse(self, cell: str, r: int, name: str, *, integer: bool, allow_empty: bool) -> float:
+        where = f"{self.path}:{self.lines[r]}: column '{name}'"
+        if not cell:
+            if allow_empty:
+                return math.nan
+            raise RunFormatError(f"{where}: empty cell")
+        try:
+            value = float(cell)
+        except ValueError:
+            raise RunFormatError(f"{where}: {cell!r} is not a number") from None
+        if integer:
+            if not value.is_integer():
+                raise RunFormatError(f"{where}: {cell!r} is not an integer")
+            return int(value)
+        if name == "t" and not math.isfinite(value):
+            raise RunFormatError(f"{where}: time must be finite, got {cell!r}")
+        return value
+
+
+def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
+    try:
+        fh = path.open(newline="")
+    except OSError as exc:
+        raise RunFormatError(f"{path}: cannot open: {exc.strerror}") from exc
+    with fh:
+        reader = csv.reader(fh)
+        try:
+            header = [h.strip() for h in next(reader)]
+        except StopIteration:
+            raise RunFormatError(f"{path}:1: empty file, expected header {','.join(required)}") from None
+        missing = [c for c in required if c not in header]
+        if missing:
+            raise RunFormatError(f"{path}:1: header lacks column(s) {', '.join(missing)}; got {','.join(header)}")
+        if len(set(header)) != len(header):
+            dup = sorted({h for h in header if header.count(h) > 1})
+            raise RunFormatError(f"{path}:1: duplicate column(s) {', '.join(dup)}")
+        rows: list[list[str]] = []
+        lines: list[int] = []
+        try:
+            for row in reader:
+                if not row or all(not c.strip() for c in row):
+                    continue  # blank line, e.g. trailing newline
+                if len(row) != len(header):
+                    raise RunFormatError(
+                        f"{path}:{reader.line_num}: expected {len(header)} fields, got {len(row)}"
+                    )
+                rows.append(row)
+                lines.append(reader.line_num)
+        except csv.Error as exc:
+            raise RunFormatError(f"{path}:{reader.line_num}: {exc}") from exc
+    return _Csv(path, header, rows, lines)
+
+
+def _time_grid(csvf: _Csv) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted unique times and each row's index into them."""
+    t = np.round(csvf.column("t", allow_empty=False), TIME_DECIMALS)
+    grid, inverse = np.unique(t, return_inverse=True)
+    return grid, inverse
+
+
+def _check_agent(csvf: _Csv, values: np.ndarray, name: str, n: int) -> None:
+    bad = np.flatnonzero((values < 0) | (values >= n))
+    if len(bad):
+        r = int(bad[0])
+        raise RunFormatError(
+            f"{csvf.path}:{csvf.lines[r]}: column '{name}': agent {values[r]} out of range 0..{n - 1}"
+        )
+
+
+def read_agent_csv(path: Path, required: Sequence[str], n: int) -> AgentTable:
+    """Read a ``t,agent,...`` long-format file; every column other than t and agent becomes a (T, n) array.
+
+    Duplicate (t, agent) rows keep the later one in file order (a restarted agent re-reporting a tick).
+    """
+    csvf = _read_csv(path, required)
+    grid, ti = _time_grid(csvf)
+    agent = csvf.column("agent", integer=True)
+    _check_agent(csvf, agent, "agent", n)
+    columns: dict[str, np.ndarray] = {}
+    for name in csvf.header:
+        if name in ("t", "agent"):
+            continue
+        values = csvf.column(name)
+        table = np.full((len(grid), n), np.nan)
+        table[ti, agent] = values
+        columns[name] = table
+    return AgentTable(t=grid, columns=columns)
+
+
+def read_pairs_csv(path: Path, n: int) -> PairTable:
+    """Read pairs.csv into one (T, 2) array per directed pair (agent, neighbour)."""
+    csvf = _read_csv(path, PAIRS_HEADER)
+    grid, ti = _time_grid(csvf)
+    agent = csvf.column("agent", integer=True)
+    nb = csvf.column("neighbour", integer=True)
+    _check_agent(csvf, agent, "agent", n)
+    _check_agent(csvf, nb, "neighbour", n)
+    same = np.flatnonzero(agent == nb)
+    if len(same):
+        r = int(same[0])
+        raise RunFormatError(f"{path}:{csvf.lines[r]}: column 'neighbour': agent {agent[r]} paired with itself")
+    xy = np.stack([csvf.column("zij_x"), csvf.column("zij_y")], axis=1)
+    zij: dict[tuple[int, int], np.ndarray] = {}
+    keys = agent * n + nb
+    for key in np.unique(keys):
+        rows = keys == key
+        arr = np.full((len(grid), 2), np.nan)
+        arr[ti[rows]] = xy[rows]
+        zij[(int(key // n), int(key % n))] = arr
+    return PairTable(t=grid, zij=zij)
+
+
+def read_truth_csv(path: Path, n: int) -> TruthTable:
+    """Read truth.csv (one row per tick) sorted by time; requires the z_i columns of all n agents."""
+    csvf = _read_csv(path, truth_header(n))
+    t = csvf.column("t", allow_empty=False)
+    order = np.argsort(t, kind="stable")
+    columns = {name: csvf.column(name)[order] for name in csvf.header}
+    zi = np.stack(
+        [np.stack([columns[f"z{i}_x"], columns[f"z{i}_y"]], axis=1) for i in range(n)], axis=1
+    ).reshape(len(t), n, 2)
+    return TruthTable(t=columns["t"], columns=columns, zi=zi)

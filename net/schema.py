@@ -1,0 +1,260 @@
+"""Wire codec: msgpack on the wire, pydantic at the edge, plain dataclasses inside.
+
+Every payload is a msgpack array ``[kind, version, body]``: ``kind`` names the message type (so a
+payload sent on the wrong key is recognised, not misread), ``version`` is :data:`SCHEMA_VERSION`
+(so a daemon from another release is dropped, not misread) and ``body`` is a map of the dataclass
+fields. :func:`decode` rejects anything that is not exactly that, raising :class:`DecodeError` with
+one short, stable reason token so that callers can count drops per reason (principle 6); it never
+raises anything else. The pure cores only ever see the plain dataclasses of :mod:`net.messages`.
+
+Reason tokens (:data:`REASONS`):
+
+``oversized``     payload longer than :data:`MAX_PAYLOAD` (checked before unpacking)
+``not_msgpack``   not bytes, not valid msgpack, or trailing bytes after the message
+``bad_envelope``  valid msgpack but not a ``[kind: str, version: int, body: map]`` array
+``bad_version``   envelope with another schema version
+``wrong_kind``    a well-formed message of another kind than the one expected
+``bad_schema``    body fields missing, unknown or of the wrong type (details in the message)
+``non_finite``    a float field holds NaN or +-inf
+``out_of_range``  an integer out of bounds (negative tick, huge id) or a collection too large
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Any, Final, TypeVar
+
+import msgpack
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
+
+from net.messages import Estimate, Measurement, StateMsg, Wrench
+
+SCHEMA_VERSION: Final = 1
+MAX_PAYLOAD: Final = 64 * 1024
+"""Largest payload accepted, in bytes. A complete graph of 1000 agents with 4-float pair values fits."""
+
+MAX_AGENT_ID: Final = 65_535
+MAX_TICK: Final = 2**53
+MAX_PHASE: Final = 65_535
+MAX_NAMES: Final = 64
+"""Most entries in a by-name dict (``StateMsg.shared``, ``Estimate.values``)."""
+MAX_NAME_LEN: Final = 64
+MAX_PAIRS: Final = 1024
+"""Most entries in a by-neighbour dict (``StateMsg.pair``, ``Estimate.pairs``)."""
+MAX_PAIR_LEN: Final = 16
+"""Most floats in one ``StateMsg.pair`` value."""
+
+REASONS: Final = (
+    "oversized",
+    "not_msgpack",
+    "bad_envelope",
+    "bad_version",
+    "wrong_kind",
+    "bad_schema",
+    "non_finite",
+    "out_of_range",
+)
+
+KIND: Final[dict[type, str]] = {
+    Measurement: "meas",
+    Wrench: "wrench",
+    StateMsg: "state",
+    Estimate: "estimate",
+}
+"""Message-kind tag of each message type; the same words as the last chunk of its key expression."""
+TYPE_OF_KIND: Final[dict[str, type]] = {v: k for k, v in KIND.items()}
+
+Msg = TypeVar("Msg", Measurement, Wrench, StateMsg, Estimate)
+
+
+class DecodeError(ValueError):
+    """A payload was rejected; ``reason`` is one token of :data:`REASONS`, the message has details."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        assert reason in REASONS, reason
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+
+
+# ---------------------------------------------------------------------------------------------
+# Pydantic models: the edge. Strict (no str -> int coercion, no bool as int), finite floats only.
+
+Tick = Annotated[int, Field(ge=0, le=MAX_TICK)]
+AgentId = Annotated[int, Field(ge=0, le=MAX_AGENT_ID)]
+Name = Annotated[str, StringConstraints(min_length=1, max_length=MAX_NAME_LEN)]
+
+
+class _Body(BaseModel):
+    model_config = ConfigDict(strict=True, allow_inf_nan=False, extra="forbid", frozen=True)
+
+
+class _MeasurementBody(_Body):
+    tick: Tick
+    agent: AgentId
+    vx: float
+    vy: float
+
+
+class _WrenchBody(_Body):
+    tick: Tick
+    agent: AgentId
+    fx: float
+    fy: float
+    tau: float
+
+
+class _StateBody(_Body):
+    tick: Tick
+    sender: AgentId
+    vx: float
+    vy: float
+    phase: Annotated[int, Field(ge=0, le=MAX_PHASE)]
+    shared: Annotated[dict[Name, float], Field(max_length=MAX_NAMES)]
+    pair: Annotated[
+        dict[AgentId, Annotated[tuple[float, ...], Field(max_length=MAX_PAIR_LEN)]],
+        Field(max_length=MAX_PAIRS),
+    ]
+
+
+class _EstimateBody(_Body):
+    tick: Tick
+    agent: AgentId
+    values: Annotated[dict[Name, float], Field(max_length=MAX_NAMES)]
+    pairs: Annotated[dict[AgentId, tuple[float, float]], Field(max_length=MAX_PAIRS)]
+
+
+_BODY: Final[dict[type, type[_Body]]] = {
+    Measurement: _MeasurementBody,
+    Wrench: _WrenchBody,
+    StateMsg: _StateBody,
+    Estimate: _EstimateBody,
+}
+
+# Pydantic error types -> reason token; anything else is bad_schema.
+_NON_FINITE: Final = frozenset({"finite_number"})
+_OUT_OF_RANGE: Final = frozenset(
+    {"greater_than_equal", "less_than_equal", "greater_than", "less_than", "too_long", "too_short",
+     "string_too_long", "string_too_short"}
+)
+
+
+# ---------------------------------------------------------------------------------------------
+# Encoding. Floats are forced to float so that an int slipped in by a caller still travels as a
+# msgpack float64 and decodes to a float (exact round trip, no type drift between engines).
+
+def _enc_meas(m: Measurement) -> dict[str, Any]:
+    return {"tick": m.tick, "agent": m.agent, "vx": float(m.vx), "vy": float(m.vy)}
+
+
+def _enc_wrench(m: Wrench) -> dict[str, Any]:
+    return {"tick": m.tick, "agent": m.agent, "fx": float(m.fx), "fy": float(m.fy), "tau": float(m.tau)}
+
+
+def _enc_state(m: StateMsg) -> dict[str, Any]:
+    return {
+        "tick": m.tick,
+        "sender": m.sender,
+        "vx": float(m.vx),
+        "vy": float(m.vy),
+        "phase": m.phase,
+        "shared": {k: float(v) for k, v in m.shared.items()},
+        "pair": {j: tuple(float(x) for x in v) for j, v in m.pair.items()},
+    }
+
+
+def _enc_estimate(m: Estimate) -> dict[str, Any]:
+    return {
+        "tick": m.tick,
+        "agent": m.agent,
+        "values": {k: float(v) for k, v in m.values.items()},
+        "pairs": {j: (float(v[0]), float(v[1])) for j, v in m.pairs.items()},
+    }
+
+
+_ENCODERS: Final = {Measurement: _enc_meas, Wrench: _enc_wrench, StateMsg: _enc_state, Estimate: _enc_estimate}
+
+
+def encode(msg: Measurement | Wrench | StateMsg | Estimate) -> bytes:
+    """Serialise one message as ``[kind, version, body]`` msgpack.
+
+    Encoding does not validate values (receivers do, and count what they drop), but it refuses a
+    payload larger than :data:`MAX_PAYLOAD`, because every receiver would silently drop it.
+    Raises ``TypeError`` for an object that is not a message, ``ValueError`` if oversized.
+    """
+    try:
+        body = _ENCODERS[type(msg)](msg)
+    except KeyError:
+        raise TypeError(f"not a wire message: {type(msg).__name__}") from None
+    payload = msgpack.packb((KIND[type(msg)], SCHEMA_VERSION, body), use_bin_type=True)
+    if len(payload) > MAX_PAYLOAD:
+        raise ValueError(f"{KIND[type(msg)]} message is {len(payload)} bytes > MAX_PAYLOAD = {MAX_PAYLOAD}")
+    return payload
+
+
+# ---------------------------------------------------------------------------------------------
+# Decoding.
+
+def _unpack(payload: bytes) -> Any:
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise DecodeError("not_msgpack", f"payload is {type(payload).__name__}, not bytes")
+    if len(payload) > MAX_PAYLOAD:
+        raise DecodeError("oversized", f"{len(payload)} bytes > {MAX_PAYLOAD}")
+    try:
+        # use_list=False: arrays come back as tuples, what the strict tuple fields want.
+        # strict_map_key=False: `pair` maps are keyed by int agent ids; sizes are bounded by
+        # MAX_PAYLOAD (msgpack derives its max_*_len limits from the buffer length).
+        return msgpack.unpackb(payload, raw=False, use_list=False, strict_map_key=False)
+    except (ValueError, TypeError, msgpack.UnpackException, RecursionError) as e:
+        # ValueError covers ExtraData, FormatError, StackError, UnicodeDecodeError; TypeError an
+        # unhashable map key (a map used as a key).
+        raise DecodeError("not_msgpack", f"{type(e).__name__}: {e}") from None
+
+
+def _reason(err: ValidationError) -> str:
+    types = {e["type"] for e in err.errors(include_url=False)}
+    if types & _NON_FINITE:
+        return "non_finite"
+    if types <= _OUT_OF_RANGE:
+        return "out_of_range"
+    return "bad_schema"
+
+
+def decode(payload: bytes, expected: type[Msg]) -> Msg:
+    """Validate ``payload`` as a message of type ``expected`` and return the plain dataclass.
+
+    Raises :class:`DecodeError` (and nothing else) for any payload that is not exactly a valid
+    ``expected`` message of this schema version.
+    """
+    if expected not in _BODY:
+        raise TypeError(f"not a wire message type: {expected!r}")
+    obj = _unpack(payload)
+    if not (isinstance(obj, tuple) and len(obj) == 3 and isinstance(obj[0], str)
+            and type(obj[1]) is int and isinstance(obj[2], dict)):
+        raise DecodeError("bad_envelope", f"expected [kind, version, body], got {type(obj).__name__}")
+    kind, version, body = obj
+    if version != SCHEMA_VERSION:
+        raise DecodeError("bad_version", f"schema version {version}, this build speaks {SCHEMA_VERSION}")
+    want = KIND[expected]
+    if kind != want:
+        raise DecodeError("wrong_kind", f"expected {want!r}, got {kind[:32]!r}")
+    try:
+        m = _BODY[expected].model_validate(body)
+    except ValidationError as e:
+        first = e.errors(include_url=False)[0]
+        detail = f"{e.error_count()} error(s); first at {first['loc']}: {first['msg']}"
+        raise DecodeError(_reason(e), detail) from None
+    return expected(**m.__dict__)
+
+
+def is_finite_message(msg: Measurement | Wrench | StateMsg | Estimate) -> bool:
+    """True if every float of ``msg`` is finite: a sender-side check for a diverging estimator."""
+    vals: list[float] = []
+    if isinstance(msg, Measurement):
+        vals = [msg.vx, msg.vy]
+    elif isinstance(msg, Wrench):
+        vals = [msg.fx, msg.fy, msg.tau]
+    elif isinstance(msg, StateMsg):
+        vals = [msg.vx, msg.vy, *msg.shared.values(), *(x for v in msg.pair.values() for x in v)]
+    elif isinstance(msg, Estimate):
+        vals = [*msg.values.values(), *(x for v in msg.pairs.values() for x in v)]
+    return all(math.isfinite(v) for v in vals)

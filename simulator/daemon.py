@@ -1,0 +1,230 @@
+"""The simulator daemon: the plant behind a transport, and the run's recorder.
+
+Lockstep: the simulator is the clock. It publishes tick k's measurements, waits for the wrench of
+every live agent for tick k (a timeout is counted, the missing wrench taken as zero), then steps.
+Real time: it steps at wall-clock rate and applies each agent's latest wrench.
+It records samples, truth and every agent's published estimates into the run directory.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from agents.agent import ESTIMATE_NAMES
+from coload.recorder import Recorder
+from config.scenario import Scenario
+from net import keys
+from net.messages import AgentReport, Control, Estimate, Measurement, Wrench
+from net.schema import DecodeError, decode, encode
+from net.transport import Transport
+from simulator.plant import Plant, sensor_rng
+
+log = logging.getLogger("coload.sim")
+
+ZERO_WRENCH = (0.0, 0.0, 0.0)
+
+
+class SimDaemon:
+    def __init__(
+        self,
+        scenario: Scenario,
+        transport: Transport,
+        run: str,
+        run_dir: Path,
+        progress: Callable[[int, int], None] | None = None,
+    ) -> None:
+        self.scenario = scenario
+        self.transport = transport
+        self.run_name = run
+        self.run_dir = Path(run_dir)
+        self.progress = progress
+        self.n = scenario.n
+        self.plant = Plant(scenario)
+        self.rng = sensor_rng(scenario.seed)
+        self.recorder = Recorder(self.run_dir, scenario, ESTIMATE_NAMES)
+        self.alive: set[int] = set()
+        self.drops: Counter[str] = Counter()
+        self.wrench_timeouts = 0
+        self.events: list[dict[str, Any]] = []
+        self.reports: dict[int, AgentReport] = {}
+        self.tick = 0
+        self.wrenches: dict[int, tuple[float, float, float]] = {}
+        self.latest: list[tuple[float, float, float]] = [ZERO_WRENCH] * self.n
+        self._changed = asyncio.Event()  # set whenever a wrench, report or liveliness change arrives
+        self._subs: list = []
+
+    # ---- inputs ----------------------------------------------------------------------------
+    def _decode(self, payload: bytes, kind: type):
+        try:
+            return decode(payload, kind)
+        except DecodeError as exc:
+            self.drops[exc.reason] += 1
+            return None
+
+    def _agent_of(self, key: str) -> int | None:
+        parsed = keys.parse_agent_key(key)
+        if parsed is None or not 0 <= parsed[1] < self.n:
+            self.drops["unknown_sender"] += 1
+            return None
+        return parsed[1]
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        parsed = keys.parse_alive(key)
+        if parsed is None or parsed[1] != "agent" or not 0 <= parsed[2] < self.n:
+            return
+        i = parsed[2]
+        was = i in self.alive
+        (self.alive.add if alive else self.alive.discard)(i)
+        if was != alive and self.tick > 0:
+            self.events.append({"tick": self.tick, "t": self.tick * self.scenario.dt,
+                                "event": "agent_up" if alive else "agent_down", "agent": i})
+            log.info("agent %d %s at tick %d", i, "up" if alive else "down", self.tick)
+        self._changed.set()
+
+    def _on_wrench(self, key: str, payload: bytes) -> None:
+        i = self._agent_of(key)
+        w = self._decode(payload, Wrench) if i is not None else None
+        if w is None:
+            return
+        if w.agent != i:
+            self.drops["spoofed_sender"] += 1
+            return
+        if self.scenario.mode == "realtime":
+            self.latest[i] = (w.fx, w.fy, w.tau)
+            return
+        if w.tick != self.tick:
+            self.drops["stale" if w.tick < self.tick else "future"] += 1
+            return
+        self.wrenches[i] = (w.fx, w.fy, w.tau)
+        self._changed.set()
+
+    def _on_estimate(self, key: str, payload: bytes) -> None:
+        i = self._agent_of(key)
+        est = self._decode(payload, Estimate) if i is not None else None
+        if est is None:
+            return
+        if est.agent != i:
+            self.drops["spoofed_sender"] += 1
+            return
+        self.recorder.estimate(est)
+
+    def _on_report(self, key: str, payload: bytes) -> None:
+        i = self._agent_of(key)
+        rep = self._decode(payload, AgentReport) if i is not None else None
+        if rep is None or rep.agent != i:
+            return
+        self.reports[i] = rep
+        self._changed.set()
+
+    async def _wait_for(self, cond: Callable[[], bool], timeout: float) -> bool:
+        """Waits until ``cond()`` holds, re-checking on every input; False on timeout."""
+        deadline = time.monotonic() + timeout
+        while not cond():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            self._changed.clear()
+            try:
+                await asyncio.wait_for(self._changed.wait(), left)
+            except TimeoutError:
+                return cond()
+        return True
+
+    # ---- the run ---------------------------------------------------------------------------
+    def _publish_control(self, kind: str, tick: int) -> None:
+        self.transport.publish(keys.sim_control(self.run_name), encode(Control(kind, tick, self.scenario.ticks)))
+
+    async def run(self) -> dict[str, Any]:
+        t, run = self.transport, self.run_name
+        self._subs += [
+            t.subscribe(keys.agent_all(run, "wrench"), self._on_wrench),
+            t.subscribe(keys.agent_all(run, "estimate"), self._on_estimate),
+            t.subscribe(keys.agent_all(run, "report"), self._on_report),
+            t.watch_alive(keys.alive_all(run), self._on_alive),
+            t.declare_alive(keys.alive(run, "sim", 0)),
+        ]
+        try:
+            return await self._run()
+        finally:
+            for s in reversed(self._subs):
+                s.close()
+            self._subs.clear()
+
+    async def _run(self) -> dict[str, Any]:
+        sc = self.scenario
+        log.info("waiting for %d agents (run %s)", self.n, self.run_name)
+        if not await self._wait_for(lambda: len(self.alive) == self.n, sc.timing.startup_timeout_s):
+            missing = sorted(set(range(self.n)) - self.alive)
+            log.warning("starting without agents %s", missing)
+            self.events.append({"tick": 0, "t": 0.0, "event": "start_without", "agents": missing})
+        self._publish_control("start", 0)
+        wall0 = time.perf_counter()
+        ticks = sc.ticks
+        report_every = max(1, ticks // 100)
+        for k in range(ticks):
+            self.tick = k
+            if sc.mode == "realtime":
+                lag = wall0 + k * sc.dt - time.perf_counter()
+                if lag > 0:
+                    await asyncio.sleep(lag)
+            meas = self.plant.measure(self.rng)
+            self.recorder.truth(self.plant.truth())
+            self.wrenches = {}
+            for i, (vx, vy) in enumerate(meas):
+                t_pub = keys.meas(self.run_name, i)
+                self.transport.publish(t_pub, encode(Measurement(k, i, vx, vy)))
+            if sc.mode == "lockstep":
+                got = await self._wait_for(lambda: self.alive <= self.wrenches.keys(), sc.timing.wrench_timeout_s)
+                if not got:
+                    self.wrench_timeouts += 1
+                    log.warning("tick %d: no wrench from %s", k, sorted(self.alive - self.wrenches.keys()))
+                applied = [self.wrenches.get(i, ZERO_WRENCH) for i in range(self.n)]
+            else:
+                await asyncio.sleep(0)  # let arrived wrenches in
+                applied = list(self.latest)
+            for i in range(self.n):
+                self.recorder.sample(k, i, meas[i], applied[i])
+            self.plant.apply_and_step(applied)
+            if k % report_every == 0 or k == ticks - 1:
+                self._publish_control("progress", k + 1)
+                if self.progress is not None:
+                    self.progress(k + 1, ticks)
+        wall = time.perf_counter() - wall0
+        self.tick = ticks
+        self._publish_control("done", ticks)
+        expected = set(self.alive)
+        if not await self._wait_for(lambda: expected <= self.reports.keys(), sc.timing.startup_timeout_s):
+            log.warning("no end-of-run report from agents %s", sorted(expected - self.reports.keys()))
+        return self._finish(wall)
+
+    def _finish(self, wall: float) -> dict[str, Any]:
+        links: dict[str, dict[str, int]] = {}
+        drops: Counter[str] = Counter(self.drops)
+        agent_timeouts = 0
+        for i, rep in sorted(self.reports.items()):
+            for sender, counters in sorted(rep.links.items()):
+                links[f"{sender}->{i}"] = dict(counters)
+            drops.update(rep.drops)
+            agent_timeouts += rep.timeouts
+        summary: dict[str, Any] = {
+            "engine": "zenoh",
+            "mode": self.scenario.mode,
+            "sim_s": self.scenario.ticks * self.scenario.dt,
+            "wall_s": wall,
+            "seed": self.scenario.seed,
+            "n": self.n,
+            "scenario": self.scenario.name,
+            "run": self.run_name,
+            "links": dict(sorted(links.items())),
+            "drops": dict(sorted(drops.items())),
+            "timeouts": {"wrench": self.wrench_timeouts, "neighbour": agent_timeouts},
+            "events": self.events,
+            "agents_reported": sorted(self.reports),
+        }
+        return self.recorder.close(summary)

@@ -1,0 +1,217 @@
+"""The plant: one rigid planar load in a pymunk space, pushed at n contact points.
+
+Pure: no clock, no sockets, no global RNG. The daemon owns time and transport; this module owns
+physics and the sensor model, so that the in-process engine and the daemon share it unchanged.
+
+Design: the pymunk body's origin is the centre of mass (``center_of_gravity`` = 0), so
+``body.position`` is p_C; the outline and the contact points are stored relative to the CoM.
+The body's mass and moment are set explicitly; its shape carries no mass and only serves
+inspection and drawing (nothing collides). Per tick the agents' wrenches are reduced to one
+resultant force and torque about the CoM (the same sum ``apply_force_at_world_point`` would
+accumulate, vectorised) and pymunk integrates one semi-implicit Euler step; the plant's state is
+the truth, whatever the integrator's discretisation error against the continuous model.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pymunk
+
+from config.scenario import Scenario
+from simulator import geometry
+
+# Separates the sensor stream from every other stream derived from the same run seed
+# (the link fault model seeds from (seed, sender, receiver)).
+_SENSOR_STREAM = 0x53454E53  # "SENS"
+
+Vec2 = tuple[float, float]
+
+
+def _outline_about_centroid(scenario: Scenario) -> np.ndarray:
+    """The outline in the body frame whose origin is the polygon's area centroid."""
+    load = scenario.load
+    if load.shape == "rectangle":
+        return geometry.rectangle(load.width, load.height)
+    v = np.asarray(load.vertices, dtype=float)
+    return v - geometry.centroid(v)
+
+
+def _contacts_about_centroid(scenario: Scenario, outline: np.ndarray) -> np.ndarray:
+    c = scenario.contacts
+    if c.layout == "explicit":
+        return np.asarray(c.points, dtype=float)
+    return geometry.perimeter_points(outline, scenario.n, c.start)
+
+
+def load_polygon_body(scenario: Scenario) -> list[Vec2]:
+    """Outline of the load relative to the CoM, body frame (m), counter-clockwise."""
+    off = np.asarray(scenario.load.com_offset, dtype=float)
+    return [(float(x), float(y)) for x, y in _outline_about_centroid(scenario) - off]
+
+
+def contact_points_body(scenario: Scenario) -> list[Vec2]:
+    """Contact points relative to the CoM, body frame (m), in agent order.
+
+    ``perimeter``: n points evenly spaced in arc length along the outline, counter-clockwise from
+    fraction ``start`` (a rectangle's outline starts at its bottom-left corner). ``explicit``: the
+    given points, which are relative to the polygon's centroid.
+    """
+    outline = _outline_about_centroid(scenario)
+    off = np.asarray(scenario.load.com_offset, dtype=float)
+    return [(float(x), float(y)) for x, y in _contacts_about_centroid(scenario, outline) - off]
+
+
+def load_inertia(scenario: Scenario) -> float:
+    """J about the CoM: the explicit value, else a uniform lamina's moment moved to the offset CoM."""
+    load = scenario.load
+    if load.inertia is not None:
+        return load.inertia
+    j_centroid = load.mass * geometry.polar_moment_per_mass(_outline_about_centroid(scenario))
+    ox, oy = load.com_offset
+    return j_centroid + load.mass * (ox * ox + oy * oy)  # parallel-axis theorem
+
+
+def sensor_rng(seed: int) -> np.random.Generator:
+    """The measurement-noise stream: a function of the run seed alone, independent of other streams."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(seed, spawn_key=(_SENSOR_STREAM,))))
+
+
+@dataclass(frozen=True, slots=True)
+class Truth:
+    """Everything the simulator knows at one tick; world frame, SI units (see paper 000, Sec. II)."""
+
+    tick: int
+    t: float
+    x: float  # p_C
+    y: float
+    angle: float
+    vc: Vec2
+    omega: float
+    zc: Vec2  # p_G - p_C
+    pg: Vec2  # centroid of the contact points
+    zi: tuple[Vec2, ...]  # p_Ci - p_G per agent
+    mass: float
+    inertia: float
+
+
+class Plant:
+    """The load's rigid-body dynamics plus the contact-point velocity sensor."""
+
+    __slots__ = ("n", "dt", "sigma_v", "mass", "inertia", "tick", "space", "body", "_r", "_rbar", "_rrel")
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.n = scenario.n
+        self.dt = scenario.dt
+        self.sigma_v = scenario.noise.sigma_v
+        self.mass = scenario.load.mass
+        self.inertia = load_inertia(scenario)
+        self.tick = 0
+        self._r = np.asarray(contact_points_body(scenario), dtype=float)  # (n, 2), body frame, about CoM
+        self._rbar = self._r.mean(axis=0)  # p_G - p_C in the body frame
+        self._rrel = self._r - self._rbar  # z_i in the body frame
+
+        space = pymunk.Space()
+        space.gravity = (0.0, 0.0)
+        space.damping = 1.0  # no velocity damping: the load is frictionless (g = 0 in the paper)
+        body = pymunk.Body(self.mass, self.inertia)
+        shape = pymunk.Poly(body, load_polygon_body(scenario))  # massless: mass/moment stay as set
+        shape.sensor = True
+        ini = scenario.initial
+        body.position = ini.position
+        body.angle = ini.angle
+        body.velocity = ini.v_c
+        body.angular_velocity = ini.omega
+        space.add(body, shape)
+        self.space = space
+        self.body = body
+
+    def _rotated(self, a: np.ndarray) -> np.ndarray:
+        c, s = self.body.rotation_vector
+        x, y = a[..., 0], a[..., 1]
+        return np.stack((c * x - s * y, s * x + c * y), axis=-1)
+
+    def _velocities(self) -> np.ndarray:
+        """v_Ci = v_C + omega (p_Ci - p_C)^perp, perp = +90 deg rotation."""
+        b = self.body
+        vx, vy = b.velocity
+        w = b.angular_velocity
+        rw = self._rotated(self._r)
+        out = np.empty_like(rw)
+        out[:, 0] = vx - w * rw[:, 1]
+        out[:, 1] = vy + w * rw[:, 0]
+        return out
+
+    def velocities(self) -> list[Vec2]:
+        """True world-frame velocity of every contact point now."""
+        return list(map(tuple, self._velocities().tolist()))
+
+    def measure(self, rng: np.random.Generator) -> list[Vec2]:
+        """velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call."""
+        noisy = self._velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
+        return list(map(tuple, noisy.tolist()))
+
+    def apply_and_step(self, wrenches: Sequence[tuple[float, float, float]]) -> None:
+        """Apply each agent's (fx, fy, tau) at its contact point's current world position; advance dt.
+
+        Raises ValueError for a wrong count, a malformed triple or a non-finite value: a bad wrench
+        must never reach the integrator, where it would corrupt the truth for the rest of the run.
+        """
+        try:
+            w = np.asarray(wrenches, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"wrenches must be {self.n} (fx, fy, tau) number triples: {exc}") from None
+        if w.shape != (self.n, 3):
+            raise ValueError(f"wrenches must have shape ({self.n}, 3), got {w.shape}")
+        if not np.isfinite(w).all():
+            bad = sorted({int(i) for i in np.argwhere(~np.isfinite(w))[:, 0]})
+            raise ValueError(f"non-finite wrench from agent(s) {bad}")
+        rw = self._rotated(self._r)
+        fx, fy = w[:, 0], w[:, 1]
+        torque = float(np.dot(rw[:, 0], fy) - np.dot(rw[:, 1], fx) + w[:, 2].sum())
+        b = self.body
+        b.force = (float(fx.sum()), float(fy.sum()))
+        b.torque = torque
+        self.space.step(self.dt)
+        self.tick += 1
+
+    def truth(self) -> Truth:
+        """The state after ``tick`` steps, with the paper's derived quantities z_C, p_G and z_i."""
+        b = self.body
+        px, py = b.position
+        vx, vy = b.velocity
+        zc = self._rotated(self._rbar)
+        zi = self._rotated(self._rrel)
+        zcx, zcy = float(zc[0]), float(zc[1])
+        return Truth(
+            tick=self.tick,
+            t=self.tick * self.dt,
+            x=px,
+            y=py,
+            angle=b.angle,
+            vc=(vx, vy),
+            omega=b.angular_velocity,
+            zc=(zcx, zcy),
+            pg=(px + zcx, py + zcy),
+            zi=tuple(map(tuple, zi.tolist())),
+            mass=self.mass,
+            inertia=self.inertia,
+        )
+
+
+def kinetic_energy(truth: Truth) -> float:
+    """Translational plus rotational kinetic energy (J), for checks and summaries."""
+    return 0.5 * truth.mass * (truth.vc[0] ** 2 + truth.vc[1] ** 2) + 0.5 * truth.inertia * truth.omega**2
+
+
+__all__ = [
+    "Plant",
+    "Truth",
+    "contact_points_body",
+    "kinetic_energy",
+    "load_inertia",
+    "load_polygon_body",
+    "sensor_rng",
+]
