@@ -195,3 +195,32 @@ def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbos
         return json.loads(summary_path.read_text())
     finally:
         children.close()
+
+
+async def run_daemons_in_memory(scenario: Scenario, run_dir: Path) -> dict[str, Any]:
+    """The daemons themselves, on the in-memory transport, in one event loop.
+
+    Same code paths as a Zenoh run (codec, link model, liveliness, lockstep waits), no sockets:
+    the fast way to test the daemons.
+    """
+    import asyncio
+
+    from agents.daemon import AgentDaemon
+    from net.memory import MemoryBus, MemoryTransport
+    from simulator.daemon import SimDaemon
+
+    loop = asyncio.get_running_loop()
+    bus = MemoryBus()
+    run = run_name_for(run_dir)
+    transports = [MemoryTransport(bus, loop) for _ in range(scenario.n + 1)]
+    agents = [AgentDaemon(scenario, i, transports[i], run) for i in range(scenario.n)]
+    agent_tasks = [asyncio.ensure_future(a.run()) for a in agents]
+    try:
+        summary = await SimDaemon(scenario, transports[-1], run, run_dir, engine="memory").run()
+        await asyncio.wait_for(asyncio.gather(*agent_tasks), 10.0)
+    finally:
+        for t in agent_tasks:
+            t.cancel()
+        for t in transports:
+            t.close()
+    return summary

@@ -38,12 +38,14 @@ class SimDaemon:
         run: str,
         run_dir: Path,
         progress: Callable[[int, int], None] | None = None,
+        engine: str = "zenoh",
     ) -> None:
         self.scenario = scenario
         self.transport = transport
         self.run_name = run
         self.run_dir = Path(run_dir)
         self.progress = progress
+        self.engine = engine  # what summary.json calls the transport this daemon runs on
         self.n = scenario.n
         self.plant = Plant(scenario)
         self.rng = sensor_rng(scenario.seed)
@@ -213,7 +215,7 @@ class SimDaemon:
             drops.update(rep.drops)
             agent_timeouts += rep.timeouts
         summary: dict[str, Any] = {
-            "engine": "zenoh",
+            "engine": self.engine,
             "mode": self.scenario.mode,
             "sim_s": self.scenario.ticks * self.scenario.dt,
             "wall_s": wall,

@@ -14,6 +14,7 @@ the truth, whatever the integrator's discretisation error against the continuous
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -98,20 +99,33 @@ class Truth:
 
 
 class Plant:
-    """The load's rigid-body dynamics plus the contact-point velocity sensor."""
+    """The load's rigid-body dynamics plus the contact-point velocity sensor.
 
-    __slots__ = ("n", "dt", "sigma_v", "mass", "inertia", "tick", "space", "body", "_r", "_rbar", "_rrel")
+    The body state is read from pymunk once per tick (``_refresh``) and everything the sensor, the
+    truth and the next wrench need is derived from that snapshot with a handful of small array
+    operations: the per-tick cost is dominated by call overhead, not by n.
+    """
+
+    __slots__ = (
+        "n", "dt", "sigma_v", "mass", "inertia", "tick", "space", "body",
+        "_r", "_rbar", "_grasp", "_pos", "_vel", "_angle", "_omega", "_rot", "_rw", "_vc",
+    )  # fmt: skip
 
     def __init__(self, scenario: Scenario) -> None:
-        self.n = scenario.n
+        self.n = n = scenario.n
         self.dt = scenario.dt
         self.sigma_v = scenario.noise.sigma_v
         self.mass = scenario.load.mass
         self.inertia = load_inertia(scenario)
         self.tick = 0
         self._r = np.asarray(contact_points_body(scenario), dtype=float)  # (n, 2), body frame, about CoM
-        self._rbar = self._r.mean(axis=0)  # p_G - p_C in the body frame
-        self._rrel = self._r - self._rbar  # z_i in the body frame
+        self._rbar = (float(self._r[:, 0].mean()), float(self._r[:, 1].mean()))  # p_G - p_C, body frame
+        # Grasp matrix (paper eq. (2)) acting on the flattened wrenches (fx0, fy0, tau0, fx1, ...):
+        # rows give total fx, fy and the torque about the CoM; the moment-arm entries change per tick.
+        self._grasp = np.zeros((3 * n, 3))
+        self._grasp[0::3, 0] = 1.0
+        self._grasp[1::3, 1] = 1.0
+        self._grasp[2::3, 2] = 1.0
 
         space = pymunk.Space()
         space.gravity = (0.0, 0.0)
@@ -127,30 +141,34 @@ class Plant:
         space.add(body, shape)
         self.space = space
         self.body = body
+        self._refresh()
 
-    def _rotated(self, a: np.ndarray) -> np.ndarray:
-        c, s = self.body.rotation_vector
-        x, y = a[..., 0], a[..., 1]
-        return np.stack((c * x - s * y, s * x + c * y), axis=-1)
-
-    def _velocities(self) -> np.ndarray:
-        """v_Ci = v_C + omega (p_Ci - p_C)^perp, perp = +90 deg rotation."""
+    def _refresh(self) -> None:
+        """Snapshot the body state and derive contact offsets, contact velocities and moment arms."""
         b = self.body
-        vx, vy = b.velocity
-        w = b.angular_velocity
-        rw = self._rotated(self._r)
-        out = np.empty_like(rw)
-        out[:, 0] = vx - w * rw[:, 1]
-        out[:, 1] = vy + w * rw[:, 0]
-        return out
+        self._pos = b.position
+        self._vel = vx, vy = b.velocity
+        self._angle = b.angle
+        self._omega = w = b.angular_velocity
+        self._rot = c, s = b.rotation_vector
+        # Row-vector form: [R r | omega Q R r] = r @ K, Q the +90 deg rotation.
+        k = np.array(((c, s, -w * s, w * c), (-s, c, -w * c, -w * s)))
+        out = self._r @ k
+        self._rw = rw = out[:, :2]  # p_Ci - p_C, world frame
+        out[:, 2] += vx
+        out[:, 3] += vy
+        self._vc = out[:, 2:]  # v_Ci = v_C + omega (p_Ci - p_C)^perp
+        g = self._grasp
+        g[0::3, 2] = -rw[:, 1]  # torque of fx about the CoM: -(y_i) fx
+        g[1::3, 2] = rw[:, 0]  # torque of fy: +(x_i) fy
 
     def velocities(self) -> list[Vec2]:
         """True world-frame velocity of every contact point now."""
-        return list(map(tuple, self._velocities().tolist()))
+        return list(map(tuple, self._vc.tolist()))
 
     def measure(self, rng: np.random.Generator) -> list[Vec2]:
         """velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call."""
-        noisy = self._velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
+        noisy = self._vc + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
         return list(map(tuple, noisy.tolist()))
 
     def apply_and_step(self, wrenches: Sequence[tuple[float, float, float]]) -> None:
@@ -165,37 +183,36 @@ class Plant:
             raise ValueError(f"wrenches must be {self.n} (fx, fy, tau) number triples: {exc}") from None
         if w.shape != (self.n, 3):
             raise ValueError(f"wrenches must have shape ({self.n}, 3), got {w.shape}")
-        if not np.isfinite(w).all():
+        # Every wrench entry has a unit coefficient in the resultant, so a NaN or inf anywhere
+        # (or a finite value large enough to overflow) makes the resultant non-finite.
+        fx, fy, tau = (w.reshape(-1) @ self._grasp).tolist()
+        if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(tau)):
             bad = sorted({int(i) for i in np.argwhere(~np.isfinite(w))[:, 0]})
-            raise ValueError(f"non-finite wrench from agent(s) {bad}")
-        rw = self._rotated(self._r)
-        fx, fy = w[:, 0], w[:, 1]
-        torque = float(np.dot(rw[:, 0], fy) - np.dot(rw[:, 1], fx) + w[:, 2].sum())
+            raise ValueError(f"non-finite wrench from agent(s) {bad}" if bad else "resultant wrench overflows")
         b = self.body
-        b.force = (float(fx.sum()), float(fy.sum()))
-        b.torque = torque
+        b.force = (fx, fy)
+        b.torque = tau
         self.space.step(self.dt)
         self.tick += 1
+        self._refresh()
 
     def truth(self) -> Truth:
         """The state after ``tick`` steps, with the paper's derived quantities z_C, p_G and z_i."""
-        b = self.body
-        px, py = b.position
-        vx, vy = b.velocity
-        zc = self._rotated(self._rbar)
-        zi = self._rotated(self._rrel)
-        zcx, zcy = float(zc[0]), float(zc[1])
+        px, py = self._pos
+        c, s = self._rot
+        bx, by = self._rbar
+        zcx, zcy = c * bx - s * by, s * bx + c * by
         return Truth(
             tick=self.tick,
             t=self.tick * self.dt,
             x=px,
             y=py,
-            angle=b.angle,
-            vc=(vx, vy),
-            omega=b.angular_velocity,
+            angle=self._angle,
+            vc=tuple(self._vel),
+            omega=self._omega,
             zc=(zcx, zcy),
             pg=(px + zcx, py + zcy),
-            zi=tuple(map(tuple, zi.tolist())),
+            zi=tuple(map(tuple, (self._rw - (zcx, zcy)).tolist())),
             mass=self.mass,
             inertia=self.inertia,
         )

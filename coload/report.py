@@ -1,0 +1,334 @@
+"""``coload report RUN_DIR``: a Fig. 4-style figure and a per-agent error table for one run.
+
+The figure stacks panels sharing the time axis, as paper 000's Fig. 4 does: EERD, omega, EEC, the
+z_i errors, then J, z_C, v_C and m when the run's estimates carry them. It is drawn with the Agg
+backend so that it works headless (CI, docker). Numbers in the table come from
+:func:`coload.metrics.final_errors`, the same block summary.json holds, so the two never disagree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402  (backend must be chosen first)
+import numpy as np  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+
+from coload import metrics  # noqa: E402
+from coload.rundir_format import REPORT_PNG, RunData, read_run  # noqa: E402
+
+WINDOW_S = 20.0
+"""Window (s) of the windowed RMS errors in the table: the last 20 s, as in the task's metrics."""
+
+MAX_PLOT_POINTS = 20_000
+"""Longer series are strided before plotting; the eye cannot tell and Agg stays fast."""
+
+_TRUE_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.6, "zorder": 5}
+_TRUE_STYLE_Y = {"color": "dimgray", "linestyle": ":", "linewidth": 1.8, "zorder": 5}
+
+
+# --- panels -------------------------------------------------------------------------------------
+def panel_names(run: RunData) -> list[str]:
+    """Panels the report draws for this run, top to bottom (a panel appears when its columns exist)."""
+    est = run.estimates
+    names: list[str] = []
+    if run.pairs is not None:
+        names.append("eerd")
+    if est is None:
+        return names
+    if est.has("omega"):
+        names.append("omega")
+    if est.has("zi_x", "zi_y"):
+        names += ["eec", "zi_err"]
+    if est.has("J"):
+        names.append("J")
+    if est.has("zc_x", "zc_y"):
+        names.append("zc")
+    if est.has("vc_x", "vc_y"):
+        names.append("vc")
+    if est.has("m"):
+        names.append("m")
+    return names
+
+
+def _agent_colors(n: int) -> list[Any]:
+    cmap = plt.get_cmap("tab10") if n <= 10 else plt.get_cmap("viridis")
+    return [cmap(i) if n <= 10 else cmap(i / max(n - 1, 1)) for i in range(n)]
+
+
+def _stride(length: int) -> slice:
+    return slice(None, None, max(1, int(np.ceil(length / MAX_PLOT_POINTS))))
+
+
+def _log_or_linear(ax: Axes, *arrays: np.ndarray) -> None:
+    """Log scale when there is something positive to show; exact-zero errors would make it blank."""
+    values = np.concatenate([np.ravel(a) for a in arrays]) if arrays else np.array([])
+    positive = values[np.isfinite(values) & (values > 0)]
+    if positive.size:
+        ax.set_yscale("log")
+        lo = max(positive.min(), positive.max() * 1e-9)
+        ax.set_ylim(lo / 2, positive.max() * 2)
+    else:
+        ax.text(0.5, 0.5, "all zero", transform=ax.transAxes, ha="center", va="center", color="gray")
+
+
+class _Ctx:
+    """What every panel drawer needs: the run, its error series, the table numbers and colours."""
+
+    def __init__(self, run: RunData, series: metrics.ErrorSeries, errors: dict[str, Any]) -> None:
+        self.run = run
+        self.s = series
+        self.errors = errors
+        self.colors = _agent_colors(run.n)
+        assert run.estimates is not None and run.truth is not None
+        self.est = run.estimates
+        self.truth = run.truth
+        self.es = _stride(len(series.est_t))
+
+    def agents(self, ax: Axes, values: np.ndarray, **kw: Any) -> None:
+        """One line per agent from a (K, n) array on the estimates grid."""
+        t = self.s.est_t[self.es]
+        for i in range(self.run.n):
+            ax.plot(t, values[self.es, i], color=self.colors[i], linewidth=1.0, **kw)
+
+    def truth_at_est(self, name: str) -> np.ndarray:
+        return self.truth.columns[name][self.s.truth_est_idx]
+
+
+def _draw_eerd(ax: Axes, c: _Ctx) -> None:
+    s = c.s
+    assert s.pair_t is not None and s.eerd is not None and s.eerd_ref is not None
+    st = _stride(len(s.pair_t))
+    ax.plot(s.pair_t[st], s.eerd[st], color="tab:blue", linewidth=1.4, label="EERD")
+    initial = c.errors.get("eerd_initial")
+    if initial:
+        ax.axhline(metrics.CONVERGED_FRACTION * initial, color="tab:red", linestyle=":", linewidth=1.2,
+                   label="1 % of initial")
+    t_conv = c.errors.get("eerd_converge_s")
+    if t_conv is not None:
+        ax.axvline(t_conv, color="tab:red", linewidth=0.8, alpha=0.6)
+        ax.annotate(f"< 1 % from {t_conv:.1f} s", xy=(t_conv, 1), xycoords=("data", "axes fraction"),
+                    xytext=(4, -12), textcoords="offset points", color="tab:red", fontsize=8)
+    extra = [metrics.CONVERGED_FRACTION * initial] if initial else []
+    _log_or_linear(ax, s.eerd, np.array(extra))
+    ax.set_ylabel("EERD [m²]")
+    ax.set_title("relative-position error  EERD(t) = Σ_edges |z_ij − ẑ_ij|²", loc="left", fontsize=9)
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
+
+
+def _draw_omega(ax: Axes, c: _Ctx) -> None:
+    assert c.s.omega_hat is not None
+    c.agents(ax, c.s.omega_hat)
+    if c.s.omega_true is not None:
+        ax.plot(c.s.est_t[c.es], c.s.omega_true[c.es], **_TRUE_STYLE)
+    # frame the truth and the settled estimates; transients (estimates start far off) may clip
+    vals = np.concatenate([np.ravel(c.s.omega_true if c.s.omega_true is not None else []),
+                           np.ravel(c.s.omega_hat[c.s.est_t >= c.s.est_t[-1] / 2])])
+    vals = vals[np.isfinite(vals)]
+    if vals.size:
+        lo, hi = float(vals.min()), float(vals.max())
+        pad = max(0.25 * (hi - lo), 0.1 * max(abs(lo), abs(hi)), 1e-3)
+        ax.set_ylim(lo - pad, hi + pad)
+    ax.set_ylabel("ω [rad/s]")
+    ax.set_title("angular rate: true (dashed) and each agent's estimate ω̂", loc="left", fontsize=9)
+
+
+def _draw_eec(ax: Axes, c: _Ctx) -> None:
+    assert c.s.eec is not None
+    ax.plot(c.s.est_t[c.es], c.s.eec[c.es], color="tab:blue", linewidth=1.4)
+    _log_or_linear(ax, c.s.eec)
+    ax.set_ylabel("EEC [m²]")
+    ax.set_title("contact-to-centre error  EEC(t) = Σ_i |z_i − ẑ_i|²", loc="left", fontsize=9)
+
+
+def _draw_zi_err(ax: Axes, c: _Ctx) -> None:
+    assert c.s.zi_err is not None
+    c.agents(ax, c.s.zi_err)
+    _log_or_linear(ax, c.s.zi_err)
+    ax.set_ylabel("|ẑ_i − z_i| [m]")
+    ax.set_title("z_i error per agent", loc="left", fontsize=9)
+
+
+def _scalar_panel(col: str, truth_col: str, ylabel: str, title: str) -> Callable[[Axes, _Ctx], None]:
+    def draw(ax: Axes, c: _Ctx) -> None:
+        c.agents(ax, c.est.columns[col])
+        if truth_col in c.truth.columns:
+            ax.plot(c.s.est_t[c.es], c.truth_at_est(truth_col)[c.es], **_TRUE_STYLE)
+            true = c.truth_at_est(truth_col)
+            finite = true[np.isfinite(true)]
+            if finite.size:
+                # estimates start at 0 and may overshoot wildly: keep the true value readable
+                lo, hi = float(finite.min()), float(finite.max())
+                pad = max(0.5 * (hi - lo), 0.5 * max(abs(lo), abs(hi)), 1e-6)
+                ax.set_ylim(min(0.0, lo - pad), hi + pad)
+        ax.set_ylabel(ylabel)
+        ax.set_title(title, loc="left", fontsize=9)
+
+    return draw
+
+
+def _vector_panel(prefix: str, ylabel: str, title: str) -> Callable[[Axes, _Ctx], None]:
+    def draw(ax: Axes, c: _Ctx) -> None:
+        for comp in ("x", "y"):
+            c.agents(ax, c.est.columns[f"{prefix}_{comp}"], alpha=1.0 if comp == "x" else 0.55)
+        for comp, style in (("x", _TRUE_STYLE), ("y", _TRUE_STYLE_Y)):
+            name = f"{prefix}_{comp}"
+            if name in c.truth.columns:
+                ax.plot(c.s.est_t[c.es], c.truth_at_est(name)[c.es], **style)
+        ax.set_ylabel(ylabel)
+        ax.set_title(title, loc="left", fontsize=9)
+
+    return draw
+
+
+_DRAWERS: dict[str, Callable[[Axes, _Ctx], None]] = {
+    "eerd": _draw_eerd,
+    "omega": _draw_omega,
+    "eec": _draw_eec,
+    "zi_err": _draw_zi_err,
+    "J": _scalar_panel("J", "inertia", "J [kg m²]", "moment of inertia: true (dashed) and estimates Ĵ"),
+    "zc": _vector_panel("zc", "z_C [m]", "z_C = p_G − p_C: x (solid, true dashed), y (faint, true dotted)"),
+    "vc": _vector_panel("vc", "v_C [m/s]", "CoM velocity v_C: x (solid, true dashed), y (faint, true dotted)"),
+    "m": _scalar_panel("m", "mass", "m [kg]", "mass: true (dashed) and estimates m̂"),
+}
+
+
+def _phase_changes(run: RunData) -> list[tuple[float, int]]:
+    """Times at which the agents' median phase changes, for the thin vertical markers."""
+    est = run.estimates
+    if est is None or not est.has("phase") or len(est.t) == 0:
+        return []
+    phase = metrics.hold_last(est.columns["phase"])
+    with np.errstate(all="ignore"):
+        median = np.array([np.nanmedian(row) if np.any(np.isfinite(row)) else np.nan for row in phase])
+    out: list[tuple[float, int]] = []
+    last = np.nan
+    for t, p in zip(est.t, median):
+        if np.isfinite(p) and p != last:
+            if np.isfinite(last):
+                out.append((float(t), int(round(p))))
+            last = p
+    return out[:20]  # a flapping phase would otherwise draw a barcode
+
+
+def build_figure(run: RunData, errors: dict[str, Any] | None = None) -> Figure:
+    """Draw the report figure for a run (needs truth and estimates); returns it unsaved.
+
+    Each data panel's axes carries its panel name as its label (``ax.get_label()``), so callers and
+    tests can find the panels among the legend/colour-bar axes.
+    """
+    series = metrics.error_series(run)
+    if errors is None:
+        errors = metrics.final_errors(run, WINDOW_S)
+    names = panel_names(run)
+    if not names:
+        raise ValueError(f"{run.path}: nothing to plot (no pairs and no known estimate columns)")
+    ctx = _Ctx(run, series, errors)
+    fig, axes = plt.subplots(
+        len(names), 1, sharex=True, figsize=(11, 1.2 + 2.0 * len(names)), layout="constrained", squeeze=False
+    )
+    phases = _phase_changes(run)
+    for ax, name in zip(axes[:, 0], names):
+        ax.set_label(name)
+        _DRAWERS[name](ax, ctx)
+        ax.grid(True, which="major", alpha=0.3)
+        for t, _ in phases:
+            ax.axvline(t, color="gray", linewidth=0.7, linestyle="-.", alpha=0.5, zorder=0)
+    top = axes[0, 0]
+    for t, p in phases:
+        top.annotate(f"phase {p}", xy=(t, 1), xycoords=("data", "axes fraction"), xytext=(2, 2),
+                     textcoords="offset points", fontsize=7, color="gray", va="bottom")
+    axes[-1, 0].set_xlabel("time [s]")
+    t_all = series.est_t if series.pair_t is None else np.concatenate([series.est_t, series.pair_t])
+    if len(t_all):
+        axes[-1, 0].set_xlim(float(np.min(t_all)), float(np.max(t_all)))
+    _agent_legend(fig, run.n, ctx.colors)
+    cfg = run.config
+    fig.suptitle(
+        f"coload run '{run.name}'  ({cfg.get('mode', '?')}, n = {run.n}, seed = {cfg.get('seed', '?')}, "
+        f"dt = {run.dt:g} s)",
+        fontsize=11,
+    )
+    return fig
+
+
+def _agent_legend(fig: Figure, n: int, colors: Sequence[Any]) -> None:
+    """Agents' colours outside the panels so no data is covered: a legend up to 12, a colour bar beyond."""
+    true_handle = Line2D([], [], **{k: v for k, v in _TRUE_STYLE.items() if k != "zorder"}, label="true value")
+    if n <= 12:
+        handles = [Line2D([], [], color=colors[i], linewidth=1.5, label=f"agent {i}") for i in range(n)]
+        fig.legend(handles=handles + [true_handle], loc="outside right upper", fontsize=8, frameon=False)
+    else:
+        sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, n - 1))
+        fig.colorbar(sm, ax=fig.axes, location="right", shrink=0.5, label="agent", pad=0.01)
+        fig.legend(handles=[true_handle], loc="outside right lower", fontsize=8, frameon=False)
+
+
+# --- table --------------------------------------------------------------------------------------
+def _fmt(x: Any, spec: str = ".4f") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def summary_table(run: RunData, errors: dict[str, Any]) -> str:
+    """Plain-text per-agent error table plus a totals line, from the ``errors`` block."""
+    n = run.n
+    cfg = run.config
+
+    def per(key: str) -> list[Any]:
+        return list(errors.get(key) or [None] * n)
+
+    zi, om, share = per("zi_err_per_agent"), per("omega_rms_per_agent"), per("eerd_ratio_per_agent")
+    win = errors.get("window_s", WINDOW_S)
+    cols = ("agent", "|z_i err| final [m]", f"omega RMS last {win:g} s [rad/s]", "EERD share [final/initial]")
+    widths = [max(7, len(c)) for c in cols]
+    lines = [
+        f"run '{run.name}' ({cfg.get('mode', '?')}, n = {n}, seed = {cfg.get('seed', '?')}, "
+        f"t_final = {_fmt(errors.get('t_final'), '.2f')} s)  {run.path}",
+        "  ".join(c.rjust(w) for c, w in zip(cols, widths)),
+    ]
+    for i in range(n):
+        cells = (str(i), _fmt(zi[i]), _fmt(om[i], ".5f"), _fmt(share[i], ".3e"))
+        lines.append("  ".join(c.rjust(w) for c, w in zip(cells, widths)))
+    lines.append("-" * (sum(widths) + 2 * (len(widths) - 1)))
+    total = ("all", _fmt(errors.get("zi_rms")) + " rms", _fmt(errors.get("omega_rms"), ".5f") + " rms",
+             _fmt(errors.get("eerd_ratio"), ".3e") + " EERD")
+    lines.append("  ".join(c.rjust(w) for c, w in zip(total, widths)))
+    conv = errors.get("eerd_converge_s")
+    lines.append(
+        f"EERD {_fmt(errors.get('eerd_initial'), '.4g')} -> {_fmt(errors.get('eerd_final'), '.4g')} m^2; "
+        f"below 1 % of initial {'from t = ' + format(conv, '.2f') + ' s' if conv is not None else 'never'}; "
+        f"EEC final {_fmt(errors.get('eec_final'), '.4g')} m^2; "
+        f"z_i RMS last {win:g} s {_fmt(errors.get('zi_rms_window'))} m"
+    )
+    extra = [
+        f"{label} {_fmt(errors[key], spec)}{unit}"
+        for key, label, spec, unit in (
+            ("J_rel", "J rel err", ".2%", ""), ("m_rel", "m rel err", ".2%", ""),
+            ("zC_rms", "z_C err", ".4f", " m"), ("vC_rms", "v_C RMS", ".4f", " m/s"),
+        )
+        if key in errors
+    ]
+    if extra:
+        lines.append("; ".join(extra))
+    return "\n".join(lines)
+
+
+def make_report(run_dir: str | Path, out_png: str | Path | None = None) -> tuple[Path, str]:
+    """Read a run, write its figure (default ``RUN_DIR/report.png``), return the PNG path and the table."""
+    run = read_run(run_dir)
+    errors = metrics.final_errors(run, WINDOW_S)
+    out = Path(out_png) if out_png is not None else run.path / REPORT_PNG
+    fig = build_figure(run, errors)
+    try:
+        fig.savefig(out, dpi=110)
+    finally:
+        plt.close(fig)
+    return out, summary_table(run, errors)

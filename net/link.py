@@ -1,0 +1,190 @@
+"""Link fault model: what happens to each message on one directed link, decided at the receiver.
+
+A :class:`LinkModel` owns the random stream of one directed link (sender -> receiver), seeded from
+(run seed, sender, receiver) only. It is consulted once per message, in send order, and says after
+which delays the copies arrive (none: lost; two: duplicated). Because the draws depend on nothing
+but the seed and the message's rank on that link, the in-process engine and the Zenoh daemons see
+the same faults for the same seed, whatever the wall-clock timing (principles 2 and 3).
+
+:class:`DelayLine` is the lockstep receive buffer both engines use, so that their inboxes are equal
+message for message; :class:`LinkStats` is the per-link counter block written to ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import heapq
+from dataclasses import asdict, dataclass
+from typing import Final, Generic, Literal, TypeVar
+
+import numpy as np
+
+from config.scenario import LinkSpec
+
+STREAM_ID: Final = 0x11C4
+"""Fourth word of every link RNG seed: keeps link streams apart from other users of the run seed."""
+
+_BLOCK: Final = 256
+"""Messages whose uniforms are drawn in one numpy call (speed only: the stream is the same)."""
+_U_PER_MSG: Final = 5
+"""Uniforms consumed per message, whatever the spec: [chain step, loss, duplicate, jitter 1, jitter 2].
+
+A fixed count keeps the draws of message k independent of the spec, so that e.g. turning on
+duplication does not change which messages are lost.
+"""
+
+Mode = Literal["lockstep", "realtime"]
+T = TypeVar("T")
+
+
+class LinkModel:
+    """Delay, jitter, loss (none / Bernoulli / Gilbert-Elliott) and duplication of one directed link.
+
+    Parameters: ``spec`` the fault parameters; ``seed`` the run seed; ``sender``/``receiver`` the
+    agent ids of the link's ends; ``mode`` selects delays in whole ticks (``lockstep``:
+    ``delay_ticks`` + uniform integer jitter in [0, ``jitter_ticks``]) or in seconds (``realtime``:
+    ``delay_s`` + uniform [0, ``jitter_s``)). The Gilbert-Elliott chain starts in a state drawn from
+    its stationary distribution and steps once per message, after that message's loss draw.
+    """
+
+    __slots__ = ("spec", "mode", "sender", "receiver", "_rng", "_u", "_k", "_bad", "_last_tick")
+
+    def __init__(self, spec: LinkSpec, seed: int, sender: int, receiver: int, mode: Mode = "lockstep") -> None:
+        if mode not in ("lockstep", "realtime"):
+            raise ValueError(f"mode must be 'lockstep' or 'realtime': {mode!r}")
+        if min(seed, sender, receiver) < 0:
+            raise ValueError("seed, sender and receiver must be non-negative")
+        self.spec = spec
+        self.mode: Mode = mode
+        self.sender = sender
+        self.receiver = receiver
+        self._rng = np.random.default_rng([seed, sender, receiver, STREAM_ID])
+        self._u = np.empty((0, _U_PER_MSG))
+        self._k = 0
+        self._last_tick = -1
+        loss = spec.loss
+        u0 = float(self._rng.random())  # drawn for every model, so streams line up across specs
+        total = loss.p_good_to_bad + loss.p_bad_to_good
+        pi_bad = loss.p_good_to_bad / total if total > 0 else 0.0
+        self._bad = loss.model == "gilbert_elliott" and u0 < pi_bad
+
+    def _next_uniforms(self) -> np.ndarray:
+        if self._k == len(self._u):
+            self._u = self._rng.random((_BLOCK, _U_PER_MSG))
+            self._k = 0
+        u = self._u[self._k]
+        self._k += 1
+        return u
+
+    def deliveries(self, tick: int) -> tuple[int, ...] | tuple[float, ...]:
+        """Fate of the next message sent on this link (sent at ``tick``): one delay per delivered copy.
+
+        ``()`` = lost, ``(d,)`` = delivered once after ``d``, ``(d1, d2)`` = duplicated. Delays are
+        ints (ticks) in lockstep mode and floats (seconds) in realtime mode. Must be called exactly
+        once per message, in send order; ``tick`` must not decrease.
+        """
+        if tick < self._last_tick:
+            raise ValueError(f"link {self.sender}->{self.receiver}: tick {tick} after {self._last_tick}")
+        self._last_tick = tick
+        u_step, u_loss, u_dup, u_j1, u_j2 = self._next_uniforms().tolist()
+        loss = self.spec.loss
+        if loss.model == "bernoulli":
+            lost = u_loss < loss.p
+        elif loss.model == "gilbert_elliott":
+            lost = u_loss < (loss.loss_bad if self._bad else loss.loss_good)
+            self._bad = (u_step >= loss.p_bad_to_good) if self._bad else (u_step < loss.p_good_to_bad)
+        else:
+            lost = False
+        if lost:
+            return ()
+        if u_dup < self.spec.duplicate:
+            return (self._delay(u_j1), self._delay(u_j2))
+        return (self._delay(u_j1),)
+
+    def _delay(self, u: float) -> int | float:
+        s = self.spec
+        if self.mode == "lockstep":
+            return s.delay_ticks + min(int(u * (s.jitter_ticks + 1)), s.jitter_ticks)
+        return s.delay_s + u * s.jitter_s
+
+    @property
+    def in_bad_state(self) -> bool:
+        """Gilbert-Elliott state before the next message (always False for other loss models)."""
+        return self._bad
+
+
+@dataclass
+class LinkStats:
+    """Message counters of one directed link, filled by the engines, written to summary.json.
+
+    ``sent``: messages offered to the link; ``delivered``: copies handed to the receiver (duplicates
+    included); ``dropped``: messages lost by the fault model; ``duplicated``: extra copies;
+    ``late``: copies that arrived after the receiver had moved past their tick; ``malformed``:
+    payloads rejected by :func:`net.schema.decode`.
+    """
+
+    sent: int = 0
+    delivered: int = 0
+    dropped: int = 0
+    duplicated: int = 0
+    late: int = 0
+    malformed: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+    def __add__(self, other: LinkStats) -> LinkStats:
+        return LinkStats(**{k: v + getattr(other, k) for k, v in asdict(self).items()})
+
+
+class DelayLine(Generic[T]):
+    """Lockstep receive buffer: messages wait here until their delivery tick.
+
+    :meth:`pop_due` returns due messages in an order that depends only on the messages, not on the
+    order they were pushed in: (deliver tick, sender, send tick, copy index), then push order for the
+    (unexpected) case of two messages from one sender for one tick. The Zenoh daemon pushes as
+    samples arrive and the in-process engine pushes in agent order; both pop the same inbox.
+    """
+
+    __slots__ = ("_heap", "_seq")
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[int, int, int, int, int, T]] = []
+        self._seq = 0
+
+    def push(self, deliver_tick: int, sender: int, send_tick: int, copy: int, msg: T) -> None:
+        heapq.heappush(self._heap, (deliver_tick, sender, send_tick, copy, self._seq, msg))
+        self._seq += 1
+
+    def offer(self, link: LinkModel, send_tick: int, msg: T, stats: LinkStats | None = None) -> int:
+        """Pass ``msg`` (sent at ``send_tick``) through ``link`` and buffer its copies.
+
+        A copy with delay d is due at ``send_tick + d``. Returns the number of copies buffered and
+        counts sent / dropped / duplicated in ``stats`` (``delivered`` is counted by :meth:`pop_due`'s
+        caller, who knows whether the copy was still useful).
+        """
+        if link.mode != "lockstep":
+            raise ValueError("DelayLine is for lockstep links (delays in ticks)")
+        delays = link.deliveries(send_tick)
+        for copy, d in enumerate(delays):
+            self.push(send_tick + int(d), link.sender, send_tick, copy, msg)
+        if stats is not None:
+            stats.sent += 1
+            if not delays:
+                stats.dropped += 1
+            stats.duplicated += max(0, len(delays) - 1)
+        return len(delays)
+
+    def pop_due(self, tick: int) -> list[T]:
+        """Remove and return every message whose delivery tick is ``<= tick``, in deterministic order."""
+        out: list[T] = []
+        heap = self._heap
+        while heap and heap[0][0] <= tick:
+            out.append(heapq.heappop(heap)[5])
+        return out
+
+    def next_due(self) -> int | None:
+        """Delivery tick of the earliest buffered message, or None if empty."""
+        return self._heap[0][0] if self._heap else None
+
+    def __len__(self) -> int:
+        return len(self._heap)

@@ -1,0 +1,34 @@
+"""Shared fixtures: scenario files and run-directory comparison."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENARIOS = ROOT / "config" / "scenarios"
+
+
+@pytest.fixture
+def scenarios_dir() -> Path:
+    return SCENARIOS
+
+
+def sorted_table(path: Path, keys: int) -> tuple[list[str], np.ndarray]:
+    """A CSV of floats with its rows sorted by the first ``keys`` columns (arrival order differs by engine)."""
+    header = path.read_text().splitlines()[0].split(",")
+    data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    order = np.lexsort([data[:, c] for c in reversed(range(keys))])
+    return header, data[order]
+
+
+def max_table_difference(dir_a: Path, dir_b: Path, name: str, keys: int) -> float:
+    ha, a = sorted_table(dir_a / name, keys)
+    hb, b = sorted_table(dir_b / name, keys)
+    assert ha == hb, f"{name}: headers differ"
+    assert a.shape == b.shape, f"{name}: {a.shape} rows vs {b.shape}"
+    both_nan = np.isnan(a) & np.isnan(b)
+    diff = np.where(both_nan, 0.0, np.abs(a - b))
+    return float(np.nanmax(np.where(np.isnan(diff), np.inf, diff))) if diff.size else 0.0
