@@ -180,7 +180,7 @@ class AgentDaemon:
             due = deliver_tick(msg.tick, d, self.scenario.dt, self.mode)
             if due < self.next_tick:
                 st.late += 1
-            self.line.push(due, msg, copy)
+            self.line.push(due, sender, msg.tick, copy, msg)
         st.delivered += len(delays)
         st.duplicated += max(0, len(delays) - 1)
         self._try_step()

@@ -86,7 +86,7 @@ def run_inproc(
                 if not delays:
                     st.dropped += 1
                 for copy, d in enumerate(delays):
-                    lines[j].push(deliver_tick(k, d, dt, mode), res.state, copy)
+                    lines[j].push(deliver_tick(k, d, dt, mode), i, k, copy, res.state)
                 st.delivered += len(delays)
                 st.duplicated += max(0, len(delays) - 1)
             if rec is not None:

@@ -8,9 +8,10 @@ Every key of that block is defined in ``docs/run-directory.md``.
 Conventions
 -----------
 * ``truth_zi`` has shape (T, n, 2): z_i = p_Ci - p_G; hence z_ij = z_i - z_j = p_Ci - p_Cj.
-* Estimates are NaN where an agent reported nothing. Aggregates over agents propagate NaN (a sum
-  with a missing term is unknown); :func:`hold_last` turns "agent was down" into "its last
-  estimate still stands", which is what :func:`final_errors` uses.
+* Estimates are NaN where an agent reported nothing. Time series are computed on what was reported,
+  and sums over agents propagate NaN (a sum with a missing term is unknown, and a gap in a plot is
+  more honest than a stale estimate of a rotating vector). Final values use each agent's last
+  report, judged against the truth at the time it was made (:func:`last_finite`).
 * On edge (i, j) both ends estimate the relative position: i holds z_ij_hat, j holds z_ji_hat.
   EERD's edge term is the mean of |z_ij - z_ij_hat|^2 over the ends that reported (j's estimate
   enters as -z_ji_hat). When both ends agree this is exactly the paper's sum over i < j, and it does
@@ -196,27 +197,44 @@ def time_to_converge(
 
 
 # --- applied to a run ----------------------------------------------------------------------------
+def last_finite(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column of a (T, n[, d]) array: the last row where it is finite, and that row's index (-1 if none).
+
+    Final errors judge each agent's last estimate against the truth *at the time it was made*: a crashed
+    agent's stale estimate of a rotating vector compared with today's truth would measure the
+    rotation, not the estimator.
+    """
+    values = np.asarray(values, dtype=float)
+    ok = np.isfinite(values) if values.ndim == 2 else np.isfinite(values).all(axis=-1)
+    rows = np.arange(values.shape[0])[:, None]
+    idx = np.where(ok, rows, -1).max(axis=0) if values.shape[0] else np.full(ok.shape[1:], -1)
+    cols = np.arange(values.shape[1])
+    picked = values[np.maximum(idx, 0), cols]
+    picked[idx < 0] = np.nan
+    return picked, idx
+
+
 @dataclass(frozen=True)
 class ErrorSeries:
     """Error time series of a run, aligned with truth; shared by :func:`final_errors` and the report.
 
-    ``est_t``-based arrays use the estimates grid; ``pair_t``-based ones the pairs grid. ``*_held``
-    arrays have silent agents' last estimates carried forward.
+    Series are computed on what agents actually reported (NaN where they did not). Arrays named for
+    the estimates grid have ``len(est_t)`` rows; those for the pairs grid ``len(pair_t)`` rows.
     """
 
     est_t: np.ndarray
-    pair_t: np.ndarray | None
-    eerd: np.ndarray | None  # (P,) on pair_t, held estimates
-    eerd_ref: np.ndarray | None  # (P,)
-    eerd_agent: np.ndarray | None  # (P, n)
-    eerd_agent_ref: np.ndarray | None  # (P, n)
-    eec: np.ndarray | None  # (K,) held estimates
-    zi_err: np.ndarray | None  # (K, n) as reported
-    zi_err_held: np.ndarray | None  # (K, n)
-    omega_true: np.ndarray | None  # (K,)
-    omega_hat: np.ndarray | None  # (K, n) as reported
-    omega_err: np.ndarray | None  # (K, n) as reported
     truth_est_idx: np.ndarray  # (K,) truth row of each estimate time
+    pair_t: np.ndarray | None = None
+    eerd: np.ndarray | None = None  # (P,)
+    eerd_ref: np.ndarray | None = None  # (P,) EERD with zero estimates
+    edge_err: np.ndarray | None = None  # (P, E) per-edge squared error
+    eerd_agent: np.ndarray | None = None  # (P, n) each agent's own share
+    eerd_agent_ref: np.ndarray | None = None  # (P, n)
+    eec: np.ndarray | None = None  # (K,)
+    zi_err: np.ndarray | None = None  # (K, n)
+    omega_true: np.ndarray | None = None  # (K,)
+    omega_hat: np.ndarray | None = None  # (K, n)
+    omega_err: np.ndarray | None = None  # (K, n)
 
 
 def _vec(table_cols: Mapping[str, np.ndarray], x: str, y: str) -> np.ndarray:
@@ -230,43 +248,31 @@ def error_series(run: RunData) -> ErrorSeries:
     est = run.estimates
     ti = run.truth_index(est.t)
     truth_zi_e = run.truth.zi[ti]
-    eerd_v = eerd_ref = eerd_a = eerd_a_ref = None
-    pair_t = None
+    kw: dict[str, Any] = {}
     if run.pairs is not None:
         pair_t = run.pairs.t
-        pi = run.truth_index(pair_t)
-        truth_zi_p = run.truth.zi[pi]
-        held = {k: hold_last(v) for k, v in run.pairs.zij.items()}
-        eerd_v = eerd(pair_t, truth_zi_p, held, run.edges)
-        eerd_ref = eerd_reference(truth_zi_p, run.edges)
-        eerd_a, eerd_a_ref = eerd_per_agent(pair_t, truth_zi_p, held, run.edges, run.n)
-    eec_v = zi_err = zi_err_held = None
+        truth_zi_p = run.truth.zi[run.truth_index(pair_t)]
+        edge_err = edge_errors(pair_t, truth_zi_p, run.pairs.zij, run.edges)
+        share, share_ref = eerd_per_agent(pair_t, truth_zi_p, run.pairs.zij, run.edges, run.n)
+        kw.update(
+            pair_t=pair_t,
+            edge_err=edge_err,
+            eerd=edge_err.sum(axis=1),
+            eerd_ref=eerd_reference(truth_zi_p, run.edges),
+            eerd_agent=share,
+            eerd_agent_ref=share_ref,
+        )
     if est.has("zi_x", "zi_y"):
         zi_hat = _vec(est.columns, "zi_x", "zi_y")
-        zi_err = zi_error(truth_zi_e, zi_hat)
-        zi_held = hold_last(zi_hat)
-        zi_err_held = zi_error(truth_zi_e, zi_held)
-        eec_v = eec(est.t, truth_zi_e, zi_held)
-    omega_true = omega_hat = omega_err = None
+        kw.update(zi_err=zi_error(truth_zi_e, zi_hat), eec=eec(est.t, truth_zi_e, zi_hat))
     if est.has("omega") and "omega" in run.truth.columns:
         omega_true = run.truth.columns["omega"][ti]
-        omega_hat = est.columns["omega"]
-        omega_err = omega_error(omega_true, omega_hat)
-    return ErrorSeries(
-        est_t=est.t,
-        pair_t=pair_t,
-        eerd=eerd_v,
-        eerd_ref=eerd_ref,
-        eerd_agent=eerd_a,
-        eerd_agent_ref=eerd_a_ref,
-        eec=eec_v,
-        zi_err=zi_err,
-        zi_err_held=zi_err_held,
-        omega_true=omega_true,
-        omega_hat=omega_hat,
-        omega_err=omega_err,
-        truth_est_idx=ti,
-    )
+        kw.update(
+            omega_true=omega_true,
+            omega_hat=est.columns["omega"],
+            omega_err=omega_error(omega_true, est.columns["omega"]),
+        )
+    return ErrorSeries(est_t=est.t, truth_est_idx=ti, **kw)
 
 
 def _num(x: Any) -> float | None:
@@ -286,6 +292,12 @@ def _rms(values: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(np.square(finite))))
 
 
+def _rms_all(values: np.ndarray) -> float | None:
+    """RMS over agents that must all be known: one agent without any estimate makes it None."""
+    values = np.asarray(values, dtype=float)
+    return _rms(values) if values.size and np.all(np.isfinite(values)) else None
+
+
 def _ratio(num: float | None, den: float | None) -> float | None:
     if num is None or den is None or not den > 0:
         return None
@@ -295,12 +307,13 @@ def _ratio(num: float | None, den: float | None) -> float | None:
 def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
     """The ``errors`` block of summary.json (keys defined in docs/run-directory.md).
 
-    "Final" means the last estimate time, with a silent agent's last estimate standing; "window"
-    quantities use the estimates actually reported in the last ``window_s`` seconds.
+    "Final" is each agent's last reported estimate (at the last recorded time for a live agent),
+    judged against the truth at the time it was reported. "Window" quantities use every estimate
+    reported in the last ``window_s`` seconds of the recording.
     """
     s = error_series(run)
-    est = run.estimates
-    assert est is not None and run.truth is not None  # checked by error_series
+    est, truth = run.estimates, run.truth
+    assert est is not None and truth is not None  # checked by error_series
     n = run.n
     out: dict[str, Any] = {}
     if len(s.est_t) == 0:
@@ -310,45 +323,42 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
     out["t_final"] = t_end
     out["window_s"] = float(window_s)
 
-    if s.zi_err_held is not None and s.zi_err is not None and s.eec is not None:
-        final = s.zi_err_held[-1]
-        out["zi_rms"] = _rms(final) if np.all(np.isfinite(final)) else None
+    if s.zi_err is not None:
+        final, _ = last_finite(s.zi_err)
+        out["zi_rms"] = _rms_all(final)
         out["zi_rms_window"] = _rms(s.zi_err[window])
         out["zi_err_per_agent"] = [_num(v) for v in final]
-        out["eec_final"] = _num(s.eec[-1])
+        out["eec_final"] = _num(np.sum(np.square(final)))
 
     if s.omega_err is not None:
         out["omega_rms"] = _rms(s.omega_err[window])
         out["omega_rms_per_agent"] = [_rms(s.omega_err[window, i]) for i in range(n)]
 
-    if s.eerd is not None and s.eerd_ref is not None and s.pair_t is not None and len(s.pair_t):
+    if s.pair_t is not None and len(s.pair_t):
+        assert s.edge_err is not None and s.eerd is not None and s.eerd_ref is not None
+        assert s.eerd_agent is not None and s.eerd_agent_ref is not None
         initial = _num(s.eerd_ref[0])
-        final_eerd = _num(s.eerd[-1])
+        final_eerd = _num(np.sum(last_finite(s.edge_err)[0])) if run.edges else 0.0
         out["eerd_initial"] = initial
         out["eerd_final"] = final_eerd
         out["eerd_ratio"] = _ratio(final_eerd, initial)
-        out["eerd_converge_s"] = (
-            time_to_converge(s.pair_t, s.eerd, initial) if initial is not None else None
-        )
-        assert s.eerd_agent is not None and s.eerd_agent_ref is not None
-        out["eerd_ratio_per_agent"] = [
-            _ratio(_num(s.eerd_agent[-1, i]), _num(s.eerd_agent_ref[0, i])) for i in range(n)
-        ]
+        out["eerd_converge_s"] = time_to_converge(s.pair_t, s.eerd, initial) if initial else None
+        share, _ = last_finite(s.eerd_agent)
+        out["eerd_ratio_per_agent"] = [_ratio(_num(share[i]), _num(s.eerd_agent_ref[0, i])) for i in range(n)]
 
-    truth = run.truth.columns
+    tcol = truth.columns
     ti = s.truth_est_idx
-    if est.has("J") and "inertia" in truth:
-        rel = (hold_last(est.columns["J"])[-1] - truth["inertia"][ti[-1]]) / truth["inertia"][ti[-1]]
-        out["J_rel"] = _rms(rel) if np.all(np.isfinite(rel)) else None
-    if est.has("m") and "mass" in truth:
-        rel = (hold_last(est.columns["m"])[-1] - truth["mass"][ti[-1]]) / truth["mass"][ti[-1]]
-        out["m_rel"] = _rms(rel) if np.all(np.isfinite(rel)) else None
-    if est.has("zc_x", "zc_y") and "zc_x" in truth and "zc_y" in truth:
-        zc_hat = hold_last(_vec(est.columns, "zc_x", "zc_y"))[-1]
-        err = np.sqrt(_sq(zc_hat - np.array([truth["zc_x"][ti[-1]], truth["zc_y"][ti[-1]]])))
-        out["zC_rms"] = _rms(err) if np.all(np.isfinite(err)) else None
-    if est.has("vc_x", "vc_y") and "vc_x" in truth and "vc_y" in truth:
-        vc_true = np.stack([truth["vc_x"][ti], truth["vc_y"][ti]], axis=1)[:, None, :]
-        err = np.sqrt(_sq(_vec(est.columns, "vc_x", "vc_y") - vc_true))
+    for col, tname, key in (("J", "inertia", "J_rel"), ("m", "mass", "m_rel")):
+        if est.has(col) and tname in tcol:
+            true = tcol[tname][ti]
+            rel, _ = last_finite((est.columns[col] - true[:, None]) / true[:, None])
+            out[key] = _rms_all(rel)
+    if est.has("zc_x", "zc_y") and "zc_x" in tcol and "zc_y" in tcol:
+        true_zc = np.stack([tcol["zc_x"][ti], tcol["zc_y"][ti]], axis=1)[:, None, :]
+        err, _ = last_finite(np.sqrt(_sq(_vec(est.columns, "zc_x", "zc_y") - true_zc)))
+        out["zC_rms"] = _rms_all(err)
+    if est.has("vc_x", "vc_y") and "vc_x" in tcol and "vc_y" in tcol:
+        true_vc = np.stack([tcol["vc_x"][ti], tcol["vc_y"][ti]], axis=1)[:, None, :]
+        err = np.sqrt(_sq(_vec(est.columns, "vc_x", "vc_y") - true_vc))
         out["vC_rms"] = _rms(err[window])
     return out

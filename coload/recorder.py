@@ -60,8 +60,7 @@ class Recorder:
         self._samples = _Table(self.run_dir / fmt.SAMPLES_CSV, fmt.SAMPLES_HEADER)
         self._estimates = _Table(self.run_dir / fmt.ESTIMATES_CSV, ["t", "agent", *estimate_names])
         self._pairs = _Table(self.run_dir / fmt.PAIRS_CSV, fmt.PAIRS_HEADER)
-        truth_header = fmt.TRUTH_HEADER + [f"z{i}_{c}" for i in range(scenario.n) for c in ("x", "y")]
-        self._truth = _Table(self.run_dir / fmt.TRUTH_CSV, truth_header)
+        self._truth = _Table(self.run_dir / fmt.TRUTH_CSV, fmt.truth_header(scenario.n))
         self.estimates_recorded = 0
 
     def keeps(self, tick: int) -> bool:

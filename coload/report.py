@@ -8,6 +8,7 @@ backend so that it works headless (CI, docker). Numbers in the table come from
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,6 +34,7 @@ MAX_PLOT_POINTS = 20_000
 
 _TRUE_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.6, "zorder": 5}
 _TRUE_STYLE_Y = {"color": "dimgray", "linestyle": ":", "linewidth": 1.8, "zorder": 5}
+_TOTAL_COLOR = "0.2"  # sums over agents: dark grey, distinct from every agent colour
 
 
 # --- panels -------------------------------------------------------------------------------------
@@ -68,16 +70,22 @@ def _stride(length: int) -> slice:
     return slice(None, None, max(1, int(np.ceil(length / MAX_PLOT_POINTS))))
 
 
-def _log_or_linear(ax: Axes, *arrays: np.ndarray) -> None:
-    """Log scale when there is something positive to show; exact-zero errors would make it blank."""
-    values = np.concatenate([np.ravel(a) for a in arrays]) if arrays else np.array([])
+def _log_or_linear(ax: Axes, data: np.ndarray, also: Sequence[float] = ()) -> None:
+    """Log scale when the data has something positive to show (exact-zero errors would leave it blank).
+
+    ``also`` are reference levels (e.g. the 1 % line) kept inside the limits of a log axis.
+    """
+    values = np.ravel(np.asarray(data, dtype=float))
     positive = values[np.isfinite(values) & (values > 0)]
     if positive.size:
         ax.set_yscale("log")
-        lo = max(positive.min(), positive.max() * 1e-9)
-        ax.set_ylim(lo / 2, positive.max() * 2)
+        hi = max(positive.max(), *also) if also else positive.max()
+        lo = max(positive.min(), hi * 1e-9)
+        if also:
+            lo = min(lo, *also)
+        ax.set_ylim(lo / 2, hi * 2)
     else:
-        ax.text(0.5, 0.5, "all zero", transform=ax.transAxes, ha="center", va="center", color="gray")
+        ax.text(0.5, 0.75, "all zero", transform=ax.transAxes, ha="center", va="center", color="gray")
 
 
 class _Ctx:
@@ -107,7 +115,7 @@ def _draw_eerd(ax: Axes, c: _Ctx) -> None:
     s = c.s
     assert s.pair_t is not None and s.eerd is not None and s.eerd_ref is not None
     st = _stride(len(s.pair_t))
-    ax.plot(s.pair_t[st], s.eerd[st], color="tab:blue", linewidth=1.4, label="EERD")
+    ax.plot(s.pair_t[st], s.eerd[st], color=_TOTAL_COLOR, linewidth=1.4, label="EERD")
     initial = c.errors.get("eerd_initial")
     if initial:
         ax.axhline(metrics.CONVERGED_FRACTION * initial, color="tab:red", linestyle=":", linewidth=1.2,
@@ -115,13 +123,11 @@ def _draw_eerd(ax: Axes, c: _Ctx) -> None:
     t_conv = c.errors.get("eerd_converge_s")
     if t_conv is not None:
         ax.axvline(t_conv, color="tab:red", linewidth=0.8, alpha=0.6)
-        ax.annotate(f"< 1 % from {t_conv:.1f} s", xy=(t_conv, 1), xycoords=("data", "axes fraction"),
-                    xytext=(4, -12), textcoords="offset points", color="tab:red", fontsize=8)
-    extra = [metrics.CONVERGED_FRACTION * initial] if initial else []
-    _log_or_linear(ax, s.eerd, np.array(extra))
+        ax.annotate(f"below 1 % from {t_conv:.1f} s", xy=(t_conv, 1), xycoords=("data", "axes fraction"),
+                    xytext=(4, -4), textcoords="offset points", va="top", color="tab:red", fontsize=8)
+    _log_or_linear(ax, s.eerd, [metrics.CONVERGED_FRACTION * initial] if initial else [])
     ax.set_ylabel("EERD [m²]")
     ax.set_title("relative-position error  EERD(t) = Σ_edges |z_ij − ẑ_ij|²", loc="left", fontsize=9)
-    ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
 
 
 def _draw_omega(ax: Axes, c: _Ctx) -> None:
@@ -143,7 +149,7 @@ def _draw_omega(ax: Axes, c: _Ctx) -> None:
 
 def _draw_eec(ax: Axes, c: _Ctx) -> None:
     assert c.s.eec is not None
-    ax.plot(c.s.est_t[c.es], c.s.eec[c.es], color="tab:blue", linewidth=1.4)
+    ax.plot(c.s.est_t[c.es], c.s.eec[c.es], color=_TOTAL_COLOR, linewidth=1.4)
     _log_or_linear(ax, c.s.eec)
     ax.set_ylabel("EEC [m²]")
     ax.set_title("contact-to-centre error  EEC(t) = Σ_i |z_i − ẑ_i|²", loc="left", fontsize=9)
@@ -207,15 +213,13 @@ def _phase_changes(run: RunData) -> list[tuple[float, int]]:
     if est is None or not est.has("phase") or len(est.t) == 0:
         return []
     phase = metrics.hold_last(est.columns["phase"])
-    with np.errstate(all="ignore"):
-        median = np.array([np.nanmedian(row) if np.any(np.isfinite(row)) else np.nan for row in phase])
-    out: list[tuple[float, int]] = []
-    last = np.nan
-    for t, p in zip(est.t, median):
-        if np.isfinite(p) and p != last:
-            if np.isfinite(last):
-                out.append((float(t), int(round(p))))
-            last = p
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows before any agent reported
+        median = np.nanmedian(phase, axis=1)
+    t = est.t[np.isfinite(median)]
+    median = median[np.isfinite(median)]
+    change = np.flatnonzero(median[1:] != median[:-1]) + 1
+    out = [(float(t[k]), int(round(median[k]))) for k in change]
     return out[:20]  # a flapping phase would otherwise draw a barcode
 
 
@@ -242,15 +246,17 @@ def build_figure(run: RunData, errors: dict[str, Any] | None = None) -> Figure:
         ax.grid(True, which="major", alpha=0.3)
         for t, _ in phases:
             ax.axvline(t, color="gray", linewidth=0.7, linestyle="-.", alpha=0.5, zorder=0)
-    top = axes[0, 0]
-    for t, p in phases:
-        top.annotate(f"phase {p}", xy=(t, 1), xycoords=("data", "axes fraction"), xytext=(2, 2),
-                     textcoords="offset points", fontsize=7, color="gray", va="bottom")
+    if phases:
+        # phase changes as ticks of a top axis: labelled once, never on top of data or titles
+        top = axes[0, 0].secondary_xaxis("top")
+        top.set_xticks([t for t, _ in phases], labels=[f"phase {p}" for _, p in phases], fontsize=7,
+                       color="dimgray")
+        top.tick_params(length=3, color="gray")
     axes[-1, 0].set_xlabel("time [s]")
     t_all = series.est_t if series.pair_t is None else np.concatenate([series.est_t, series.pair_t])
     if len(t_all):
         axes[-1, 0].set_xlim(float(np.min(t_all)), float(np.max(t_all)))
-    _agent_legend(fig, run.n, ctx.colors)
+    _agent_legend(fig, run.n, ctx.colors, with_eerd="eerd" in names)
     cfg = run.config
     fig.suptitle(
         f"coload run '{run.name}'  ({cfg.get('mode', '?')}, n = {run.n}, seed = {cfg.get('seed', '?')}, "
@@ -260,16 +266,22 @@ def build_figure(run: RunData, errors: dict[str, Any] | None = None) -> Figure:
     return fig
 
 
-def _agent_legend(fig: Figure, n: int, colors: Sequence[Any]) -> None:
-    """Agents' colours outside the panels so no data is covered: a legend up to 12, a colour bar beyond."""
-    true_handle = Line2D([], [], **{k: v for k, v in _TRUE_STYLE.items() if k != "zorder"}, label="true value")
+def _agent_legend(fig: Figure, n: int, colors: Sequence[Any], *, with_eerd: bool) -> None:
+    """One legend outside the panels so no data is covered; beyond 12 agents a colour bar names them."""
+    common = [Line2D([], [], **{k: v for k, v in _TRUE_STYLE.items() if k != "zorder"}, label="true value")]
+    if with_eerd:
+        common = [
+            Line2D([], [], color=_TOTAL_COLOR, linewidth=1.4, label="EERD, EEC (sums)"),
+            Line2D([], [], color="tab:red", linestyle=":", linewidth=1.2, label="1 % of initial EERD"),
+        ] + common
     if n <= 12:
         handles = [Line2D([], [], color=colors[i], linewidth=1.5, label=f"agent {i}") for i in range(n)]
-        fig.legend(handles=handles + [true_handle], loc="outside right upper", fontsize=8, frameon=False)
+        fig.legend(handles=handles + common, loc="outside right upper", fontsize=8, frameon=False)
     else:
+        data_axes = list(fig.axes)
         sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(0, n - 1))
-        fig.colorbar(sm, ax=fig.axes, location="right", shrink=0.5, label="agent", pad=0.01)
-        fig.legend(handles=[true_handle], loc="outside right lower", fontsize=8, frameon=False)
+        fig.colorbar(sm, ax=data_axes, location="right", shrink=0.4, label="agent", pad=0.01)
+        fig.legend(handles=common, loc="outside right upper", fontsize=8, frameon=False)
 
 
 # --- table --------------------------------------------------------------------------------------
@@ -288,31 +300,31 @@ def summary_table(run: RunData, errors: dict[str, Any]) -> str:
     zi, om, share = per("zi_err_per_agent"), per("omega_rms_per_agent"), per("eerd_ratio_per_agent")
     win = errors.get("window_s", WINDOW_S)
     cols = ("agent", "|z_i err| final [m]", f"omega RMS last {win:g} s [rad/s]", "EERD share [final/initial]")
-    widths = [max(7, len(c)) for c in cols]
+    widths = [max(9, len(c)) for c in cols]
     lines = [
         f"run '{run.name}' ({cfg.get('mode', '?')}, n = {n}, seed = {cfg.get('seed', '?')}, "
         f"t_final = {_fmt(errors.get('t_final'), '.2f')} s)  {run.path}",
         "  ".join(c.rjust(w) for c, w in zip(cols, widths)),
     ]
     for i in range(n):
-        cells = (str(i), _fmt(zi[i]), _fmt(om[i], ".5f"), _fmt(share[i], ".3e"))
+        cells = (str(i), _fmt(zi[i], ".3e"), _fmt(om[i], ".3e"), _fmt(share[i], ".3e"))
         lines.append("  ".join(c.rjust(w) for c, w in zip(cells, widths)))
     lines.append("-" * (sum(widths) + 2 * (len(widths) - 1)))
-    total = ("all", _fmt(errors.get("zi_rms")) + " rms", _fmt(errors.get("omega_rms"), ".5f") + " rms",
-             _fmt(errors.get("eerd_ratio"), ".3e") + " EERD")
+    total = ("all (RMS)", _fmt(errors.get("zi_rms"), ".3e"), _fmt(errors.get("omega_rms"), ".3e"),
+             "ratio " + _fmt(errors.get("eerd_ratio"), ".3e"))
     lines.append("  ".join(c.rjust(w) for c, w in zip(total, widths)))
     conv = errors.get("eerd_converge_s")
     lines.append(
         f"EERD {_fmt(errors.get('eerd_initial'), '.4g')} -> {_fmt(errors.get('eerd_final'), '.4g')} m^2; "
         f"below 1 % of initial {'from t = ' + format(conv, '.2f') + ' s' if conv is not None else 'never'}; "
         f"EEC final {_fmt(errors.get('eec_final'), '.4g')} m^2; "
-        f"z_i RMS last {win:g} s {_fmt(errors.get('zi_rms_window'))} m"
+        f"z_i RMS last {win:g} s {_fmt(errors.get('zi_rms_window'), '.4g')} m"
     )
     extra = [
         f"{label} {_fmt(errors[key], spec)}{unit}"
         for key, label, spec, unit in (
             ("J_rel", "J rel err", ".2%", ""), ("m_rel", "m rel err", ".2%", ""),
-            ("zC_rms", "z_C err", ".4f", " m"), ("vC_rms", "v_C RMS", ".4f", " m/s"),
+            ("zC_rms", "z_C err", ".4g", " m"), ("vC_rms", "v_C RMS", ".4g", " m/s"),
         )
         if key in errors
     ]

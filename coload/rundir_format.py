@@ -17,10 +17,11 @@ import csv
 import json
 import math
 import tomllib
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -51,6 +52,9 @@ PAIRS_HEADER: tuple[str, ...] = ("t", "agent", "neighbour", "zij_x", "zij_y")
 TRUTH_BASE_HEADER: tuple[str, ...] = (
     "t", "x", "y", "angle", "vc_x", "vc_y", "omega", "zc_x", "zc_y", "pg_x", "pg_y", "mass", "inertia",
 )
+TRUTH_HEADER: list[str] = list(TRUTH_BASE_HEADER)
+"""The base truth columns as a list (writers append the per-agent ``z{i}_x, z{i}_y``); prefer
+:func:`truth_header`, which appends them for you. A fresh copy of the tuple, so mutating it harms no reader."""
 
 
 def truth_header(n: int) -> tuple[str, ...]:
@@ -61,6 +65,9 @@ def truth_header(n: int) -> tuple[str, ...]:
 TIME_DECIMALS = 9
 """Times are matched after rounding to this many decimals (1 ns), so that the same tick written by
 different agents lands on one grid point despite float formatting."""
+
+
+T = TypeVar("T")
 
 
 class RunFormatError(ValueError):
@@ -113,7 +120,7 @@ class RunData:
     pairs: PairTable | None = None
     truth: TruthTable | None = None
     summary: dict[str, Any] | None = None
-    name: str = field(default="")
+    name: str = ""
 
     def truth_index(self, times: np.ndarray) -> np.ndarray:
         """Index of the truth row nearest to each of ``times``; truth is recorded every tick, so this is exact."""
@@ -202,31 +209,54 @@ def read_config(path: Path) -> dict[str, Any]:
     return config
 
 
+class _SlowPath(Exception):
+    """The vectorised reader met something it cannot pinpoint; re-read cell by cell to name file and line."""
+
+
 @dataclass(frozen=True)
 class _Csv:
-    """A CSV file read as text: header, rows and the physical line number of each row (for messages)."""
+    """A CSV file, either as a float matrix (fast path, ``lines`` None) or as text rows with line numbers."""
 
     path: Path
     header: list[str]
-    rows: list[list[str]]
-    lines: list[int]
+    rows: list[list[str]] | None = None
+    lines: list[int] | None = None
+    matrix: np.ndarray | None = None
+
+    def fail(self, r: int, message: str) -> None:
+        """Raise a RunFormatError for row ``r``; on the fast path (no line numbers) fall back first."""
+        if self.lines is None:
+            raise _SlowPath
+        raise RunFormatError(f"{self.path}:{self.lines[r]}: {message}")
 
     def column(self, name: str, *, integer: bool = False, allow_empty: bool = True) -> np.ndarray:
         """One column as floats (or ints), raising with file, line and column on the first bad cell."""
         k = self.header.index(name)
+        if self.matrix is not None:
+            values = self.matrix[:, k]
+            if name == "t" and not np.all(np.isfinite(values)):
+                raise _SlowPath
+            if integer:
+                if not (np.all(np.isfinite(values)) and np.all(values == np.round(values))):
+                    raise _SlowPath
+                return values.astype(int)
+            return values
+        assert self.rows is not None
         cells = [r[k].strip() for r in self.rows]
-        try:
-            if integer or not allow_empty:
-                raise ValueError  # take the checking path below
-            return np.asarray([c if c else "nan" for c in cells], dtype=float)
-        except ValueError:
-            pass
         out = np.empty(len(cells), dtype=int if integer else float)
         for r, cell in enumerate(cells):
             out[r] = self._parse(cell, r, name, integer=integer, allow_empty=allow_empty)
         return out
 
+    def lenient_column(self, name: str) -> np.ndarray | None:
+        """An extra (unspecified) column: floats if it is numeric, else None, i.e. ignored as the format allows."""
+        try:
+            return self.column(name)
+        except RunFormatError:
+            return None
+
     def _parse(self, cell: str, r: int, name: str, *, integer: bool, allow_empty: bool) -> float:
+        assert self.lines is not None
         where = f"{self.path}:{self.lines[r]}: column '{name}'"
         if not cell:
             if allow_empty:
@@ -243,6 +273,39 @@ class _Csv:
         if name == "t" and not math.isfinite(value):
             raise RunFormatError(f"{where}: time must be finite, got {cell!r}")
         return value
+
+
+def _load_fast(path: Path, required: Sequence[str]) -> _Csv | None:
+    """All-numeric, well-formed file in one C-speed ``np.loadtxt``; None if anything is unusual."""
+    try:
+        with path.open(newline="") as fh:
+            header = [h.strip() for h in next(csv.reader(fh))]
+    except (OSError, StopIteration, csv.Error):
+        return None
+    if any(c not in header for c in required) or len(set(header)) != len(header):
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # "input contained no data": header only
+            matrix = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=float, comments=None)
+    except ValueError:
+        return None
+    if matrix.size == 0:
+        matrix = np.empty((0, len(header)))
+    if matrix.shape[1] != len(header):
+        return None
+    return _Csv(path, header, matrix=matrix)
+
+
+def _read(path: Path, required: Sequence[str], build: Callable[[_Csv], T]) -> T:
+    """Build a table from the fast reader, or from the line-tracking one when the file needs it."""
+    fast = _load_fast(path, required)
+    if fast is not None:
+        try:
+            return build(fast)
+        except _SlowPath:
+            pass
+    return build(_read_csv(path, required))
 
 
 def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
@@ -276,7 +339,7 @@ def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
                 lines.append(reader.line_num)
         except csv.Error as exc:
             raise RunFormatError(f"{path}:{reader.line_num}: {exc}") from exc
-    return _Csv(path, header, rows, lines)
+    return _Csv(path, header, rows=rows, lines=lines)
 
 
 def _time_grid(csvf: _Csv) -> tuple[np.ndarray, np.ndarray]:
@@ -290,61 +353,77 @@ def _check_agent(csvf: _Csv, values: np.ndarray, name: str, n: int) -> None:
     bad = np.flatnonzero((values < 0) | (values >= n))
     if len(bad):
         r = int(bad[0])
-        raise RunFormatError(
-            f"{csvf.path}:{csvf.lines[r]}: column '{name}': agent {values[r]} out of range 0..{n - 1}"
-        )
+        csvf.fail(r, f"column '{name}': agent {values[r]} out of range 0..{n - 1}")
 
 
 def read_agent_csv(path: Path, required: Sequence[str], n: int) -> AgentTable:
     """Read a ``t,agent,...`` long-format file; every column other than t and agent becomes a (T, n) array.
 
-    Duplicate (t, agent) rows keep the later one in file order (a restarted agent re-reporting a tick).
+    Required columns and known estimate names must be numeric (empty = NaN); other extra columns are
+    kept when numeric and ignored otherwise. Duplicate (t, agent) rows keep the later one in file
+    order (a restarted agent re-reporting a tick).
     """
-    csvf = _read_csv(path, required)
-    grid, ti = _time_grid(csvf)
-    agent = csvf.column("agent", integer=True)
-    _check_agent(csvf, agent, "agent", n)
-    columns: dict[str, np.ndarray] = {}
-    for name in csvf.header:
-        if name in ("t", "agent"):
-            continue
-        values = csvf.column(name)
-        table = np.full((len(grid), n), np.nan)
-        table[ti, agent] = values
-        columns[name] = table
-    return AgentTable(t=grid, columns=columns)
+    strict = set(required) | set(KNOWN_ESTIMATE_NAMES)
+
+    def build(csvf: _Csv) -> AgentTable:
+        grid, ti = _time_grid(csvf)
+        agent = csvf.column("agent", integer=True)
+        _check_agent(csvf, agent, "agent", n)
+        columns: dict[str, np.ndarray] = {}
+        for name in csvf.header:
+            if name in ("t", "agent"):
+                continue
+            values = csvf.column(name) if name in strict else csvf.lenient_column(name)
+            if values is None:
+                continue
+            table = np.full((len(grid), n), np.nan)
+            table[ti, agent] = values
+            columns[name] = table
+        return AgentTable(t=grid, columns=columns)
+
+    return _read(path, required, build)
 
 
 def read_pairs_csv(path: Path, n: int) -> PairTable:
     """Read pairs.csv into one (T, 2) array per directed pair (agent, neighbour)."""
-    csvf = _read_csv(path, PAIRS_HEADER)
-    grid, ti = _time_grid(csvf)
-    agent = csvf.column("agent", integer=True)
-    nb = csvf.column("neighbour", integer=True)
-    _check_agent(csvf, agent, "agent", n)
-    _check_agent(csvf, nb, "neighbour", n)
-    same = np.flatnonzero(agent == nb)
-    if len(same):
-        r = int(same[0])
-        raise RunFormatError(f"{path}:{csvf.lines[r]}: column 'neighbour': agent {agent[r]} paired with itself")
-    xy = np.stack([csvf.column("zij_x"), csvf.column("zij_y")], axis=1)
-    zij: dict[tuple[int, int], np.ndarray] = {}
-    keys = agent * n + nb
-    for key in np.unique(keys):
-        rows = keys == key
-        arr = np.full((len(grid), 2), np.nan)
-        arr[ti[rows]] = xy[rows]
-        zij[(int(key // n), int(key % n))] = arr
-    return PairTable(t=grid, zij=zij)
+
+    def build(csvf: _Csv) -> PairTable:
+        grid, ti = _time_grid(csvf)
+        agent = csvf.column("agent", integer=True)
+        nb = csvf.column("neighbour", integer=True)
+        _check_agent(csvf, agent, "agent", n)
+        _check_agent(csvf, nb, "neighbour", n)
+        same = np.flatnonzero(agent == nb)
+        if len(same):
+            r = int(same[0])
+            csvf.fail(r, f"column 'neighbour': agent {agent[r]} paired with itself")
+        xy = np.stack([csvf.column("zij_x"), csvf.column("zij_y")], axis=1)
+        zij: dict[tuple[int, int], np.ndarray] = {}
+        keys = agent * n + nb
+        order = np.argsort(keys, kind="stable")
+        uniq, starts = np.unique(keys[order], return_index=True)
+        for key, rows in zip(uniq, np.split(order, starts[1:])):
+            arr = np.full((len(grid), 2), np.nan)
+            arr[ti[rows]] = xy[rows]
+            zij[(int(key // n), int(key % n))] = arr
+        return PairTable(t=grid, zij=zij)
+
+    return _read(path, PAIRS_HEADER, build)
 
 
 def read_truth_csv(path: Path, n: int) -> TruthTable:
     """Read truth.csv (one row per tick) sorted by time; requires the z_i columns of all n agents."""
-    csvf = _read_csv(path, truth_header(n))
-    t = csvf.column("t", allow_empty=False)
-    order = np.argsort(t, kind="stable")
-    columns = {name: csvf.column(name)[order] for name in csvf.header}
-    zi = np.stack(
-        [np.stack([columns[f"z{i}_x"], columns[f"z{i}_y"]], axis=1) for i in range(n)], axis=1
-    ).reshape(len(t), n, 2)
-    return TruthTable(t=columns["t"], columns=columns, zi=zi)
+    strict = set(truth_header(n))
+
+    def build(csvf: _Csv) -> TruthTable:
+        t = csvf.column("t", allow_empty=False)
+        order = np.argsort(t, kind="stable")
+        columns: dict[str, np.ndarray] = {}
+        for name in csvf.header:
+            values = csvf.column(name) if name in strict else csvf.lenient_column(name)
+            if values is not None:
+                columns[name] = values[order]
+        zi = np.stack([np.stack([columns[f"z{i}_x"], columns[f"z{i}_y"]], axis=1) for i in range(n)], axis=1)
+        return TruthTable(t=columns["t"], columns=columns, zi=zi.reshape(len(t), n, 2))
+
+    return _read(path, truth_header(n), build)

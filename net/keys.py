@@ -2,16 +2,18 @@
 
 Every key lives under ``coload/{run}/`` so that concurrent runs on one router never hear each other::
 
-    coload/{run}/agent/{i}/meas       simulator -> agent i
-    coload/{run}/agent/{i}/wrench     agent i -> simulator
-    coload/{run}/agent/{i}/state      agent i -> neighbours
-    coload/{run}/agent/{i}/estimate   agent i -> observers
-    coload/{run}/alive/{role}/{id}    liveliness tokens
-    coload/{run}/sim/control          simulator run notices (start / stop / done)
+    coload/{run}/agent/{i}/meas       simulator -> agent i             meas(run, i)
+    coload/{run}/agent/{i}/wrench     agent i -> simulator             wrench(run, i)
+    coload/{run}/agent/{i}/state      agent i -> neighbours            state(run, i)
+    coload/{run}/agent/{i}/estimate   agent i -> observers             estimate(run, i)
+    coload/{run}/agent/{i}/report     agent i -> simulator, at the end report(run, i)
+    coload/{run}/alive/{role}/{id}    liveliness tokens                alive(run, role, id)
+    coload/{run}/sim/control          simulator run notices            sim_control(run)
 
 Builders validate their inputs (a ``*`` or ``/`` smuggled into a run name would silently widen a
 subscription); parsers return ``None`` for keys that are not ours, so callers can drop and count them.
-Agent ids are canonical decimals (``7``, never ``07``), so each agent has exactly one key.
+Ids are canonical decimals (``7``, never ``07``), so each daemon has exactly one key, and parse back
+to ``int``.
 """
 
 from __future__ import annotations
@@ -19,8 +21,8 @@ from __future__ import annotations
 from typing import Final, Literal, NamedTuple
 
 ROOT: Final = "coload"
-AGENT_KINDS: Final = ("meas", "wrench", "state", "estimate")
-AgentKind = Literal["meas", "wrench", "state", "estimate"]
+AGENT_KINDS: Final = ("meas", "wrench", "state", "estimate", "report")
+AgentKind = Literal["meas", "wrench", "state", "estimate", "report"]
 MAX_CHUNK: Final = 128
 _FORBIDDEN: Final = frozenset("/*$#?")
 
@@ -34,7 +36,7 @@ class AgentKey(NamedTuple):
 class AliveKey(NamedTuple):
     run: str
     role: str
-    id: str
+    id: int
 
 
 def _check_chunk(what: str, s: str) -> str:
@@ -54,14 +56,21 @@ def _is_chunk(s: str) -> bool:
     return True
 
 
+def _parse_id(s: str) -> int | None:
+    """Canonical non-negative decimal -> int; anything else (``07``, ``+1``, non-ASCII digits) -> None."""
+    if not s.isascii() or not s.isdigit() or (len(s) > 1 and s[0] == "0"):
+        return None
+    return int(s)
+
+
 def validate_run(run: str) -> str:
     """Return ``run`` if it is a valid run name, else raise ``ValueError``."""
     return _check_chunk("run name", run)
 
 
-def _check_agent(i: int) -> int:
+def _check_id(i: int) -> int:
     if type(i) is not int or i < 0:
-        raise ValueError(f"agent id must be a non-negative int: {i!r}")
+        raise ValueError(f"id must be a non-negative int: {i!r}")
     return i
 
 
@@ -71,28 +80,32 @@ def _check_kind(kind: str) -> str:
     return kind
 
 
-def agent_key(run: str, i: int, kind: AgentKind) -> str:
+def agent(run: str, i: int, kind: AgentKind) -> str:
     """``coload/{run}/agent/{i}/{kind}``."""
-    return f"{ROOT}/{validate_run(run)}/agent/{_check_agent(i)}/{_check_kind(kind)}"
+    return f"{ROOT}/{validate_run(run)}/agent/{_check_id(i)}/{_check_kind(kind)}"
 
 
-def meas_key(run: str, i: int) -> str:
-    return agent_key(run, i, "meas")
+def meas(run: str, i: int) -> str:
+    return agent(run, i, "meas")
 
 
-def wrench_key(run: str, i: int) -> str:
-    return agent_key(run, i, "wrench")
+def wrench(run: str, i: int) -> str:
+    return agent(run, i, "wrench")
 
 
-def state_key(run: str, i: int) -> str:
-    return agent_key(run, i, "state")
+def state(run: str, i: int) -> str:
+    return agent(run, i, "state")
 
 
-def estimate_key(run: str, i: int) -> str:
-    return agent_key(run, i, "estimate")
+def estimate(run: str, i: int) -> str:
+    return agent(run, i, "estimate")
 
 
-def agent_wildcard(run: str, kind: AgentKind | None = None) -> str:
+def report(run: str, i: int) -> str:
+    return agent(run, i, "report")
+
+
+def agent_all(run: str, kind: AgentKind | None = None) -> str:
     """``coload/{run}/agent/*/{kind}`` (every agent's ``kind``), or ``coload/{run}/agent/**``."""
     if kind is None:
         return f"{ROOT}/{validate_run(run)}/agent/**"
@@ -104,39 +117,41 @@ def parse_agent_key(key: str) -> AgentKey | None:
     parts = key.split("/")
     if len(parts) != 5 or parts[0] != ROOT or parts[2] != "agent" or parts[4] not in AGENT_KINDS:
         return None
-    run, i = parts[1], parts[3]
-    if not _is_chunk(run) or not i.isascii() or not i.isdigit() or (len(i) > 1 and i[0] == "0"):
+    i = _parse_id(parts[3])
+    if i is None or not _is_chunk(parts[1]):
         return None
-    return AgentKey(run, int(i), parts[4])
+    return AgentKey(parts[1], i, parts[4])
 
 
-def alive_key(run: str, role: str, id: int | str) -> str:
-    """``coload/{run}/alive/{role}/{id}``: the liveliness token of one daemon."""
-    ident = str(_check_agent(id)) if isinstance(id, int) else _check_chunk("id", id)
-    return f"{ROOT}/{validate_run(run)}/alive/{_check_chunk('role', role)}/{ident}"
+def alive(run: str, role: str, i: int) -> str:
+    """``coload/{run}/alive/{role}/{i}``: the liveliness token of one daemon (``role`` e.g. agent, sim)."""
+    return f"{ROOT}/{validate_run(run)}/alive/{_check_chunk('role', role)}/{_check_id(i)}"
 
 
-def alive_wildcard(run: str, role: str | None = None) -> str:
+def alive_all(run: str, role: str | None = None) -> str:
     """``coload/{run}/alive/**`` (every daemon) or ``coload/{run}/alive/{role}/*``."""
     if role is None:
         return f"{ROOT}/{validate_run(run)}/alive/**"
     return f"{ROOT}/{validate_run(run)}/alive/{_check_chunk('role', role)}/*"
 
 
-def parse_alive_key(key: str) -> AliveKey | None:
-    """``coload/{run}/alive/{role}/{id}`` -> ``AliveKey(run, role, id)``; ``None`` otherwise."""
+def parse_alive(key: str) -> AliveKey | None:
+    """``coload/{run}/alive/{role}/{i}`` -> ``AliveKey(run, role, i)``; ``None`` otherwise."""
     parts = key.split("/")
-    if len(parts) != 5 or parts[0] != ROOT or parts[2] != "alive" or not all(map(_is_chunk, parts[1:])):
+    if len(parts) != 5 or parts[0] != ROOT or parts[2] != "alive":
         return None
-    return AliveKey(parts[1], parts[3], parts[4])
+    i = _parse_id(parts[4])
+    if i is None or not _is_chunk(parts[1]) or not _is_chunk(parts[3]):
+        return None
+    return AliveKey(parts[1], parts[3], i)
 
 
-def sim_control_key(run: str) -> str:
-    """``coload/{run}/sim/control``: the simulator's run start / stop / done notices."""
+def sim_control(run: str) -> str:
+    """``coload/{run}/sim/control``: the simulator's run notices (start / progress / done)."""
     return f"{ROOT}/{validate_run(run)}/sim/control"
 
 
-def run_wildcard(run: str) -> str:
+def run_all(run: str) -> str:
     """``coload/{run}/**``: everything of one run (recorders, debugging)."""
     return f"{ROOT}/{validate_run(run)}/**"
 

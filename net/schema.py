@@ -15,19 +15,21 @@ Reason tokens (:data:`REASONS`):
 ``bad_version``   envelope with another schema version
 ``wrong_kind``    a well-formed message of another kind than the one expected
 ``bad_schema``    body fields missing, unknown or of the wrong type (details in the message)
-``non_finite``    a float field holds NaN or +-inf
+``non_finite``    a float field holds NaN or +-inf (``Estimate.values`` alone may hold NaN,
+                  meaning "not available": estimates are recorded, never computed with)
 ``out_of_range``  an integer out of bounds (negative tick, huge id) or a collection too large
 """
 
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Final, TypeVar
+from typing import Annotated, Any, Final, Literal, TypeVar, Union
 
 import msgpack
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, ValidationError
+from pydantic_core import PydanticCustomError
 
-from net.messages import Estimate, Measurement, StateMsg, Wrench
+from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
 
 SCHEMA_VERSION: Final = 1
 MAX_PAYLOAD: Final = 64 * 1024
@@ -43,6 +45,9 @@ MAX_PAIRS: Final = 1024
 """Most entries in a by-neighbour dict (``StateMsg.pair``, ``Estimate.pairs``)."""
 MAX_PAIR_LEN: Final = 16
 """Most floats in one ``StateMsg.pair`` value."""
+MAX_COUNT: Final = 2**63 - 1
+"""Largest counter in an ``AgentReport``."""
+CONTROL_KINDS: Final = ("start", "progress", "stop", "done")
 
 REASONS: Final = (
     "oversized",
@@ -60,11 +65,14 @@ KIND: Final[dict[type, str]] = {
     Wrench: "wrench",
     StateMsg: "state",
     Estimate: "estimate",
+    Control: "control",
+    AgentReport: "report",
 }
 """Message-kind tag of each message type; the same words as the last chunk of its key expression."""
 TYPE_OF_KIND: Final[dict[str, type]] = {v: k for k, v in KIND.items()}
 
-Msg = TypeVar("Msg", Measurement, Wrench, StateMsg, Estimate)
+Message = Union[Measurement, Wrench, StateMsg, Estimate, Control, AgentReport]
+Msg = TypeVar("Msg", Measurement, Wrench, StateMsg, Estimate, Control, AgentReport)
 
 
 class DecodeError(ValueError):
@@ -116,11 +124,39 @@ class _StateBody(_Body):
     ]
 
 
+def _not_inf(x: float) -> float:
+    if math.isinf(x):
+        raise PydanticCustomError("finite_number", "Input should be a finite number or NaN")
+    return x
+
+
+NanOrFinite = Annotated[float, Field(allow_inf_nan=True), AfterValidator(_not_inf)]
+"""An estimate value: NaN means 'not available this tick' (e.g. no sample yet); +-inf is refused."""
+
+
 class _EstimateBody(_Body):
     tick: Tick
     agent: AgentId
-    values: Annotated[dict[Name, float], Field(max_length=MAX_NAMES)]
+    values: Annotated[dict[Name, NanOrFinite], Field(max_length=MAX_NAMES)]
     pairs: Annotated[dict[AgentId, tuple[float, float]], Field(max_length=MAX_PAIRS)]
+
+
+Count = Annotated[int, Field(ge=0, le=MAX_COUNT)]
+
+
+class _ControlBody(_Body):
+    kind: Literal["start", "progress", "stop", "done"]
+    tick: Tick
+    ticks: Tick
+
+
+class _ReportBody(_Body):
+    agent: AgentId
+    links: Annotated[dict[AgentId, Annotated[dict[Name, Count], Field(max_length=MAX_NAMES)]],
+                     Field(max_length=MAX_PAIRS)]
+    drops: Annotated[dict[Name, Count], Field(max_length=MAX_NAMES)]
+    timeouts: Count
+    ticks: Tick
 
 
 _BODY: Final[dict[type, type[_Body]]] = {
@@ -128,6 +164,8 @@ _BODY: Final[dict[type, type[_Body]]] = {
     Wrench: _WrenchBody,
     StateMsg: _StateBody,
     Estimate: _EstimateBody,
+    Control: _ControlBody,
+    AgentReport: _ReportBody,
 }
 
 # Pydantic error types -> reason token; anything else is bad_schema.
@@ -171,10 +209,31 @@ def _enc_estimate(m: Estimate) -> dict[str, Any]:
     }
 
 
-_ENCODERS: Final = {Measurement: _enc_meas, Wrench: _enc_wrench, StateMsg: _enc_state, Estimate: _enc_estimate}
+def _enc_control(m: Control) -> dict[str, Any]:
+    return {"kind": m.kind, "tick": m.tick, "ticks": m.ticks}
 
 
-def encode(msg: Measurement | Wrench | StateMsg | Estimate) -> bytes:
+def _enc_report(m: AgentReport) -> dict[str, Any]:
+    return {
+        "agent": m.agent,
+        "links": {j: dict(c) for j, c in m.links.items()},
+        "drops": dict(m.drops),
+        "timeouts": m.timeouts,
+        "ticks": m.ticks,
+    }
+
+
+_ENCODERS: Final = {
+    Measurement: _enc_meas,
+    Wrench: _enc_wrench,
+    StateMsg: _enc_state,
+    Estimate: _enc_estimate,
+    Control: _enc_control,
+    AgentReport: _enc_report,
+}
+
+
+def encode(msg: Message) -> bytes:
     """Serialise one message as ``[kind, version, body]`` msgpack.
 
     Encoding does not validate values (receivers do, and count what they drop), but it refuses a
@@ -210,11 +269,19 @@ def _unpack(payload: bytes) -> Any:
         raise DecodeError("not_msgpack", f"{type(e).__name__}: {e}") from None
 
 
+_FIXED_ARITY: Final = frozenset({"pairs"})
+"""Fields whose values are fixed-length tuples: a wrong length there is a schema error, not a size."""
+
+
 def _reason(err: ValidationError) -> str:
-    types = {e["type"] for e in err.errors(include_url=False)}
+    errors = err.errors(include_url=False)
+    types = {e["type"] for e in errors}
     if types & _NON_FINITE:
         return "non_finite"
-    if types <= _OUT_OF_RANGE:
+    if types <= _OUT_OF_RANGE and not any(
+        e["type"] in ("too_long", "too_short") and len(e["loc"]) == 2 and e["loc"][0] in _FIXED_ARITY
+        for e in errors
+    ):
         return "out_of_range"
     return "bad_schema"
 
@@ -246,7 +313,7 @@ def decode(payload: bytes, expected: type[Msg]) -> Msg:
     return expected(**m.__dict__)
 
 
-def is_finite_message(msg: Measurement | Wrench | StateMsg | Estimate) -> bool:
+def is_finite_message(msg: Message) -> bool:
     """True if every float of ``msg`` is finite: a sender-side check for a diverging estimator."""
     vals: list[float] = []
     if isinstance(msg, Measurement):

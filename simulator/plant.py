@@ -8,8 +8,11 @@ Design: the pymunk body's origin is the centre of mass (``center_of_gravity`` = 
 The body's mass and moment are set explicitly; its shape carries no mass and only serves
 inspection and drawing (nothing collides). Per tick the agents' wrenches are reduced to one
 resultant force and torque about the CoM (the same sum ``apply_force_at_world_point`` would
-accumulate, vectorised) and pymunk integrates one semi-implicit Euler step; the plant's state is
-the truth, whatever the integrator's discretisation error against the continuous model.
+accumulate, vectorised) and pymunk integrates one step; the plant's state is the truth, whatever
+the integrator's discretisation error against the continuous model. Note pymunk (Chipmunk) moves
+positions before velocities within a step: the wrench of tick k shows in the velocities (and so in
+the measurements) at tick k + 1 and in the pose from tick k + 2; over many ticks this is
+semi-implicit (symplectic) Euler, so free motion conserves energy and momentum exactly.
 """
 
 from __future__ import annotations
@@ -101,14 +104,16 @@ class Truth:
 class Plant:
     """The load's rigid-body dynamics plus the contact-point velocity sensor.
 
-    The body state is read from pymunk once per tick (``_refresh``) and everything the sensor, the
-    truth and the next wrench need is derived from that snapshot with a handful of small array
-    operations: the per-tick cost is dominated by call overhead, not by n.
+    Speed: every per-agent quantity is a fixed body-frame array times a small matrix built from the
+    current pose, so a tick costs a few numpy calls whatever n is. In particular the resultant
+    torque uses rotation invariance of the cross product, sum_i (R r_i) x f_i = tr(M R) with
+    M = sum_i r_i^perp f_i^T, and M comes out of one matmul of the flat wrench vector with a constant
+    matrix (no per-tick rebuild of the grasp matrix).
     """
 
     __slots__ = (
         "n", "dt", "sigma_v", "mass", "inertia", "tick", "space", "body",
-        "_r", "_rbar", "_grasp", "_pos", "_vel", "_angle", "_omega", "_rot", "_rw", "_vc",
+        "_r", "_rbar", "_rrel_t", "_perp1", "_reduce", "_pos", "_vel", "_angle", "_omega", "_c", "_s",
     )  # fmt: skip
 
     def __init__(self, scenario: Scenario) -> None:
@@ -118,14 +123,21 @@ class Plant:
         self.mass = scenario.load.mass
         self.inertia = load_inertia(scenario)
         self.tick = 0
-        self._r = np.asarray(contact_points_body(scenario), dtype=float)  # (n, 2), body frame, about CoM
-        self._rbar = (float(self._r[:, 0].mean()), float(self._r[:, 1].mean()))  # p_G - p_C, body frame
-        # Grasp matrix (paper eq. (2)) acting on the flattened wrenches (fx0, fy0, tau0, fx1, ...):
-        # rows give total fx, fy and the torque about the CoM; the moment-arm entries change per tick.
-        self._grasp = np.zeros((3 * n, 3))
-        self._grasp[0::3, 0] = 1.0
-        self._grasp[1::3, 1] = 1.0
-        self._grasp[2::3, 2] = 1.0
+        r = self._r = np.asarray(contact_points_body(scenario), dtype=float)  # (n, 2) body frame, about CoM
+        self._rbar = (float(r[:, 0].mean()), float(r[:, 1].mean()))  # p_G - p_C, body frame
+        self._rrel_t = np.ascontiguousarray((r - self._rbar).T)  # z_i in the body frame, (2, n)
+        perp = np.stack((-r[:, 1], r[:, 0]), axis=1)  # r_i^perp, body frame
+        self._perp1 = np.hstack((perp, np.ones((n, 1))))  # [r_i^perp | 1]: contact velocity = this @ K
+        # Flat wrench (fx0, fy0, tau0, fx1, ...) @ _reduce = (sum fx, sum fy, sum tau, M00, M01, M10, M11).
+        red = np.zeros((3 * n, 7))
+        red[0::3, 0] = 1.0
+        red[1::3, 1] = 1.0
+        red[2::3, 2] = 1.0
+        red[0::3, 3] = perp[:, 0]
+        red[1::3, 4] = perp[:, 0]
+        red[0::3, 5] = perp[:, 1]
+        red[1::3, 6] = perp[:, 1]
+        self._reduce = red
 
         space = pymunk.Space()
         space.gravity = (0.0, 0.0)
@@ -144,31 +156,29 @@ class Plant:
         self._refresh()
 
     def _refresh(self) -> None:
-        """Snapshot the body state and derive contact offsets, contact velocities and moment arms."""
+        """Snapshot the body state once per tick (each pymunk property read crosses the C boundary)."""
         b = self.body
-        self._pos = b.position
-        self._vel = vx, vy = b.velocity
-        self._angle = b.angle
-        self._omega = w = b.angular_velocity
-        self._rot = c, s = b.rotation_vector
-        # Row-vector form: [R r | omega Q R r] = r @ K, Q the +90 deg rotation.
-        k = np.array(((c, s, -w * s, w * c), (-s, c, -w * c, -w * s)))
-        out = self._r @ k
-        self._rw = rw = out[:, :2]  # p_Ci - p_C, world frame
-        out[:, 2] += vx
-        out[:, 3] += vy
-        self._vc = out[:, 2:]  # v_Ci = v_C + omega (p_Ci - p_C)^perp
-        g = self._grasp
-        g[0::3, 2] = -rw[:, 1]  # torque of fx about the CoM: -(y_i) fx
-        g[1::3, 2] = rw[:, 0]  # torque of fy: +(x_i) fy
+        self._pos = tuple(b.position)
+        self._vel = tuple(b.velocity)
+        self._angle = a = b.angle
+        self._omega = b.angular_velocity
+        self._c = math.cos(a)
+        self._s = math.sin(a)
+
+    def _velocities(self) -> np.ndarray:
+        """v_Ci = v_C + omega R r_i^perp (= v_C + omega (p_Ci - p_C)^perp, perp = +90 deg rotation)."""
+        c, s, w = self._c, self._s, self._omega
+        vx, vy = self._vel
+        k = np.array(((w * c, w * s), (-w * s, w * c), (vx, vy)))
+        return self._perp1 @ k
 
     def velocities(self) -> list[Vec2]:
         """True world-frame velocity of every contact point now."""
-        return list(map(tuple, self._vc.tolist()))
+        return list(map(tuple, self._velocities().tolist()))
 
     def measure(self, rng: np.random.Generator) -> list[Vec2]:
         """velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call."""
-        noisy = self._vc + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
+        noisy = self._velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
         return list(map(tuple, noisy.tolist()))
 
     def apply_and_step(self, wrenches: Sequence[tuple[float, float, float]]) -> None:
@@ -183,15 +193,20 @@ class Plant:
             raise ValueError(f"wrenches must be {self.n} (fx, fy, tau) number triples: {exc}") from None
         if w.shape != (self.n, 3):
             raise ValueError(f"wrenches must have shape ({self.n}, 3), got {w.shape}")
-        # Every wrench entry has a unit coefficient in the resultant, so a NaN or inf anywhere
-        # (or a finite value large enough to overflow) makes the resultant non-finite.
-        fx, fy, tau = (w.reshape(-1) @ self._grasp).tolist()
+        # Every wrench entry has a unit coefficient in (fx, fy, tau), so a NaN or inf anywhere (or
+        # finite values large enough to overflow) shows up there; errstate keeps that path quiet.
+        with np.errstate(all="ignore"):
+            fx, fy, tau, m00, m01, m10, m11 = (w.reshape(-1) @ self._reduce).tolist()
         if not (math.isfinite(fx) and math.isfinite(fy) and math.isfinite(tau)):
             bad = sorted({int(i) for i in np.argwhere(~np.isfinite(w))[:, 0]})
             raise ValueError(f"non-finite wrench from agent(s) {bad}" if bad else "resultant wrench overflows")
+        c, s = self._c, self._s
+        torque = tau + m00 * c + m01 * s - m10 * s + m11 * c  # tau + tr(M R)
+        if not math.isfinite(torque):
+            raise ValueError("resultant torque overflows")
         b = self.body
         b.force = (fx, fy)
-        b.torque = tau
+        b.torque = torque
         self.space.step(self.dt)
         self.tick += 1
         self._refresh()
@@ -199,20 +214,21 @@ class Plant:
     def truth(self) -> Truth:
         """The state after ``tick`` steps, with the paper's derived quantities z_C, p_G and z_i."""
         px, py = self._pos
-        c, s = self._rot
+        c, s = self._c, self._s
         bx, by = self._rbar
         zcx, zcy = c * bx - s * by, s * bx + c * by
+        rot_t = np.array(((c, s), (-s, c)))
         return Truth(
             tick=self.tick,
             t=self.tick * self.dt,
             x=px,
             y=py,
             angle=self._angle,
-            vc=tuple(self._vel),
+            vc=self._vel,
             omega=self._omega,
             zc=(zcx, zcy),
             pg=(px + zcx, py + zcy),
-            zi=tuple(map(tuple, (self._rw - (zcx, zcy)).tolist())),
+            zi=tuple(map(tuple, (self._rrel_t.T @ rot_t).tolist())),
             mass=self.mass,
             inertia=self.inertia,
         )

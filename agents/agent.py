@@ -1,0 +1,364 @@
+"""The pure agent core for the kinematic phase (paper 000 Sec. IV, blocks 1-6 of Fig. 2).
+
+One :class:`AgentCore` per robot; :meth:`AgentCore.step` is a deterministic state machine
+(tick, own measurement, neighbour messages) -> (message, wrench, estimate): no clock, socket or RNG.
+
+Per tick k (all states refer to tick k-1 on entry and are predicted to tick k on exit):
+
+1. inbox: drop unknown senders, duplicates and anything not newer than what was already used from
+   that sender (counted); process each sender's messages in tick order. A message of tick t carries
+   the sender's measured velocity at t, paired with the agent's own measurement of the *same* tick
+   from a ring buffer (older than the buffer: the velocity is not used, the states still are).
+2. z_ij (``agents.kinematic.PairEstimator``): circle fit of the integrated relative velocity for
+   |z_ij|, angle tracked by rotation with omega_hat and corrected by the axis perp(v_Ci - v_Cj).
+3. omega: eq. (9) with the corrected sign, evaluated with the *predicted* z_ij and pooled over
+   the agent's pairs as a least-squares ratio u_i = sum_j z_ij x zdot_ij / sum_j |z_ij|^2 (the
+   minimum-variance combination: each pair's noise on omega scales as 1/|z_ij|). It is unbiased at
+   any |omega| (no gate needed), so omega_hat stays valid near 0. Then a low-pass consensus filter
+   x_i += eps sum_j (x_j - x_i) + beta (u_i - x_i) (``agents.consensus.lowpass_step``): every
+   agent measures the *same* omega, so the job is averaging noise over time and over the graph, not
+   tracking heterogeneous inputs; unlike the first-order input dynamic consensus it time-averages
+   the per-tick noise and forgets the errors of lost messages instead of keeping them for good.
+4. z_i (Result 3, ref. [19]): x_i += eps sum_j (x_j - x_i + (z_ij - z_ji)/2), with the neighbour's
+   own z_ji taken from its message so that the edge terms are antisymmetric and sum_i x_i stays 0;
+   then every x_i is predicted by the rotation omega_hat*dt (without the prediction the iteration
+   lags a rotating load by tens of %).
+
+Wire content of :class:`StateMsg`: ``shared = {"om": omega state, "oi": 1.0 once it is
+initialised else 0.0, "zx", "zy": x_i}``,
+``pair[j] = (z_ij_x, z_ij_y)`` (0, 0 while z_ij is not estimated yet), ``phase`` = 0 spinning up,
+1 regulating omega (once omega_hat exists, from an own circle fit or adopted from a neighbour).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, fields
+from operator import attrgetter
+
+from agents.control import KinematicControl
+from agents.kinematic import PairEstimator
+from config.agent_params import ControlSpec, EstimatorSpec
+from net.messages import Estimate, StateMsg, Wrench
+
+ESTIMATE_NAMES: tuple[str, ...] = (
+    "phase",  # 0 spinning up (no omega_hat yet), 1 omega regulated on omega_hat
+    "omega",  # omega_hat (rad/s), consensus-filtered
+    "omega_local",  # this tick's local pooled eq. (9) value (rad/s; NaN when no sample)
+    "zi_x",  # z_i = p_Ci - p_G estimate, world frame (m)
+    "zi_y",
+    "pairs_ready",  # neighbours whose z_ij is estimated
+    "dropped_unknown",  # messages from senders not in neighbours (count)
+    "dropped_stale",  # duplicates / not newer than already used / from the future / malformed (count)
+)
+
+PHASE_SPINUP = 0
+PHASE_REGULATE = 1
+
+_by_tick = attrgetter("tick", "sender")
+
+
+def _fast_factory(cls):  # type: ignore[no-untyped-def]
+    """A positional constructor for a frozen, slotted dataclass that skips its generated __init__.
+
+    Frozen dataclasses assign every field through object.__setattr__, which costs ~0.25 us per field;
+    the outputs are built every tick, so this sets the slots directly (same resulting object; a test
+    checks equality with the normal constructor). Falls back to ``cls`` if the class has no slots.
+    """
+    names = [f.name for f in fields(cls)]
+    try:
+        setters = tuple(cls.__dict__[nm].__set__ for nm in names)
+    except (KeyError, AttributeError):
+        return cls
+    if getattr(cls, "__post_init__", None) is not None:
+        return cls
+    new = object.__new__
+    src = "def make({args}):\n    o = new(cls)\n{body}    return o\n".format(
+        args=", ".join(names),
+        body="".join(f"    s{k}(o, {nm})\n" for k, nm in enumerate(names)),
+    )
+    env = {"new": new, "cls": cls, **{f"s{k}": st for k, st in enumerate(setters)}}
+    exec(src, env)  # noqa: S102 - generated from the dataclass's own field names
+    return env["make"]
+
+
+_new_state = _fast_factory(StateMsg)
+_new_estimate = _fast_factory(Estimate)
+_new_wrench = _fast_factory(Wrench)
+
+
+@dataclass(slots=True)
+class StepResult:
+    state: StateMsg
+    wrench: Wrench
+    estimate: Estimate
+
+
+class _Nbr:
+    """What the agent remembers of one neighbour."""
+
+    __slots__ = ("id", "pair", "last", "om", "om_ok", "om_t", "ph", "ph_ok", "y", "zji", "fji", "flow", "st_t", "z_sent")
+
+    def __init__(self, j: int, pair: PairEstimator) -> None:
+        self.id = j
+        self.pair = pair
+        self.last = -1  # newest tick used from j
+        self.om = 0.0  # j's omega consensus state
+        self.om_ok = False  # j's omega state is initialised
+        self.om_t = -(10**9)  # tick of j's states (om, x, zji); none yet
+        self.ph = 0.0  # j's body-frame angle phi_j (rad)
+        self.ph_ok = False
+        self.y = 0j  # j's centroid state in its body frame
+        self.zji = 0j  # j's estimate of z_ji
+        self.fji = 0j  # j's flow to us (centroid iteration in flow form)
+        self.flow = 0j  # our flow to j: F_ij, kept ~ -F_ji
+        self.st_t = -(10**9)
+        self.z_sent = 0j  # our z_ij as sent in our last message
+
+
+class AgentCore:
+    """Agent i's kinematic-phase estimator and controller (see the module docstring)."""
+
+    def __init__(
+        self,
+        agent_id: int,
+        neighbours: Sequence[int],
+        n: int,
+        dt: float,
+        sigma_v: float,
+        estimator: EstimatorSpec,
+        control: ControlSpec,
+    ) -> None:
+        if agent_id in neighbours:
+            raise ValueError("an agent cannot be its own neighbour")
+        self.id = int(agent_id)
+        self.n = int(n)
+        self.dt = float(dt)
+        sig = float(estimator.sigma_v if estimator.sigma_v is not None else sigma_v)
+        self.sigma_v = sig
+        self.spec = estimator
+        self._ctl = KinematicControl(control, dt)
+        nb_ids = sorted(set(int(j) for j in neighbours))
+        self._nbrs: dict[int, _Nbr] = {}
+        for j in nb_ids:
+            pe = PairEstimator(
+                dt=dt,
+                sigma_v=sig,
+                fit_arc=estimator.fit_arc,
+                fit_min_ticks=estimator.fit_min_ticks,
+                fit_max_ticks=estimator.fit_max_ticks,
+                fit_check_ticks=estimator.fit_check_ticks,
+                max_gap_ticks=estimator.max_gap_ticks,
+                angle_walk=estimator.angle_walk,
+                gate_snr=estimator.gate_snr,
+            )
+            self._nbrs[j] = _Nbr(j, pe)
+        self._nlist = list(self._nbrs.values())
+        hist = estimator.history_ticks
+        self._hist = hist
+        self._vbuf = [0j] * hist
+        self._vtick = [-1] * hist
+        self._max_age = estimator.max_age_ticks
+        self._beta = min(1.0, dt / estimator.omega_tau)
+        self._eps_om = estimator.omega_eps
+        self._eps_z = estimator.centroid_eps
+        self.omega = 0.0  # omega_hat
+        self._om_init = False  # omega_hat seeded from a circle fit (or from a neighbour's value)
+        self.x = 0j  # z_i estimate (world frame)
+        self.y = 0j  # z_i in the agents' common body frame: x = e^{i phi} y
+        self.phi = 0.0  # body-frame angle, integral of omega_hat kept in agreement by consensus
+        self._adopt_ph = False
+        self._eps_ph = estimator.centroid_eps
+        self.trusted = False
+        self.dropped_unknown = 0
+        self.dropped_stale = 0
+        self._tick = -1
+
+    # ------------------------------------------------------------------------------------------ step
+    def step(self, tick: int, vx: float, vy: float, inbox: Sequence[StateMsg]) -> StepResult:
+        if tick <= self._tick:
+            raise ValueError(f"ticks must increase: got {tick} after {self._tick}")
+        self._tick = tick
+        dt = self.dt
+        hist = self._hist
+        slot = tick % hist
+        self._vbuf[slot] = complex(vx, vy)
+        self._vtick[slot] = tick
+        ref = tick - 1  # the tick the states refer to on entry
+        om = self.omega
+        nbrs = self._nbrs
+
+        # 1-3. inbox: pair samples and the local omega measurement -------------------------------
+        u_num = 0.0
+        u_den = 0.0
+        if len(inbox) > 1:
+            # (tick, sender) order: per-sender tick order matters, and a fixed order makes the
+            # result independent of the arrival order within a tick (bit-identical replays)
+            inbox = sorted(inbox, key=_by_tick)
+        me = self.id
+        for msg in inbox:
+            nb = nbrs.get(msg.sender)
+            if nb is None:
+                self.dropped_unknown += 1
+                continue
+            t = msg.tick
+            if t <= nb.last or t > tick:
+                self.dropped_stale += 1
+                continue
+            sh = msg.shared
+            try:
+                s_om = sh["om"]
+                s_ph = sh["ph"]
+                yx = sh["yx"]
+                yy = sh["yy"]
+                s_ok = sh["oi"] > 0.0
+                pz = msg.pair.get(me)
+                if pz is None:
+                    zx = zy = fx = fy = 0.0
+                else:
+                    zx, zy, fx, fy = pz
+                vjx = msg.vx
+                vjy = msg.vy
+                chk = s_om + s_ph + yx + yy + zx + zy + fx + fy + vjx + vjy
+            except (KeyError, TypeError, IndexError, AttributeError, ValueError):
+                self.dropped_stale += 1  # malformed: counted with the unusable messages
+                continue
+            if chk - chk != 0.0:  # NaN or infinite somewhere
+                self.dropped_stale += 1
+                continue
+            nb.last = t
+            nb.om = s_om
+            nb.om_ok = s_ok
+            nb.ph = s_ph
+            nb.ph_ok = s_ok
+            nb.y = complex(yx, yy)
+            nb.zji = complex(zx, zy)
+            nb.fji = complex(fx, fy)
+            nb.om_t = t
+            nb.st_t = t
+            if self._vtick[t % hist] != t:
+                continue  # no own sample of that tick any more (too old)
+            w = self._vbuf[t % hist] - complex(vjx, vjy)
+            lag = ref - t
+            back = complex(math.cos(om * dt * lag), -math.sin(om * dt * lag)) if lag else 1.0
+            pe = nb.pair
+            if pe.ready:
+                zt = pe.z * back  # predicted z_ij at tick t (before this sample's correction)
+                u_num += zt.real * w.imag - zt.imag * w.real
+                u_den += zt.real * zt.real + zt.imag * zt.imag
+                pe.sample(t, w, back, om, dt)
+            else:
+                pe.sample(t, w, back, om, dt)
+                if pe.ready and not self._om_init:
+                    # bootstrap: the first fitted window's mean rate seeds omega_hat, so that the
+                    # prediction rotates z_ij and the gate opens (omega_hat = 0 would freeze both)
+                    self._om_init = True
+                    self._adopt_ph = True
+                    self.omega = om = pe.omega_fit
+
+        # 4-5. neighbour states: omega (low-pass consensus), body-frame angle phi (phase consensus),
+        # z_i in that frame (centroid iteration with antisymmetric edge terms) ----------------------
+        max_age = self._max_age
+        ph = self.phi
+        y = self.y
+        acc = 0.0
+        cnt = 0
+        accp = 0.0
+        eps_z = self._eps_z
+        ready = 0
+        for nb in self._nlist:
+            if nb.pair.ready:
+                ready += 1
+            age = ref - nb.st_t
+            if age > max_age:
+                continue
+            if nb.om_ok:
+                acc += nb.om - om
+                cnt += 1
+                accp += (nb.ph + om * dt * age) - ph
+            zs = nb.z_sent
+            zji = nb.zji
+            if zs == 0j or zji == 0j:
+                f = -nb.fji
+            else:
+                if age:
+                    zji *= complex(math.cos(om * dt * age), math.sin(om * dt * age))
+                # common edge frame: both ends rotate the edge term by the same angle -> antisymmetric
+                a = -0.5 * (ph + nb.ph + om * dt * age)
+                e = 0.5 * (zs - zji) * complex(math.cos(a), math.sin(a))
+                # flow form of y_i += eps sum_j (y_j - y_i + e_ij): F_ij = -F_ji + eps (y_i - y_j - e_ij)
+                f = eps_z * (y - nb.y - e) - nb.fji
+            nb.flow = f
+        adopt = False
+        if cnt and (not self._om_init or self._adopt_ph):
+            adopt = True  # (re)initialised this tick: take the neighbours' phase too
+            if not self._om_init:
+                # not seeded by an own fit yet: adopt the neighbours' mean instead of pulling them to 0
+                self._om_init = True
+                om = om + acc / cnt
+                acc = 0.0
+        self._adopt_ph = False
+        if self._om_init:
+            om_new = om + self._eps_om * acc
+        else:
+            om_new = 0.0
+        if u_den > 0.0:
+            u = u_num / u_den
+            om_new += self._beta * (u - om)
+        else:
+            u = math.nan
+        if self._nlist:
+            # y_i = -sum_j F_ij; a neighbour not heard from for max_age keeps its last flow
+            sflow = 0j
+            for nb in self._nlist:
+                sflow += nb.flow
+            self.y = y = -sflow
+        if adopt:
+            ph += accp / cnt  # join the neighbours' body frame (y is still 0 then)
+        else:
+            ph += self._eps_ph * accp
+        ph += om_new * dt
+        self.phi = ph
+        self.omega = om_new
+        self.x = x = y * complex(math.cos(ph), math.sin(ph))
+        rot = complex(math.cos(om_new * dt), math.sin(om_new * dt))
+        pairs_out: dict[int, tuple[float, float]] = {}
+        pairs_msg: dict[int, tuple[float, float, float, float]] = {}
+        for nb in self._nlist:
+            pe = nb.pair
+            if pe.ready:  # prediction to tick k (PairEstimator.predict, inlined)
+                pe.z = z = pe.z * rot
+                pe._p += pe._q
+            else:
+                z = pe.z
+            nb.z_sent = z
+            pairs_out[nb.id] = (z.real, z.imag)
+            f = nb.flow
+            pairs_msg[nb.id] = (z.real, z.imag, f.real, f.imag)
+        self.trusted = ready == len(self._nlist) and ready > 0
+
+        # 6. control, outputs ------------------------------------------------------------------------
+        regulate = self._om_init  # omega_hat exists: stop spinning up, regulate on it
+        fx, fy, tau = self._ctl.wrench(tick, om_new, regulate)
+        phase = PHASE_REGULATE if regulate else PHASE_SPINUP
+        i = self.id
+        state = _new_state(
+            tick, i, vx, vy, phase, {"om": om_new, "oi": 1.0 if self._om_init else 0.0, "ph": ph, "yx": y.real, "yy": y.imag}, pairs_msg
+        )
+        est = _new_estimate(
+            tick,
+            i,
+            {
+                "phase": float(phase),
+                "omega": om_new,
+                "omega_local": u,
+                "zi_x": x.real,
+                "zi_y": x.imag,
+                "pairs_ready": float(ready),
+                "dropped_unknown": float(self.dropped_unknown),
+                "dropped_stale": float(self.dropped_stale),
+            },
+            pairs_out,
+        )
+        return StepResult(state, _new_wrench(tick, i, fx, fy, tau), est)

@@ -1,0 +1,239 @@
+"""Per-neighbour estimation of z_ij = p_Ci - p_Cj (paper 000 Sec. IV-A, blocks 1-4 of Fig. 2).
+
+Why this shape:
+
+* |z_ij| (= |d_ij|) comes from a circle fit in *integral* form, not from the LLS on eq. (7): the
+  trapezoidal integral s(t) of the relative velocity v_Ci - v_Cj equals z_ij(t) - z_ij(t0) (rigid
+  body, eq. (4)), so it lies on a circle of radius |z_ij|. Fitting that circle needs no derivative of
+  noisy velocities, no normalised noisy axis (the errors-in-variables bias of (7)) and no sign: the
+  fitted centre c gives z_ij(t) = s(t) - c directly, sign included (Result 2 without the two-observer
+  trick). The integral random-walks (increments of std sigma*sqrt(2)*dt per component), so the fit
+  runs over windows that are re-anchored (s := 0) each time a window covering ``fit_arc`` radians of
+  rotation is accepted; the radius is the inverse-residual-weighted mean over accepted windows.
+* The direction of z_ij is tracked between fits by rotating the estimate with the agent's omega_hat
+  (prediction) and correcting its angle with Result 1: the axis of z_ij is perp(v_Ci - v_Cj). The
+  sign of the axis is taken as the one nearer the prediction (the "two observers, pick the smaller
+  residual" rule), which is safe because the first estimate comes sign-correct from the circle fit
+  and corrections are gated. The correction is a scalar Kalman filter on the angle: measurement
+  variance (sigma*sqrt(2) / (|omega_hat| |z_ij|))^2 (radial noise over the signal), process noise
+  ``angle_walk``^2 dt (the error of omega_hat integrated by the prediction).
+* Gate: angle corrections only when |omega_hat| |z_ij| >= gate_snr * sigma*sqrt(2) -- a gate that
+  scales with sigma (the paper's fixed 0.5 m/s lets pure noise through at sigma = 0.3). Below it the
+  estimate is only rotated by omega_hat (which is ~0 there), i.e. it freezes.
+"""
+
+from __future__ import annotations
+
+import math
+
+from agents.geometry import CircleSums
+
+
+class PairEstimator:
+    """Agent i's estimator of z_ij for one neighbour j. Pure, O(1) per sample.
+
+    The owner keeps ``z`` at its own state tick (predicting it by rotation every tick) and feeds
+    samples w = v_Ci - v_Cj at the tick they were measured (strictly increasing ticks).
+    """
+
+    __slots__ = (
+        "z", "ready", "r", "_rw", "_rsum", "_p",
+        "last_t", "_s", "_w_prev", "_sums", "_wn", "_cps", "_since_cp", "_rot", "_t0",
+        "_arc", "_dt", "_min_ticks", "_max_ticks", "_check", "_max_gap", "_q", "_noise2", "_gate2",
+        "windows", "rejected", "omega_fit",
+    )
+
+    def __init__(
+        self,
+        *,
+        dt: float,
+        sigma_v: float,
+        fit_arc: float,
+        fit_min_ticks: int,
+        fit_max_ticks: int,
+        fit_check_ticks: int,
+        max_gap_ticks: int,
+        angle_walk: float,
+        gate_snr: float,
+    ) -> None:
+        self.z = 0j  # estimate of z_ij (m, world) at the owner's state tick; 0 until the first fit
+        self.ready = False
+        self.r = 0.0  # |z_ij| estimate (m)
+        self._rw = 0.0  # sum of window weights
+        self._rsum = 0.0  # sum of weight * window radius
+        self._p = 0.0  # angle error variance (rad^2)
+        self.last_t = -1  # tick of the last sample used
+        self._s = 0j  # window integral of the relative velocity (m)
+        self._w_prev = 0j
+        self._sums = CircleSums()
+        self._wn = 0  # samples in the window
+        self._cps: list[complex] = []  # checkpoints of s, for the covered arc
+        self._since_cp = 0
+        self._rot = 0.0  # |omega_hat| integrated over the window (rad)
+        self._t0 = 0  # first tick of the window
+        self._arc = fit_arc
+        self._dt = dt
+        self._min_ticks = fit_min_ticks
+        self._max_ticks = fit_max_ticks
+        self._check = fit_check_ticks
+        self._max_gap = max_gap_ticks
+        self._q = angle_walk * angle_walk * dt
+        self._noise2 = 2.0 * sigma_v * sigma_v  # variance of each component of v_Ci - v_Cj
+        self._gate2 = gate_snr * gate_snr * self._noise2
+        self.windows = 0  # accepted circle-fit windows
+        self.rejected = 0  # windows closed without an accepted fit
+        self.omega_fit = 0.0  # mean omega over the last accepted window (arc / duration), rad/s
+
+    # ------------------------------------------------------------------------------------ prediction
+    def predict(self, rot: complex) -> None:
+        """Advance one tick: rotate by e^{i omega_hat dt}; the angle uncertainty grows."""
+        if self.ready:
+            self.z *= rot
+            self._p += self._q
+
+    # -------------------------------------------------------------------------------------- samples
+    def sample(self, t: int, w: complex, back: complex, omega_hat: float, dt: float) -> None:
+        """Use the relative velocity ``w`` measured at tick ``t``.
+
+        ``back`` rotates the state-tick estimate back to tick t (1 when t is the state tick).
+        Hot path: the moment sums and the angle correction are inlined.
+        """
+        last = self.last_t
+        self.last_t = t
+        if last < 0 or t - last > self._max_gap:
+            self._restart(w, t)
+        else:
+            gap = t - last - 1
+            s = self._s
+            wp = self._w_prev
+            if gap > 0:
+                # lost samples: bridge the integral with the model's relative velocity i*omega*z
+                if self.ready:
+                    wp = 1j * omega_hat * self.z * back
+                s += gap * dt * wp
+            s += 0.5 * dt * (wp + w)
+            self._s = s
+            self._w_prev = w
+            sm = self._sums
+            x = s.real
+            y = s.imag
+            q = x * x + y * y
+            sm.n += 1
+            sm.sx += x
+            sm.sy += y
+            sm.sxx += x * x
+            sm.sxy += x * y
+            sm.syy += y * y
+            sm.sxq += x * q
+            sm.syq += y * q
+            sm.sq += q
+            sm.sqq += q * q
+            self._wn += 1
+            self._rot += abs(omega_hat) * dt * (gap + 1)
+            self._since_cp += 1
+            if self._since_cp >= self._check:
+                self._since_cp = 0
+                self._cps.append(s)
+                # solve the fit only when the window may have covered the arc (omega_hat says so),
+                # or at every checkpoint while omega_hat is not known yet (bootstrap)
+                if self._wn >= self._min_ticks and (
+                    omega_hat == 0.0 or self._rot >= 0.8 * self._arc or t - self._t0 >= self._max_ticks
+                ):
+                    self._try_fit(back, t)
+        if not self.ready:
+            return
+        # Result 1: pull the angle of z_ij towards the axis perp(w), sign nearest the prediction
+        r = self.r
+        sig2 = omega_hat * omega_hat * r * r  # (|omega| |z|)^2
+        if sig2 < self._gate2 or sig2 <= 0.0:
+            return
+        zt = self.z * back
+        # c = conj(zt) * (1j * w): angle between the predicted z and the measured axis
+        cr = zt.imag * w.real - zt.real * w.imag
+        ci = zt.real * w.real + zt.imag * w.imag
+        if cr < 0.0:
+            cr = -cr
+            ci = -ci
+        mag = math.sqrt(cr * cr + ci * ci)
+        if mag <= 0.0:
+            return
+        p = self._p
+        k = p / (p + self._noise2 / sig2)
+        self._p = p - k * p
+        z = self.z * complex(1.0, k * ci / mag)
+        self.z = z * (r / abs(z))
+
+    def _restart(self, w: complex, t: int) -> None:
+        """Re-anchor the window at the current sample (s := 0) so the integrated noise restarts."""
+        self._s = 0j
+        self._w_prev = w
+        self._sums.reset()
+        self._sums.add(0j)
+        self._wn = 1
+        self._cps = [0j]
+        self._since_cp = 0
+        self._rot = 0.0
+        self._t0 = t
+
+    def _try_fit(self, back: complex, t: int) -> None:
+        fit = self._sums.fit()
+        if fit is not None:
+            c = fit.centre
+            arc = 0.0
+            cps = self._cps
+            nseg = len(cps) - 1
+            recent_from = nseg - max(1, nseg // 3)
+            arc_recent = 0.0
+            prev = cps[0] - c
+            for k in range(1, nseg + 1):
+                cur = cps[k] - c
+                da = math.atan2(prev.real * cur.imag - prev.imag * cur.real, prev.real * cur.real + prev.imag * cur.imag)
+                arc += da
+                if k > recent_from:
+                    arc_recent += da
+                prev = cur
+            # accept only a real arc: large enough, radius well above the integrated noise of the
+            # window and mean tangential speed above the per-sample noise (rejects noise curls)
+            span = (t - self._t0) * self._dt  # elapsed time, not samples: some may be missing
+            if (
+                abs(arc) >= self._arc
+                and fit.radius > 4.0 * fit.rms
+                and fit.radius * fit.radius > 16.0 * self._noise2 * self._dt * span
+                and (fit.radius * abs(arc) / span) ** 2 >= self._noise2
+            ):
+                weight = 1.0 / (fit.rms * fit.rms + 1e-12)
+                self._rw += weight
+                self._rsum += weight * fit.radius
+                self.r = r = self._rsum / self._rw
+                self.windows += 1
+                # rate over the last third of the window: a spin-up is accelerating, and the
+                # window mean would seed omega_hat well below the current rate
+                self.omega_fit = arc_recent / ((nseg - recent_from) * self._check * self._dt) * (self._wn / max(1, t - self._t0))
+                z_t = self._s - c  # z_ij at the sample tick, sign included (integral form)
+                r_fit = 2.0 * (fit.rms / fit.radius) ** 2 + 1e-6  # angle variance of z_t (rad^2)
+                m = abs(z_t)
+                if m > 0.0:
+                    zt = self.z * back
+                    if self.ready:
+                        # the window's own position is an angle measurement too; a large
+                        # disagreement means the tracker lost lock: re-anchor on the fit
+                        cr = zt.real * z_t.real + zt.imag * z_t.imag
+                        ci = zt.real * z_t.imag - zt.imag * z_t.real
+                        if cr > 0.0 and abs(ci) < 0.5 * math.hypot(cr, ci):
+                            p = self._p
+                            k = p / (p + r_fit)
+                            self._p = p - k * p
+                            zt *= complex(1.0, k * ci / math.hypot(cr, ci))
+                            self.z = zt / back * (r / abs(zt))
+                        else:
+                            self.z = z_t / back * (r / m)
+                            self._p = r_fit + 1e-3
+                    else:
+                        self.z = z_t / back * (r / m)
+                        self._p = r_fit + 1e-3
+                        self.ready = True
+                self._restart(self._w_prev, t)
+                return
+        if t - self._t0 >= self._max_ticks:
+            self.rejected += 1
+            self._restart(self._w_prev, t)

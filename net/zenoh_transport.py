@@ -1,0 +1,250 @@
+"""The real transport: Eclipse Zenoh (zenoh-python 1.x), plus config, router and port helpers.
+
+Zenoh calls our callbacks on its own threads. They do the least possible there, copy the key and
+payload out of the sample and hand them to the asyncio loop with ``call_soon_threadsafe``; they never
+block and never call Zenoh (principle 5). Liveliness tokens make a daemon visible while its session
+lives: a clean close withdraws them at once, a killed process when the router sees its connection
+drop, a hung one when its lease expires.
+
+Configs are explicit: endpoints are listed, multicast scouting is off, nothing listens beyond the
+endpoints given (coload runs on loopback or on the hosts named in the compose file).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import signal
+import socket
+import threading
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Literal
+
+import zenoh
+
+from net.transport import OnAliveChange, OnSample, Subscription, Transport, _Closable
+
+Mode = Literal["peer", "client", "router"]
+
+
+def zenoh_config(
+    mode: Mode = "peer",
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    scouting: bool = False,
+    lease_ms: int | None = None,
+    config_file: str | Path | None = None,
+) -> zenoh.Config:
+    """Build a session config with explicit endpoints and, unless asked, no multicast scouting.
+
+    ``connect``/``listen`` are Zenoh locators (``tcp/127.0.0.1:7447``); an empty ``listen`` means the
+    session listens nowhere (Zenoh's default would be every interface). ``lease_ms`` shortens the
+    lease after which a silent (hung, partitioned) session is declared dead; default 10 s.
+    ``config_file`` (a Zenoh JSON5 config) is the base; the arguments above override its keys.
+    """
+    if mode not in ("peer", "client", "router"):
+        raise ValueError(f"mode must be peer, client or router: {mode!r}")
+    conf = zenoh.Config.from_file(str(config_file)) if config_file is not None else zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(scouting)))
+    if lease_ms is not None:
+        if lease_ms <= 0:
+            raise ValueError("lease_ms must be positive")
+        conf.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
+    return conf
+
+
+def open_router(
+    listen: Sequence[str], lease_ms: int | None = None, config_file: str | Path | None = None
+) -> zenoh.Session:
+    """Open an embedded Zenoh router listening on ``listen``; the caller closes the session."""
+    if not listen:
+        raise ValueError("a router needs at least one listen endpoint")
+    return zenoh.open(zenoh_config("router", listen=listen, lease_ms=lease_ms, config_file=config_file))
+
+
+def _print_ready(listen: Sequence[str]) -> None:
+    print("ready " + " ".join(listen), flush=True)
+
+
+def run_router(
+    listen: Sequence[str],
+    stop: threading.Event | None = None,
+    lease_ms: int | None = None,
+    on_ready: Callable[[], None] | None = None,
+    config_file: str | Path | None = None,
+) -> int:
+    """Run an embedded router until ``stop`` is set, or SIGTERM/SIGINT arrive; returns exit status 0.
+
+    Meant to be the whole of a router process (``coload router``). Once the router listens,
+    ``on_ready`` is called; by default it prints ``ready <endpoints>`` on stdout, the line a parent
+    process waits for instead of sleeping. Without ``stop``, and on the main thread, SIGTERM and
+    SIGINT close the router cleanly.
+    """
+    if stop is None:
+        stop = threading.Event()
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                signal.signal(sig, lambda *_: stop.set())
+    session = open_router(listen, lease_ms=lease_ms, config_file=config_file)
+    try:
+        (on_ready or (lambda: _print_ready(listen)))()
+        while not stop.wait(1.0):  # a timed wait keeps the main thread responsive to signals
+            pass
+    finally:
+        session.close()
+    return 0
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that was free on ``host`` a moment ago (the OS's pick), for tests and the CLI."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _deliver(h: _Closable, callback: Callable[[str, object], None], key: str, arg: object) -> None:
+    # Runs on the loop thread: the handle may have been closed since the sample was queued.
+    if not h.closed:
+        callback(key, arg)
+
+
+class ZenohTransport(Transport):
+    """A :class:`Transport` over one Zenoh session.
+
+    Opening blocks briefly (a client connects to its router; it fails if none is reachable), so
+    build it at daemon start-up. ``loop`` defaults to the running loop. Publishers are declared once
+    per key and cached, reliable, congestion control BLOCK (lockstep equality with the in-process
+    engine needs Zenoh itself never to drop: losses come from the link model only) and ``express``
+    (no batching: latency matters more than throughput for one small message per agent per tick).
+    """
+
+    def __init__(
+        self,
+        config: zenoh.Config,
+        loop: asyncio.AbstractEventLoop | None = None,
+        *,
+        express: bool = True,
+    ) -> None:
+        self._loop = loop if loop is not None else asyncio.get_running_loop()
+        self._express = express
+        self._session = zenoh.open(config)
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._handles: set[_Closable] = set()
+        self._closed = False
+
+    @property
+    def loop(self) -> asyncio.AbstractEventLoop:
+        return self._loop
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The underlying session, for what the interface does not cover (admin space, info)."""
+        return self._session
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("transport is closed")
+
+    def _handoff(self, h: _Closable, callback: Callable[[str, object], None], key: str, arg: object) -> None:
+        """On a Zenoh thread: queue the delivery on the loop. Never blocks, never calls Zenoh."""
+        try:
+            self._loop.call_soon_threadsafe(_deliver, h, callback, key, arg)
+        except RuntimeError:
+            # The loop is closed: the daemon is shutting down and nobody is listening any more.
+            pass
+
+    def _track(self, h: _Closable, undeclare: Callable[[], None]) -> _Closable:
+        def on_close() -> None:
+            self._handles.discard(h)
+            undeclare()
+
+        h._on_close = on_close
+        self._handles.add(h)
+        return h
+
+    def _publisher(self, key: str) -> zenoh.Publisher:
+        pub = self._pubs.get(key)
+        if pub is None:
+            pub = self._pubs[key] = self._session.declare_publisher(
+                key,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                reliability=zenoh.Reliability.RELIABLE,
+                express=self._express,
+            )
+        return pub
+
+    def publish(self, key: str, payload: bytes) -> None:
+        self._check_open()
+        self._publisher(key).put(bytes(payload))
+
+    def subscribe(self, key_expr: str, on_sample: OnSample) -> Subscription:
+        self._check_open()
+        h = _Closable()
+
+        def on_zenoh_sample(sample: zenoh.Sample) -> None:
+            self._handoff(h, on_sample, str(sample.key_expr), sample.payload.to_bytes())
+
+        zsub = self._session.declare_subscriber(key_expr, on_zenoh_sample)
+        # Gotcha: a subscriber declared with a callback lives on when its Python object is dropped;
+        # only undeclare() (or closing the session) stops it.
+        return self._track(h, zsub.undeclare)
+
+    def declare_alive(self, key: str) -> Subscription:
+        self._check_open()
+        token = self._session.liveliness().declare_token(key)
+        return self._track(_Closable(), token.undeclare)
+
+    def watch_alive(self, key_expr: str, on_change: OnAliveChange) -> Subscription:
+        self._check_open()
+        h = _Closable()
+
+        def on_zenoh_sample(sample: zenoh.Sample) -> None:
+            self._handoff(h, on_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+        zsub = self._session.liveliness().declare_subscriber(key_expr, on_zenoh_sample, history=True)
+        return self._track(h, zsub.undeclare)
+
+    async def wait_subscribed(self, key: str, timeout: float) -> bool:
+        """Wait on the publisher's matching status (Zenoh knows when a subscriber matches)."""
+        self._check_open()
+        pub = self._publisher(key)
+        if pub.matching_status.matching:
+            return True
+        fut: asyncio.Future[bool] = self._loop.create_future()
+
+        def set_matched() -> None:
+            if not fut.done():
+                fut.set_result(True)
+
+        def on_status(status: zenoh.MatchingStatus) -> None:
+            if status.matching:
+                try:
+                    self._loop.call_soon_threadsafe(set_matched)
+                except RuntimeError:
+                    pass
+
+        listener = pub.declare_matching_listener(on_status)
+        try:
+            if pub.matching_status.matching:  # matched between the first check and the listener
+                return True
+            return await asyncio.wait_for(fut, timeout)
+        except asyncio.TimeoutError:
+            return False
+        finally:
+            listener.undeclare()
+
+    def close(self) -> None:
+        """Undeclare everything, then close the session (its tokens vanish for every watcher)."""
+        if self._closed:
+            return
+        self._closed = True
+        for h in list(self._handles):
+            h.close()
+        for pub in self._pubs.values():
+            pub.undeclare()
+        self._pubs.clear()
+        self._session.close()
