@@ -15,18 +15,26 @@ Per tick k (all states refer to tick k-1 on entry and are predicted to tick k on
    the agent's pairs as a least-squares ratio u_i = sum_j z_ij x zdot_ij / sum_j |z_ij|^2 (the
    minimum-variance combination: each pair's noise on omega scales as 1/|z_ij|). It is unbiased at
    any |omega| (no gate needed), so omega_hat stays valid near 0. Then a low-pass consensus filter
-   x_i += eps sum_j (x_j - x_i) + beta (u_i - x_i) (``agents.consensus.lowpass_step``): every
+   o_i += eps sum_j (o_j - o_i) + beta (u_i - o_i) (``agents.consensus.lowpass_step``): every
    agent measures the *same* omega, so the job is averaging noise over time and over the graph, not
    tracking heterogeneous inputs; unlike the first-order input dynamic consensus it time-averages
    the per-tick noise and forgets the errors of lost messages instead of keeping them for good.
-4. z_i (Result 3, ref. [19]): x_i += eps sum_j (x_j - x_i + (z_ij - z_ji)/2), with the neighbour's
-   own z_ji taken from its message so that the edge terms are antisymmetric and sum_i x_i stays 0;
-   then every x_i is predicted by the rotation omega_hat*dt (without the prediction the iteration
-   lags a rotating load by tens of %).
+4. z_i (Result 3, ref. [19]): y_i += eps sum_j (y_j - y_i + e_ij), e_ij = (z_ij - z_ji)/2 with the
+   neighbour's own z_ji from its message, so the edge terms are antisymmetric and sum_i y_i stays 0.
+   Two changes make it hold on a rotating load with imperfect links:
+   - it runs in a body frame: x_i = e^{i phi_i} y_i, phi_i = integral of omega_hat kept in agreement
+     by phase consensus, and each edge term is rotated into the frame (phi_i + phi_j)/2 that both
+     ends compute alike. This is the rotation prediction of the pitfalls note (without it the
+     iteration lags by tens of %), but rotating each x_i by its own omega_hat would make the sum
+     random-walk (sum_i (omega_i - mean) x_i != 0; measured 0.07 m after 60 s);
+   - it is written in flow form (flow-updating): y_i = -sum_j F_ij with
+     F_ij = -F_ji(latest received) + eps (y_i - y_j - e_ij). With lost or delayed messages the plain
+     form loses the sum for good (measured 1 m with a 3-tick delay); flows only carry the in-flight
+     increments, so the sum error stays bounded and vanishes as the increments settle.
 
 Wire content of :class:`StateMsg`: ``shared = {"om": omega state, "oi": 1.0 once it is
-initialised else 0.0, "zx", "zy": x_i}``,
-``pair[j] = (z_ij_x, z_ij_y)`` (0, 0 while z_ij is not estimated yet), ``phase`` = 0 spinning up,
+initialised else 0.0, "ph": phi_i (rad), "yx", "yy": y_i (m)}``,
+``pair[j] = (z_ij_x, z_ij_y, F_ij_x, F_ij_y)`` (z_ij = 0, 0 while not estimated yet), ``phase`` = 0 spinning up,
 1 regulating omega (once omega_hat exists, from an own circle fit or adopted from a neighbour).
 """
 
@@ -195,7 +203,12 @@ class AgentCore:
         if len(inbox) > 1:
             # (tick, sender) order: per-sender tick order matters, and a fixed order makes the
             # result independent of the arrival order within a tick (bit-identical replays)
-            inbox = sorted(inbox, key=_by_tick)
+            if len(inbox) == 2:
+                m0, m1 = inbox
+                if m1.tick < m0.tick or (m1.tick == m0.tick and m1.sender < m0.sender):
+                    inbox = (m1, m0)
+            else:
+                inbox = sorted(inbox, key=_by_tick)
         me = self.id
         for msg in inbox:
             nb = nbrs.get(msg.sender)
@@ -350,14 +363,14 @@ class AgentCore:
             tick,
             i,
             {
-                "phase": float(phase),
+                "phase": 1.0 if regulate else 0.0,
                 "omega": om_new,
                 "omega_local": u,
                 "zi_x": x.real,
                 "zi_y": x.imag,
-                "pairs_ready": float(ready),
-                "dropped_unknown": float(self.dropped_unknown),
-                "dropped_stale": float(self.dropped_stale),
+                "pairs_ready": ready + 0.0,
+                "dropped_unknown": self.dropped_unknown + 0.0,
+                "dropped_stale": self.dropped_stale + 0.0,
             },
             pairs_out,
         )

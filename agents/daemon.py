@@ -221,6 +221,7 @@ class AgentDaemon:
         pub = self.transport.publish
         pub(self._k_state, encode(res.state))
         pub(self._k_wrench, encode(res.wrench))
-        pub(self._k_estimate, encode(res.estimate))
+        if k % self.scenario.record.every_ticks == 0:  # the recorder keeps only these
+            pub(self._k_estimate, encode(res.estimate))
         self.next_tick = k + 1
         self.ticks_stepped += 1

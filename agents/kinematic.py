@@ -17,6 +17,12 @@ Why this shape:
   and corrections are gated. The correction is a scalar Kalman filter on the angle: measurement
   variance (sigma*sqrt(2) / (|omega_hat| |z_ij|))^2 (radial noise over the signal), process noise
   ``angle_walk``^2 dt (the error of omega_hat integrated by the prediction).
+* Each accepted window also yields the position s - c of z_ij, which is fed to the same angle
+  filter as a measurement; if it disagrees by more than ~30 degrees the tracker has lost lock and is
+  re-anchored on it (needed when omega changes faster than omega_hat follows, e.g. at spin-up).
+* Window acceptance gates: covered arc >= ``fit_arc``, radius > 4x the residual and > 4x the
+  integrated noise of the window, mean tangential speed above the per-sample noise (rejects the
+  small "circles" that the integrated noise draws while the load is at rest).
 * Gate: angle corrections only when |omega_hat| |z_ij| >= gate_snr * sigma*sqrt(2) -- a gate that
   scales with sigma (the paper's fixed 0.5 m/s lets pure noise through at sigma = 0.3). Below it the
   estimate is only rotated by omega_hat (which is ~0 there), i.e. it freezes.

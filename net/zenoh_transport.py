@@ -118,8 +118,9 @@ class ZenohTransport(Transport):
     Opening blocks briefly (a client connects to its router; it fails if none is reachable), so
     build it at daemon start-up. ``loop`` defaults to the running loop. Publishers are declared once
     per key and cached, reliable, congestion control BLOCK (lockstep equality with the in-process
-    engine needs Zenoh itself never to drop: losses come from the link model only) and ``express``
-    (no batching: latency matters more than throughput for one small message per agent per tick).
+    engine needs Zenoh itself never to drop: losses come from the link model only). ``express``
+    (no batching) is off by default: measured on a 2-core machine, an express put costs ~85 us of
+    CPU against ~6 us batched, and a lockstep n = 10 run was ~15 % faster batched.
     """
 
     def __init__(
@@ -127,7 +128,7 @@ class ZenohTransport(Transport):
         config: zenoh.Config,
         loop: asyncio.AbstractEventLoop | None = None,
         *,
-        express: bool = True,
+        express: bool = False,
     ) -> None:
         self._loop = loop if loop is not None else asyncio.get_running_loop()
         self._express = express

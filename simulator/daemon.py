@@ -83,7 +83,7 @@ class SimDaemon:
         i = parsed[2]
         was = i in self.alive
         (self.alive.add if alive else self.alive.discard)(i)
-        if was != alive and self.tick > 0:
+        if was != alive and 0 < self.tick < self.scenario.ticks:  # not start-up, not shutdown
             self.events.append({"tick": self.tick, "t": self.tick * self.scenario.dt,
                                 "event": "agent_up" if alive else "agent_down", "agent": i})
             log.info("agent %d %s at tick %d", i, "up" if alive else "down", self.tick)

@@ -102,7 +102,7 @@ def test_hand_started_daemons_drop_and_count_garbage(tmp_path):
                        keys.sim_control(run)]
             for key in targets:
                 for payload in GARBAGE:
-                    session.put(key, payload)
+                    session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
             assert sim.wait(120) == 0
         for a in agents:
             assert a.wait(30) == 0
