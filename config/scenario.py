@@ -118,7 +118,9 @@ class TimingSpec(_Strict):
 class RecordSpec(_Strict):
     """What the run directory keeps. Samples (the measured data) are always kept at full rate."""
 
-    every_ticks: int = Field(1, ge=1, description="keep estimates, pairs and truth every this many ticks")
+    every_ticks: int = Field(
+        10, ge=1, description="keep estimates, pairs and truth every this many ticks (agents publish estimates only then)"
+    )
 
 
 class Scenario(_Strict):

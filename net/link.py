@@ -46,7 +46,7 @@ class LinkModel:
     its stationary distribution and steps once per message, after that message's loss draw.
     """
 
-    __slots__ = ("spec", "mode", "sender", "receiver", "_rng", "_u", "_k", "_bad", "_last_tick")
+    __slots__ = ("spec", "mode", "sender", "receiver", "_rng", "_u", "_k", "_bad", "_last_tick", "_fixed")
 
     def __init__(self, spec: LinkSpec, seed: int, sender: int, receiver: int, mode: Mode = "lockstep") -> None:
         if mode not in ("lockstep", "realtime"):
@@ -66,6 +66,10 @@ class LinkModel:
         total = loss.p_good_to_bad + loss.p_bad_to_good
         pi_bad = loss.p_good_to_bad / total if total > 0 else 0.0
         self._bad = loss.model == "gilbert_elliott" and u0 < pi_bad
+        # a link without loss, jitter or duplication has one fate: skip the draws on the hot path
+        jitter = spec.jitter_ticks if mode == "lockstep" else spec.jitter_s
+        faultless = loss.model == "none" and spec.duplicate == 0 and jitter == 0
+        self._fixed = (self._delay(0.0),) if faultless else None
 
     def _next_uniforms(self) -> np.ndarray:
         if self._k == len(self._u):
@@ -85,6 +89,8 @@ class LinkModel:
         if tick < self._last_tick:
             raise ValueError(f"link {self.sender}->{self.receiver}: tick {tick} after {self._last_tick}")
         self._last_tick = tick
+        if self._fixed is not None:
+            return self._fixed
         u_step, u_loss, u_dup, u_j1, u_j2 = self._next_uniforms().tolist()
         loss = self.spec.loss
         if loss.model == "bernoulli":
