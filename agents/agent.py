@@ -42,7 +42,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, fields
+from dataclasses import fields
+from math import cos, sin
 from operator import attrgetter
 
 from agents.control import KinematicControl
@@ -94,39 +95,103 @@ def _fast_factory(cls):  # type: ignore[no-untyped-def]
 _new_state = _fast_factory(StateMsg)
 _new_estimate = _fast_factory(Estimate)
 _new_wrench = _fast_factory(Wrench)
+_new = object.__new__
+_NAN = math.nan
 
 
-@dataclass(slots=True)
+def _build_estimate(
+    tick: int, agent: int, regulate: bool, om: float, u: float, y: complex, ph: float,
+    ready: int, d_unknown: int, d_stale: int, ids: tuple[int, ...], zs: list[complex],
+) -> Estimate:
+    """The :class:`Estimate` of one tick, from the values :meth:`AgentCore.step` snapshots."""
+    x = y * complex(cos(ph), sin(ph))  # z_i in the world frame
+    return _new_estimate(
+        tick,
+        agent,
+        {
+            "phase": 1.0 if regulate else 0.0,
+            "omega": om,
+            "omega_local": u,
+            "zi_x": x.real,
+            "zi_y": x.imag,
+            "pairs_ready": ready + 0.0,
+            "dropped_unknown": d_unknown + 0.0,
+            "dropped_stale": d_stale + 0.0,
+        },
+        {j: (z.real, z.imag) for j, z in zip(ids, zs)},
+    )
+
+
 class StepResult:
-    state: StateMsg
-    wrench: Wrench
-    estimate: Estimate
+    """One tick's outputs: ``state`` (to the neighbours), ``wrench`` (to the plant), ``estimate``.
+
+    Behaves like the dataclass ``StepResult(state, wrench, estimate)`` (same constructor, equality
+    and repr), but ``estimate`` is built on first access from a snapshot that ``step`` takes: most
+    ticks nobody reads it (recording and publishing are decimated), and its two dicts and three
+    objects were ~10 % of a step. The snapshot holds immutable values only, so a late access sees
+    exactly the tick's estimate.
+    """
+
+    __slots__ = ("state", "wrench", "_estimate", "_snap")
+
+    def __init__(self, state: StateMsg, wrench: Wrench, estimate: Estimate) -> None:
+        self.state = state
+        self.wrench = wrench
+        self._estimate = estimate
+        self._snap: tuple | None = None
+
+    @property
+    def estimate(self) -> Estimate:
+        est = self._estimate
+        if est is None:
+            est = self._estimate = _build_estimate(*self._snap)  # type: ignore[misc]
+            self._snap = None
+        return est
+
+    def __eq__(self, other: object) -> bool:
+        if other.__class__ is not self.__class__:
+            return NotImplemented
+        return (self.state, self.wrench, self.estimate) == (other.state, other.wrench, other.estimate)  # type: ignore[attr-defined]
+
+    __hash__ = None  # type: ignore[assignment]  # mutable, like the eq=True dataclass it replaces
+
+    def __repr__(self) -> str:
+        return f"StepResult(state={self.state!r}, wrench={self.wrench!r}, estimate={self.estimate!r})"
 
 
 class _Nbr:
     """What the agent remembers of one neighbour."""
 
-    __slots__ = ("id", "pair", "last", "om", "om_ok", "om_t", "ph", "ph_ok", "y", "zji", "fji", "flow", "st_t", "z_sent")
+    __slots__ = ("id", "pair", "last", "om", "om_ok", "ph", "y", "zji", "fji", "flow", "st_t", "z_sent")
 
     def __init__(self, j: int, pair: PairEstimator) -> None:
         self.id = j
         self.pair = pair
         self.last = -1  # newest tick used from j
         self.om = 0.0  # j's omega consensus state
-        self.om_ok = False  # j's omega state is initialised
-        self.om_t = -(10**9)  # tick of j's states (om, x, zji); none yet
+        self.om_ok = False  # j's omega (and phase) state is initialised
         self.ph = 0.0  # j's body-frame angle phi_j (rad)
-        self.ph_ok = False
         self.y = 0j  # j's centroid state in its body frame
         self.zji = 0j  # j's estimate of z_ji
         self.fji = 0j  # j's flow to us (centroid iteration in flow form)
         self.flow = 0j  # our flow to j: F_ij, kept ~ -F_ji
-        self.st_t = -(10**9)
+        self.st_t = -(10**9)  # tick of j's states (om, ph, y, zji, fji); none yet
         self.z_sent = 0j  # our z_ij as sent in our last message
 
 
 class AgentCore:
-    """Agent i's kinematic-phase estimator and controller (see the module docstring)."""
+    """Agent i's kinematic-phase estimator and controller (see the module docstring).
+
+    ``step`` is the hot path (~10 us with two neighbours): it reads its constants and state into
+    locals once, keeps the arithmetic expressions (and so the results) of the straightforward code
+    bit for bit, and inlines the small helpers (pair prediction, control law).
+    """
+
+    __slots__ = (
+        "id", "n", "dt", "sigma_v", "spec", "_ctl", "_nbrs", "_nlist", "_ids", "_hist", "_vbuf", "_vtick",
+        "_max_age", "_beta", "_eps_om", "_eps_z", "omega", "_om_init", "y", "phi", "_adopt_ph", "_eps_ph",
+        "trusted", "dropped_unknown", "dropped_stale", "_tick", "_wr",
+    )  # fmt: skip
 
     def __init__(
         self,
@@ -146,7 +211,9 @@ class AgentCore:
         sig = float(estimator.sigma_v if estimator.sigma_v is not None else sigma_v)
         self.sigma_v = sig
         self.spec = estimator
-        self._ctl = KinematicControl(control, dt)
+        self._ctl = ctl = KinematicControl(control, dt)
+        # the control law's constants, for the inlined KinematicControl.wrench (negation is exact)
+        self._wr = (ctl._switch, ctl._fx, ctl._fy, -ctl._fx, -ctl._fy, ctl._spin, ctl._target, ctl._k, ctl._tmax)
         nb_ids = sorted(set(int(j) for j in neighbours))
         self._nbrs: dict[int, _Nbr] = {}
         for j in nb_ids:
@@ -163,6 +230,7 @@ class AgentCore:
             )
             self._nbrs[j] = _Nbr(j, pe)
         self._nlist = list(self._nbrs.values())
+        self._ids = tuple(nb_ids)
         hist = estimator.history_ticks
         self._hist = hist
         self._vbuf = [0j] * hist
@@ -173,7 +241,6 @@ class AgentCore:
         self._eps_z = estimator.centroid_eps
         self.omega = 0.0  # omega_hat
         self._om_init = False  # omega_hat seeded from a circle fit (or from a neighbour's value)
-        self.x = 0j  # z_i estimate (world frame)
         self.y = 0j  # z_i in the agents' common body frame: x = e^{i phi} y
         self.phi = 0.0  # body-frame angle, integral of omega_hat kept in agreement by consensus
         self._adopt_ph = False
@@ -183,6 +250,12 @@ class AgentCore:
         self.dropped_stale = 0
         self._tick = -1
 
+    @property
+    def x(self) -> complex:
+        """z_i estimate (world frame); derived on demand, the step itself only needs y and phi."""
+        ph = self.phi
+        return self.y * complex(cos(ph), sin(ph))
+
     # ------------------------------------------------------------------------------------------ step
     def step(self, tick: int, vx: float, vy: float, inbox: Sequence[StateMsg]) -> StepResult:
         if tick <= self._tick:
@@ -190,12 +263,14 @@ class AgentCore:
         self._tick = tick
         dt = self.dt
         hist = self._hist
+        vbuf = self._vbuf
+        vtick = self._vtick
         slot = tick % hist
-        self._vbuf[slot] = complex(vx, vy)
-        self._vtick[slot] = tick
+        vbuf[slot] = complex(vx, vy)
+        vtick[slot] = tick
         ref = tick - 1  # the tick the states refer to on entry
         om = self.omega
-        nbrs = self._nbrs
+        omdt = om * dt  # "om * dt * k" below parses as (om * dt) * k: hoisting it is exact
 
         # 1-3. inbox: pair samples and the local omega measurement -------------------------------
         u_num = 0.0
@@ -209,6 +284,7 @@ class AgentCore:
                     inbox = (m1, m0)
             else:
                 inbox = sorted(inbox, key=_by_tick)
+        nbrs = self._nbrs
         me = self.id
         for msg in inbox:
             nb = nbrs.get(msg.sender)
@@ -219,8 +295,10 @@ class AgentCore:
             if t <= nb.last or t > tick:
                 self.dropped_stale += 1
                 continue
-            sh = msg.shared
+            # try costs nothing on the normal path (3.11 zero-cost exceptions) and catches every
+            # kind of malformed payload at once, cheaper than checking keys and types one by one
             try:
+                sh = msg.shared
                 s_om = sh["om"]
                 s_ph = sh["ph"]
                 yx = sh["yx"]
@@ -244,17 +322,16 @@ class AgentCore:
             nb.om = s_om
             nb.om_ok = s_ok
             nb.ph = s_ph
-            nb.ph_ok = s_ok
             nb.y = complex(yx, yy)
             nb.zji = complex(zx, zy)
             nb.fji = complex(fx, fy)
-            nb.om_t = t
             nb.st_t = t
-            if self._vtick[t % hist] != t:
+            ts = t % hist
+            if vtick[ts] != t:
                 continue  # no own sample of that tick any more (too old)
-            w = self._vbuf[t % hist] - complex(vjx, vjy)
+            w = vbuf[ts] - complex(vjx, vjy)
             lag = ref - t
-            back = complex(math.cos(om * dt * lag), -math.sin(om * dt * lag)) if lag else 1.0
+            back = complex(cos(omdt * lag), -sin(omdt * lag)) if lag else 1.0
             pe = nb.pair
             if pe.ready:
                 zt = pe.z * back  # predicted z_ij at tick t (before this sample's correction)
@@ -269,9 +346,11 @@ class AgentCore:
                     self._om_init = True
                     self._adopt_ph = True
                     self.omega = om = pe.omega_fit
+                    omdt = om * dt
 
         # 4-5. neighbour states: omega (low-pass consensus), body-frame angle phi (phase consensus),
         # z_i in that frame (centroid iteration with antisymmetric edge terms) ----------------------
+        nlist = self._nlist
         max_age = self._max_age
         ph = self.phi
         y = self.y
@@ -279,40 +358,42 @@ class AgentCore:
         cnt = 0
         accp = 0.0
         eps_z = self._eps_z
-        ready = 0
-        for nb in self._nlist:
-            if nb.pair.ready:
-                ready += 1
+        sflow = 0j  # sum_j F_ij, in neighbour order (a neighbour not heard from keeps its last flow)
+        for nb in nlist:
             age = ref - nb.st_t
             if age > max_age:
+                sflow += nb.flow
                 continue
+            nph = nb.ph
             if nb.om_ok:
                 acc += nb.om - om
                 cnt += 1
-                accp += (nb.ph + om * dt * age) - ph
+                accp += (nph + omdt * age) - ph
             zs = nb.z_sent
             zji = nb.zji
             if zs == 0j or zji == 0j:
                 f = -nb.fji
             else:
                 if age:
-                    zji *= complex(math.cos(om * dt * age), math.sin(om * dt * age))
+                    zji *= complex(cos(omdt * age), sin(omdt * age))
                 # common edge frame: both ends rotate the edge term by the same angle -> antisymmetric
-                a = -0.5 * (ph + nb.ph + om * dt * age)
-                e = 0.5 * (zs - zji) * complex(math.cos(a), math.sin(a))
+                a = -0.5 * (ph + nph + omdt * age)
+                e = 0.5 * (zs - zji) * complex(cos(a), sin(a))
                 # flow form of y_i += eps sum_j (y_j - y_i + e_ij): F_ij = -F_ji + eps (y_i - y_j - e_ij)
                 f = eps_z * (y - nb.y - e) - nb.fji
             nb.flow = f
+            sflow += f
+        om_init = self._om_init
         adopt = False
-        if cnt and (not self._om_init or self._adopt_ph):
+        if cnt and (not om_init or self._adopt_ph):
             adopt = True  # (re)initialised this tick: take the neighbours' phase too
-            if not self._om_init:
+            if not om_init:
                 # not seeded by an own fit yet: adopt the neighbours' mean instead of pulling them to 0
-                self._om_init = True
+                self._om_init = om_init = True
                 om = om + acc / cnt
                 acc = 0.0
         self._adopt_ph = False
-        if self._om_init:
+        if om_init:
             om_new = om + self._eps_om * acc
         else:
             om_new = 0.0
@@ -320,13 +401,9 @@ class AgentCore:
             u = u_num / u_den
             om_new += self._beta * (u - om)
         else:
-            u = math.nan
-        if self._nlist:
-            # y_i = -sum_j F_ij; a neighbour not heard from for max_age keeps its last flow
-            sflow = 0j
-            for nb in self._nlist:
-                sflow += nb.flow
-            self.y = y = -sflow
+            u = _NAN
+        if nlist:
+            self.y = y = -sflow  # y_i = -sum_j F_ij
         if adopt:
             ph += accp / cnt  # join the neighbours' body frame (y is still 0 then)
         else:
@@ -334,44 +411,50 @@ class AgentCore:
         ph += om_new * dt
         self.phi = ph
         self.omega = om_new
-        self.x = x = y * complex(math.cos(ph), math.sin(ph))
-        rot = complex(math.cos(om_new * dt), math.sin(om_new * dt))
-        pairs_out: dict[int, tuple[float, float]] = {}
+        rot = complex(cos(om_new * dt), sin(om_new * dt))
         pairs_msg: dict[int, tuple[float, float, float, float]] = {}
-        for nb in self._nlist:
+        zlist: list[complex] = []
+        ready = 0
+        for nb in nlist:
             pe = nb.pair
             if pe.ready:  # prediction to tick k (PairEstimator.predict, inlined)
+                ready += 1
                 pe.z = z = pe.z * rot
                 pe._p += pe._q
             else:
                 z = pe.z
             nb.z_sent = z
-            pairs_out[nb.id] = (z.real, z.imag)
+            zlist.append(z)
             f = nb.flow
             pairs_msg[nb.id] = (z.real, z.imag, f.real, f.imag)
-        self.trusted = ready == len(self._nlist) and ready > 0
+        self.trusted = ready == len(nlist) and ready > 0
 
-        # 6. control, outputs ------------------------------------------------------------------------
-        regulate = self._om_init  # omega_hat exists: stop spinning up, regulate on it
-        fx, fy, tau = self._ctl.wrench(tick, om_new, regulate)
-        phase = PHASE_REGULATE if regulate else PHASE_SPINUP
-        i = self.id
-        state = _new_state(
-            tick, i, vx, vy, phase, {"om": om_new, "oi": 1.0 if self._om_init else 0.0, "ph": ph, "yx": y.real, "yy": y.imag}, pairs_msg
-        )
-        est = _new_estimate(
+        # 6. control (KinematicControl.wrench, inlined), outputs -------------------------------------
+        switch, cfx, cfy, cfx_neg, cfy_neg, spin, target, k_om, tmax = self._wr
+        if (tick // switch) & 1:
+            fx, fy = cfx_neg, cfy_neg
+        else:
+            fx, fy = cfx, cfy
+        if om_init:  # omega_hat exists: stop spinning up, regulate on it
+            tau = k_om * (target - om_new)
+            if tau > tmax:
+                tau = tmax
+            elif tau < -tmax:
+                tau = -tmax
+        else:
+            tau = spin
+        i = me
+        res = _new(StepResult)
+        res.state = _new_state(
             tick,
             i,
-            {
-                "phase": 1.0 if regulate else 0.0,
-                "omega": om_new,
-                "omega_local": u,
-                "zi_x": x.real,
-                "zi_y": x.imag,
-                "pairs_ready": ready + 0.0,
-                "dropped_unknown": self.dropped_unknown + 0.0,
-                "dropped_stale": self.dropped_stale + 0.0,
-            },
-            pairs_out,
+            vx,
+            vy,
+            PHASE_REGULATE if om_init else PHASE_SPINUP,
+            {"om": om_new, "oi": 1.0 if om_init else 0.0, "ph": ph, "yx": y.real, "yy": y.imag},
+            pairs_msg,
         )
-        return StepResult(state, _new_wrench(tick, i, fx, fy, tau), est)
+        res.wrench = _new_wrench(tick, i, fx, fy, tau)
+        res._estimate = None
+        res._snap = (tick, i, om_init, om_new, u, y, ph, ready, self.dropped_unknown, self.dropped_stale, self._ids, zlist)
+        return res
