@@ -65,23 +65,48 @@ def omega_from_pair(z: complex, zdot: complex) -> float:
 
 def solve3(a: list[list[float]], b: list[float]) -> tuple[float, float, float] | None:
     """Solve a 3x3 linear system by Gaussian elimination with partial pivoting (None if singular)."""
-    m = [a[0][:] + [b[0]], a[1][:] + [b[1]], a[2][:] + [b[2]]]
-    scale = max(abs(v) for row in a for v in row) or 1.0
+    return _solve3(a[0][0], a[0][1], a[0][2], b[0], a[1][0], a[1][1], a[1][2], b[1], a[2][0], a[2][1], a[2][2], b[2])
+
+
+def _elim(r: list[float], c: int, piv_row: list[float], piv: float) -> None:
+    """Row r -= (r[c] / piv) * pivot row, for columns c..3 (skipped when the factor is 0)."""
+    f = r[c] / piv
+    if f != 0.0:
+        for k in range(c, 4):
+            r[k] -= f * piv_row[k]
+
+
+def _solve3(
+    a00: float, a01: float, a02: float, b0: float,
+    a10: float, a11: float, a12: float, b1: float,
+    a20: float, a21: float, a22: float, b2: float,
+) -> tuple[float, float, float] | None:
+    """:func:`solve3` on scalars (the circle fit's hot path): the same operations in the same order,
+    without the nested lists, generator and key lambdas of the generic loop."""
+    scale = max(abs(a00), abs(a01), abs(a02), abs(a10), abs(a11), abs(a12), abs(a20), abs(a21), abs(a22)) or 1.0
+    tol = 1e-13 * scale
+    m = [[a00, a01, a02, b0], [a10, a11, a12, b1], [a20, a21, a22, b2]]
     for c in range(3):
-        p = max(range(c, 3), key=lambda r: abs(m[r][c]))
-        if abs(m[p][c]) <= 1e-13 * scale:
+        # partial pivoting: the first row with the largest |m[r][c]| (max() semantics)
+        p = c
+        best = abs(m[c][c])
+        for r in range(c + 1, 3):
+            v = abs(m[r][c])
+            if v > best:
+                p = r
+                best = v
+        if best <= tol:
             return None
         if p != c:
             m[c], m[p] = m[p], m[c]
-        piv = m[c][c]
+        row = m[c]
+        piv = row[c]
         for r in range(c + 1, 3):
-            f = m[r][c] / piv
-            if f != 0.0:
-                for k in range(c, 4):
-                    m[r][k] -= f * m[c][k]
-    x2 = m[2][3] / m[2][2]
-    x1 = (m[1][3] - m[1][2] * x2) / m[1][1]
-    x0 = (m[0][3] - m[0][1] * x1 - m[0][2] * x2) / m[0][0]
+            _elim(m[r], c, row, piv)
+    r0, r1, r2 = m
+    x2 = r2[3] / r2[2]
+    x1 = (r1[3] - r1[2] * x2) / r1[1]
+    x0 = (r0[3] - r0[1] * x1 - r0[2] * x2) / r0[0]
     return x0, x1, x2
 
 
@@ -131,10 +156,11 @@ class CircleSums:
         """Solve the Kasa normal equations; None when there are too few points or they are degenerate."""
         if self.n < 3:
             return None
-        sol = solve3(
-            [[self.sxx, self.sxy, self.sx], [self.sxy, self.syy, self.sy], [self.sx, self.sy, float(self.n)]],
-            [-self.sxq, -self.syq, -self.sq],
-        )
+        sol = _solve3(
+            self.sxx, self.sxy, self.sx, -self.sxq,
+            self.sxy, self.syy, self.sy, -self.syq,
+            self.sx, self.sy, float(self.n), -self.sq,
+        )  # fmt: skip
         if sol is None:
             return None
         d, e, f = sol

@@ -31,8 +31,9 @@ Why this shape:
 from __future__ import annotations
 
 import math
+from math import atan2, sqrt
 
-from agents.geometry import CircleSums
+from agents.geometry import CircleFit, CircleSums
 
 
 class PairEstimator:
@@ -117,10 +118,13 @@ class PairEstimator:
                 if self.ready:
                     wp = 1j * omega_hat * self.z * back
                 s += gap * dt * wp
+                self._rot += abs(omega_hat) * dt * (gap + 1)
+            else:
+                self._rot += abs(omega_hat) * dt  # (gap + 1) == 1: the product is exact without it
             s += 0.5 * dt * (wp + w)
             self._s = s
             self._w_prev = w
-            sm = self._sums
+            sm = self._sums  # CircleSums.add, inlined
             x = s.real
             y = s.imag
             q = x * x + y * y
@@ -135,9 +139,8 @@ class PairEstimator:
             sm.sq += q
             sm.sqq += q * q
             self._wn += 1
-            self._rot += abs(omega_hat) * dt * (gap + 1)
-            self._since_cp += 1
-            if self._since_cp >= self._check:
+            since = self._since_cp + 1
+            if since >= self._check:
                 self._since_cp = 0
                 self._cps.append(s)
                 # solve the fit only when the window may have covered the arc (omega_hat says so),
@@ -146,6 +149,8 @@ class PairEstimator:
                     omega_hat == 0.0 or self._rot >= 0.8 * self._arc or t - self._t0 >= self._max_ticks
                 ):
                     self._try_fit(back, t)
+            else:
+                self._since_cp = since
         if not self.ready:
             return
         # Result 1: pull the angle of z_ij towards the axis perp(w), sign nearest the prediction
@@ -153,20 +158,25 @@ class PairEstimator:
         sig2 = omega_hat * omega_hat * r * r  # (|omega| |z|)^2
         if sig2 < self._gate2 or sig2 <= 0.0:
             return
-        zt = self.z * back
+        z = self.z
+        zt = z * back
         # c = conj(zt) * (1j * w): angle between the predicted z and the measured axis
-        cr = zt.imag * w.real - zt.real * w.imag
-        ci = zt.real * w.real + zt.imag * w.imag
+        wr = w.real
+        wi = w.imag
+        ztr = zt.real
+        zti = zt.imag
+        cr = zti * wr - ztr * wi
+        ci = ztr * wr + zti * wi
         if cr < 0.0:
             cr = -cr
             ci = -ci
-        mag = math.sqrt(cr * cr + ci * ci)
+        mag = sqrt(cr * cr + ci * ci)
         if mag <= 0.0:
             return
         p = self._p
         k = p / (p + self._noise2 / sig2)
         self._p = p - k * p
-        z = self.z * complex(1.0, k * ci / mag)
+        z = z * complex(1.0, k * ci / mag)
         self.z = z * (r / abs(z))
 
     def _restart(self, w: complex, t: int) -> None:
@@ -184,62 +194,75 @@ class PairEstimator:
     def _try_fit(self, back: complex, t: int) -> None:
         fit = self._sums.fit()
         if fit is not None:
-            c = fit.centre
-            arc = 0.0
-            cps = self._cps
-            nseg = len(cps) - 1
-            recent_from = nseg - max(1, nseg // 3)
-            arc_recent = 0.0
-            prev = cps[0] - c
-            for k in range(1, nseg + 1):
-                cur = cps[k] - c
-                da = math.atan2(prev.real * cur.imag - prev.imag * cur.real, prev.real * cur.real + prev.imag * cur.imag)
-                arc += da
-                if k > recent_from:
-                    arc_recent += da
-                prev = cur
-            # accept only a real arc: large enough, radius well above the integrated noise of the
-            # window and mean tangential speed above the per-sample noise (rejects noise curls)
+            radius = fit.radius
+            rms = fit.rms
             span = (t - self._t0) * self._dt  # elapsed time, not samples: some may be missing
-            if (
-                abs(arc) >= self._arc
-                and fit.radius > 4.0 * fit.rms
-                and fit.radius * fit.radius > 16.0 * self._noise2 * self._dt * span
-                and (fit.radius * abs(arc) / span) ** 2 >= self._noise2
-            ):
-                weight = 1.0 / (fit.rms * fit.rms + 1e-12)
-                self._rw += weight
-                self._rsum += weight * fit.radius
-                self.r = r = self._rsum / self._rw
-                self.windows += 1
-                # rate over the last third of the window: a spin-up is accelerating, and the
-                # window mean would seed omega_hat well below the current rate
-                self.omega_fit = arc_recent / ((nseg - recent_from) * self._check * self._dt) * (self._wn / max(1, t - self._t0))
-                z_t = self._s - c  # z_ij at the sample tick, sign included (integral form)
-                r_fit = 2.0 * (fit.rms / fit.radius) ** 2 + 1e-6  # angle variance of z_t (rad^2)
-                m = abs(z_t)
-                if m > 0.0:
-                    zt = self.z * back
-                    if self.ready:
-                        # the window's own position is an angle measurement too; a large
-                        # disagreement means the tracker lost lock: re-anchor on the fit
-                        cr = zt.real * z_t.real + zt.imag * z_t.imag
-                        ci = zt.real * z_t.imag - zt.imag * z_t.real
-                        if cr > 0.0 and abs(ci) < 0.5 * math.hypot(cr, ci):
-                            p = self._p
-                            k = p / (p + r_fit)
-                            self._p = p - k * p
-                            zt *= complex(1.0, k * ci / math.hypot(cr, ci))
-                            self.z = zt / back * (r / abs(zt))
-                        else:
-                            self.z = z_t / back * (r / m)
-                            self._p = r_fit + 1e-3
-                    else:
-                        self.z = z_t / back * (r / m)
-                        self._p = r_fit + 1e-3
-                        self.ready = True
-                self._restart(self._w_prev, t)
-                return
+            # accept only a real arc: large enough, radius well above the integrated noise of the
+            # window and mean tangential speed above the per-sample noise (rejects noise curls).
+            # The two radius gates go first: they are O(1), the arc costs an atan2 per checkpoint.
+            if radius > 4.0 * rms and radius * radius > 16.0 * self._noise2 * self._dt * span:
+                c = fit.centre
+                cx = c.real
+                cy = c.imag
+                cps = self._cps
+                nseg = len(cps) - 1
+                recent_from = nseg - max(1, nseg // 3)
+                # sum of the angles between consecutive checkpoints seen from the centre (floats,
+                # not complex temporaries; the same operations as (cps[k] - c) products)
+                arc = 0.0
+                arc_recent = 0.0
+                p0 = cps[0]
+                px = p0.real - cx
+                py = p0.imag - cy
+                for k in range(1, nseg + 1):
+                    cur = cps[k]
+                    qx = cur.real - cx
+                    qy = cur.imag - cy
+                    da = atan2(px * qy - py * qx, px * qx + py * qy)
+                    arc += da
+                    if k > recent_from:
+                        arc_recent += da
+                    px = qx
+                    py = qy
+                if abs(arc) >= self._arc and (radius * abs(arc) / span) ** 2 >= self._noise2:
+                    self._accept(fit, arc_recent, nseg, recent_from, back, t)
+                    return
         if t - self._t0 >= self._max_ticks:
             self.rejected += 1
             self._restart(self._w_prev, t)
+
+    def _accept(self, fit: CircleFit, arc_recent: float, nseg: int, recent_from: int, back: complex, t: int) -> None:
+        """An accepted window: update |z_ij|, omega_fit and the angle of z_ij, then re-anchor."""
+        weight = 1.0 / (fit.rms * fit.rms + 1e-12)
+        self._rw += weight
+        self._rsum += weight * fit.radius
+        self.r = r = self._rsum / self._rw
+        self.windows += 1
+        # rate over the last third of the window: a spin-up is accelerating, and the
+        # window mean would seed omega_hat well below the current rate
+        self.omega_fit = arc_recent / ((nseg - recent_from) * self._check * self._dt) * (self._wn / max(1, t - self._t0))
+        c = fit.centre
+        z_t = self._s - c  # z_ij at the sample tick, sign included (integral form)
+        r_fit = 2.0 * (fit.rms / fit.radius) ** 2 + 1e-6  # angle variance of z_t (rad^2)
+        m = abs(z_t)
+        if m > 0.0:
+            zt = self.z * back
+            if self.ready:
+                # the window's own position is an angle measurement too; a large
+                # disagreement means the tracker lost lock: re-anchor on the fit
+                cr = zt.real * z_t.real + zt.imag * z_t.imag
+                ci = zt.real * z_t.imag - zt.imag * z_t.real
+                if cr > 0.0 and abs(ci) < 0.5 * math.hypot(cr, ci):
+                    p = self._p
+                    k = p / (p + r_fit)
+                    self._p = p - k * p
+                    zt *= complex(1.0, k * ci / math.hypot(cr, ci))
+                    self.z = zt / back * (r / abs(zt))
+                else:
+                    self.z = z_t / back * (r / m)
+                    self._p = r_fit + 1e-3
+            else:
+                self.z = z_t / back * (r / m)
+                self._p = r_fit + 1e-3
+                self.ready = True
+        self._restart(self._w_prev, t)

@@ -24,7 +24,7 @@ class _Strict(BaseModel):
 class LoadSpec(_Strict):
     """The rigid planar load. Body frame: origin at the polygon's centroid, axes along the polygon's."""
 
-    shape: Literal["rectangle", "polygon"] = "rectangle"
+    shape: Literal["rectangle", "polygon"] = Field("rectangle", description="outline: a width x height rectangle or the given vertices")
     width: float = Field(4.0, gt=0, description="rectangle side along body x (m)")
     height: float = Field(2.2, gt=0, description="rectangle side along body y (m)")
     vertices: list[Vec2] | None = Field(
@@ -52,19 +52,23 @@ class LoadSpec(_Strict):
 class ContactSpec(_Strict):
     """Where the agents hold the load. ``perimeter`` spaces n points evenly along the outline."""
 
-    layout: Literal["perimeter", "explicit"] = "perimeter"
+    layout: Literal["perimeter", "explicit"] = Field("perimeter", description="perimeter: evenly spaced on the outline; explicit: the given points")
     start: float = Field(0.0, ge=0, lt=1, description="perimeter layout: first point as a fraction of the outline")
     points: list[Vec2] | None = Field(None, description="explicit layout: body-frame points (m), one per agent")
 
 
 class NoiseSpec(_Strict):
+    """Velocity-sensor noise of the plant (the agents are told only its level, as a sensor spec)."""
+
     sigma_v: float = Field(0.3, ge=0, description="std of additive Gaussian noise on each velocity component (m/s)")
 
 
 class GraphSpec(_Strict):
     """The undirected communication graph; agents numbered from 0 in contact order."""
 
-    topology: Literal["line", "ring", "complete", "explicit"] = "line"
+    topology: Literal["line", "ring", "complete", "explicit"] = Field(
+        "line", description="line: i talks to i-1 and i+1; ring: line plus n-1 to 0; complete: all pairs; explicit: edges"
+    )
     edges: list[tuple[int, int]] | None = Field(None, description="explicit topology: [i, j] pairs")
 
     @model_validator(mode="after")
@@ -77,12 +81,12 @@ class GraphSpec(_Strict):
 class LossSpec(_Strict):
     """Packet loss on one directed link. ``gilbert_elliott`` is a two-state (good/bad) Markov chain."""
 
-    model: Literal["none", "bernoulli", "gilbert_elliott"] = "none"
+    model: Literal["none", "bernoulli", "gilbert_elliott"] = Field("none", description="loss process of the link")
     p: float = Field(0.0, ge=0, le=1, description="bernoulli: loss probability")
-    p_good_to_bad: float = Field(0.01, ge=0, le=1)
-    p_bad_to_good: float = Field(0.2, ge=0, le=1)
-    loss_good: float = Field(0.0, ge=0, le=1)
-    loss_bad: float = Field(0.8, ge=0, le=1)
+    p_good_to_bad: float = Field(0.01, ge=0, le=1, description="gilbert_elliott: per-message probability good -> bad")
+    p_bad_to_good: float = Field(0.2, ge=0, le=1, description="gilbert_elliott: per-message probability bad -> good (mean burst 1/p)")
+    loss_good: float = Field(0.0, ge=0, le=1, description="gilbert_elliott: loss probability in the good state")
+    loss_bad: float = Field(0.8, ge=0, le=1, description="gilbert_elliott: loss probability in the bad state")
 
 
 class LinkSpec(_Strict):
@@ -92,15 +96,17 @@ class LinkSpec(_Strict):
     [0, jitter] added to the fixed delay.
     """
 
-    delay_ticks: int = Field(0, ge=0)
-    jitter_ticks: int = Field(0, ge=0)
-    delay_s: float = Field(0.0, ge=0)
-    jitter_s: float = Field(0.0, ge=0)
+    delay_ticks: int = Field(0, ge=0, description="lockstep: fixed delay (ticks) on top of the one-tick exchange")
+    jitter_ticks: int = Field(0, ge=0, description="lockstep: extra delay uniform in 0..jitter_ticks (reorders)")
+    delay_s: float = Field(0.0, ge=0, description="realtime: fixed delay (s)")
+    jitter_s: float = Field(0.0, ge=0, description="realtime: extra delay uniform in [0, jitter_s] (s)")
     loss: LossSpec = LossSpec()
     duplicate: float = Field(0.0, ge=0, le=1, description="probability that a delivered message arrives twice")
 
 
 class InitialSpec(_Strict):
+    """The load's state at t = 0 (world frame)."""
+
     position: Vec2 = Field((0.0, 0.0), description="CoM position at t = 0, world frame (m)")
     angle: float = Field(0.0, description="body x axis from world x at t = 0, counter-clockwise (rad)")
     v_c: Vec2 = Field((0.0, 0.0), description="CoM velocity at t = 0 (m/s)")
@@ -124,12 +130,14 @@ class RecordSpec(_Strict):
 
 
 class Scenario(_Strict):
-    name: str = "unnamed"
+    name: str = Field("unnamed", description="run label (free text)")
     n: int = Field(10, ge=2, le=1000, description="number of agents")
     dt: float = Field(0.01, gt=0, description="tick length (s)")
     duration: float = Field(60.0, gt=0, description="simulated time (s)")
-    seed: int = Field(0, ge=0)
-    mode: Literal["lockstep", "realtime"] = "lockstep"
+    seed: int = Field(0, ge=0, description="run seed: sensor noise and every link's faults derive from it")
+    mode: Literal["lockstep", "realtime"] = Field(
+        "lockstep", description="lockstep: the simulator is the clock (reproducible); realtime: wall-clock pace"
+    )
     load: LoadSpec = LoadSpec()
     contacts: ContactSpec = ContactSpec()
     noise: NoiseSpec = NoiseSpec()
