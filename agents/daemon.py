@@ -59,6 +59,8 @@ class AgentDaemon:
         self._k_state = keys.state(run, agent_id)
         self._k_wrench = keys.wrench(run, agent_id)
         self._k_estimate = keys.estimate(run, agent_id)
+        self._state_keys = {keys.state(run, j): j for j in self.neighbours}  # parsed once, not per sample
+        self._record_every = scenario.record.every_ticks
         self.ticks_stepped = 0
 
     # ---- lifecycle -------------------------------------------------------------------------
@@ -152,8 +154,10 @@ class AgentDaemon:
         self._try_step()
 
     def _on_state(self, key: str, payload: bytes) -> None:
-        parsed = keys.parse_agent_key(key)
-        sender = parsed[1] if parsed else None
+        sender = self._state_keys.get(key)
+        if sender is None:
+            parsed = keys.parse_agent_key(key)
+            sender = parsed[1] if parsed else None
         if sender not in self.last_from:
             self.drops["unknown_sender"] += 1
             return
@@ -219,9 +223,11 @@ class AgentDaemon:
         m = self.pending_meas.pop(k)
         res = self.core.step(k, m.vx, m.vy, self.line.pop_due(k))
         pub = self.transport.publish
-        pub(self._k_state, encode(res.state))
+        # the wrench first: the simulator waits for it (critical path), neighbours need the state
+        # only for the next tick
         pub(self._k_wrench, encode(res.wrench))
-        if k % self.scenario.record.every_ticks == 0:  # the recorder keeps only these
+        pub(self._k_state, encode(res.state))
+        if k % self._record_every == 0:  # the recorder keeps only these
             pub(self._k_estimate, encode(res.estimate))
         self.next_tick = k + 1
         self.ticks_stepped += 1

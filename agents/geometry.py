@@ -13,6 +13,7 @@ that the algebraic (Kasa) fit can be solved at any time in O(1) without storing 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 TWO_PI = 2.0 * math.pi
@@ -68,45 +69,63 @@ def solve3(a: list[list[float]], b: list[float]) -> tuple[float, float, float] |
     return _solve3(a[0][0], a[0][1], a[0][2], b[0], a[1][0], a[1][1], a[1][2], b[1], a[2][0], a[2][1], a[2][2], b[2])
 
 
-def _elim(r: list[float], c: int, piv_row: list[float], piv: float) -> None:
-    """Row r -= (r[c] / piv) * pivot row, for columns c..3 (skipped when the factor is 0)."""
-    f = r[c] / piv
-    if f != 0.0:
-        for k in range(c, 4):
-            r[k] -= f * piv_row[k]
-
-
 def _solve3(
     a00: float, a01: float, a02: float, b0: float,
     a10: float, a11: float, a12: float, b1: float,
     a20: float, a21: float, a22: float, b2: float,
 ) -> tuple[float, float, float] | None:
-    """:func:`solve3` on scalars (the circle fit's hot path): the same operations in the same order,
-    without the nested lists, generator and key lambdas of the generic loop."""
+    """Gaussian elimination with partial pivoting on scalars, unrolled (the circle fit's hot path).
+
+    The operations and their order are those of the textbook loop (pivot = the first row with the
+    largest |entry|, a row is only updated when its factor is non-zero), so results are bit for bit
+    those of the loop; entries below the pivot are not written since nothing reads them again.
+    """
     scale = max(abs(a00), abs(a01), abs(a02), abs(a10), abs(a11), abs(a12), abs(a20), abs(a21), abs(a22)) or 1.0
     tol = 1e-13 * scale
-    m = [[a00, a01, a02, b0], [a10, a11, a12, b1], [a20, a21, a22, b2]]
-    for c in range(3):
-        # partial pivoting: the first row with the largest |m[r][c]| (max() semantics)
-        p = c
-        best = abs(m[c][c])
-        for r in range(c + 1, 3):
-            v = abs(m[r][c])
-            if v > best:
-                p = r
-                best = v
-        if best <= tol:
+    # column 0
+    p = 0
+    best = abs(a00)
+    v = abs(a10)
+    if v > best:
+        p = 1
+        best = v
+    v = abs(a20)
+    if v > best:
+        p = 2
+        best = v
+    if best <= tol:
+        return None
+    if p == 1:
+        a00, a01, a02, b0, a10, a11, a12, b1 = a10, a11, a12, b1, a00, a01, a02, b0
+    elif p == 2:
+        a00, a01, a02, b0, a20, a21, a22, b2 = a20, a21, a22, b2, a00, a01, a02, b0
+    f = a10 / a00
+    if f != 0.0:
+        a11 -= f * a01
+        a12 -= f * a02
+        b1 -= f * b0
+    f = a20 / a00
+    if f != 0.0:
+        a21 -= f * a01
+        a22 -= f * a02
+        b2 -= f * b0
+    # column 1
+    if abs(a21) > abs(a11):
+        if abs(a21) <= tol:
             return None
-        if p != c:
-            m[c], m[p] = m[p], m[c]
-        row = m[c]
-        piv = row[c]
-        for r in range(c + 1, 3):
-            _elim(m[r], c, row, piv)
-    r0, r1, r2 = m
-    x2 = r2[3] / r2[2]
-    x1 = (r1[3] - r1[2] * x2) / r1[1]
-    x0 = (r0[3] - r0[1] * x1 - r0[2] * x2) / r0[0]
+        a11, a12, b1, a21, a22, b2 = a21, a22, b2, a11, a12, b1
+    elif abs(a11) <= tol:
+        return None
+    f = a21 / a11
+    if f != 0.0:
+        a22 -= f * a12
+        b2 -= f * b1
+    # column 2
+    if abs(a22) <= tol:
+        return None
+    x2 = b2 / a22
+    x1 = (b1 - a12 * x2) / a11
+    x0 = (b0 - a01 * x1 - a02 * x2) / a00
     return x0, x1, x2
 
 
@@ -151,6 +170,27 @@ class CircleSums:
         self.syq += y * q
         self.sq += q
         self.sqq += q * q
+
+    def extend(self, points: Sequence[complex], start: int = 0) -> None:
+        """``add`` every point of ``points[start:]`` in order (the same sums, bit for bit; locals are faster)."""
+        n, sx, sy, sxx, sxy, syy = self.n, self.sx, self.sy, self.sxx, self.sxy, self.syy
+        sxq, syq, sq, sqq = self.sxq, self.syq, self.sq, self.sqq
+        for p in points[start:] if start else points:
+            x = p.real
+            y = p.imag
+            q = x * x + y * y
+            n += 1
+            sx += x
+            sy += y
+            sxx += x * x
+            sxy += x * y
+            syy += y * y
+            sxq += x * q
+            syq += y * q
+            sq += q
+            sqq += q * q
+        self.n, self.sx, self.sy, self.sxx, self.sxy, self.syy = n, sx, sy, sxx, sxy, syy
+        self.sxq, self.syq, self.sq, self.sqq = sxq, syq, sq, sqq
 
     def fit(self) -> CircleFit | None:
         """Solve the Kasa normal equations; None when there are too few points or they are degenerate."""

@@ -45,7 +45,7 @@ class PairEstimator:
 
     __slots__ = (
         "z", "ready", "r", "_rw", "_rsum", "_p",
-        "last_t", "_s", "_w_prev", "_sums", "_wn", "_cps", "_since_cp", "_rot", "_t0",
+        "last_t", "_s", "_w_prev", "_sums", "_pts", "_nfold", "_rot", "_t0",
         "_arc", "_dt", "_min_ticks", "_max_ticks", "_check", "_max_gap", "_q", "_noise2", "_gate2",
         "windows", "rejected", "omega_fit",
     )
@@ -72,10 +72,12 @@ class PairEstimator:
         self.last_t = -1  # tick of the last sample used
         self._s = 0j  # window integral of the relative velocity (m)
         self._w_prev = 0j
-        self._sums = CircleSums()
-        self._wn = 0  # samples in the window
-        self._cps: list[complex] = []  # checkpoints of s, for the covered arc
-        self._since_cp = 0
+        self._sums = CircleSums()  # moments of _pts[:_nfold]
+        # the window's points s, from its anchor on: the moments are only needed when a fit is
+        # tried (late in a window), so they are folded in then (same additions, same order) rather
+        # than accumulated per sample; every fit_check_ticks-th point is a checkpoint for the arc
+        self._pts: list[complex] = []
+        self._nfold = 0
         self._rot = 0.0  # |omega_hat| integrated over the window (rad)
         self._t0 = 0  # first tick of the window
         self._arc = fit_arc
@@ -124,33 +126,18 @@ class PairEstimator:
             s += 0.5 * dt * (wp + w)
             self._s = s
             self._w_prev = w
-            sm = self._sums  # CircleSums.add, inlined
-            x = s.real
-            y = s.imag
-            q = x * x + y * y
-            sm.n += 1
-            sm.sx += x
-            sm.sy += y
-            sm.sxx += x * x
-            sm.sxy += x * y
-            sm.syy += y * y
-            sm.sxq += x * q
-            sm.syq += y * q
-            sm.sq += q
-            sm.sqq += q * q
-            self._wn += 1
-            since = self._since_cp + 1
-            if since >= self._check:
-                self._since_cp = 0
-                self._cps.append(s)
-                # solve the fit only when the window may have covered the arc (omega_hat says so),
-                # or at every checkpoint while omega_hat is not known yet (bootstrap)
-                if self._wn >= self._min_ticks and (
-                    omega_hat == 0.0 or self._rot >= 0.8 * self._arc or t - self._t0 >= self._max_ticks
-                ):
-                    self._try_fit(back, t)
-            else:
-                self._since_cp = since
+            pts = self._pts
+            pts.append(s)
+            wn = len(pts)  # samples in the window
+            # at a checkpoint (every fit_check_ticks samples), solve the fit only when the window may
+            # have covered the arc (omega_hat says so), or at every checkpoint while omega_hat is not
+            # known yet (bootstrap)
+            if (
+                not (wn - 1) % self._check
+                and wn >= self._min_ticks
+                and (omega_hat == 0.0 or self._rot >= 0.8 * self._arc or t - self._t0 >= self._max_ticks)
+            ):
+                self._try_fit(back, t)
         if not self.ready:
             return
         # Result 1: pull the angle of z_ij towards the axis perp(w), sign nearest the prediction
@@ -184,15 +171,17 @@ class PairEstimator:
         self._s = 0j
         self._w_prev = w
         self._sums.reset()
-        self._sums.add(0j)
-        self._wn = 1
-        self._cps = [0j]
-        self._since_cp = 0
+        self._pts = [0j]
+        self._nfold = 0
         self._rot = 0.0
         self._t0 = t
 
     def _try_fit(self, back: complex, t: int) -> None:
-        fit = self._sums.fit()
+        pts = self._pts
+        sums = self._sums
+        sums.extend(pts, self._nfold)
+        self._nfold = len(pts)
+        fit = sums.fit()
         if fit is not None:
             radius = fit.radius
             rms = fit.rms
@@ -204,24 +193,29 @@ class PairEstimator:
                 c = fit.centre
                 cx = c.real
                 cy = c.imag
-                cps = self._cps
+                cps = pts[:: self._check]  # checkpoints: every fit_check_ticks-th sample
                 nseg = len(cps) - 1
                 recent_from = nseg - max(1, nseg // 3)
                 # sum of the angles between consecutive checkpoints seen from the centre (floats,
-                # not complex temporaries; the same operations as (cps[k] - c) products)
+                # not complex temporaries; the same operations as (cps[k] - c) products); segments
+                # k > recent_from also add to arc_recent
                 arc = 0.0
-                arc_recent = 0.0
                 p0 = cps[0]
                 px = p0.real - cx
                 py = p0.imag - cy
-                for k in range(1, nseg + 1):
-                    cur = cps[k]
+                for cur in cps[1 : recent_from + 1]:
+                    qx = cur.real - cx
+                    qy = cur.imag - cy
+                    arc += atan2(px * qy - py * qx, px * qx + py * qy)
+                    px = qx
+                    py = qy
+                arc_recent = 0.0
+                for cur in cps[recent_from + 1 :]:
                     qx = cur.real - cx
                     qy = cur.imag - cy
                     da = atan2(px * qy - py * qx, px * qx + py * qy)
                     arc += da
-                    if k > recent_from:
-                        arc_recent += da
+                    arc_recent += da
                     px = qx
                     py = qy
                 if abs(arc) >= self._arc and (radius * abs(arc) / span) ** 2 >= self._noise2:
@@ -240,7 +234,7 @@ class PairEstimator:
         self.windows += 1
         # rate over the last third of the window: a spin-up is accelerating, and the
         # window mean would seed omega_hat well below the current rate
-        self.omega_fit = arc_recent / ((nseg - recent_from) * self._check * self._dt) * (self._wn / max(1, t - self._t0))
+        self.omega_fit = arc_recent / ((nseg - recent_from) * self._check * self._dt) * (len(self._pts) / max(1, t - self._t0))
         c = fit.centre
         z_t = self._s - c  # z_ij at the sample tick, sign included (integral form)
         r_fit = 2.0 * (fit.rms / fit.radius) ** 2 + 1e-6  # angle variance of z_t (rad^2)

@@ -12,8 +12,9 @@ message for message; :class:`LinkStats` is the per-link counter block written to
 
 from __future__ import annotations
 
-import heapq
 from dataclasses import asdict, dataclass
+from heapq import heappop as _heappop
+from heapq import heappush as _heappush
 from typing import Final, Generic, Literal, TypeVar
 
 import numpy as np
@@ -113,6 +114,15 @@ class LinkModel:
         return s.delay_s + u * s.jitter_s
 
     @property
+    def fixed_delays(self) -> tuple[int, ...] | tuple[float, ...] | None:
+        """The one fate of every message on a link without loss, jitter or duplication, else None.
+
+        For that link :meth:`deliveries` always returns this and draws nothing, so a caller may use
+        it instead (the in-process engine's fast path).
+        """
+        return self._fixed
+
+    @property
     def in_bad_state(self) -> bool:
         """Gilbert-Elliott state before the next message (always False for other loss models)."""
         return self._bad
@@ -158,7 +168,7 @@ class DelayLine(Generic[T]):
         self._seq = 0
 
     def push(self, deliver_tick: int, sender: int, send_tick: int, copy: int, msg: T) -> None:
-        heapq.heappush(self._heap, (deliver_tick, sender, send_tick, copy, self._seq, msg))
+        _heappush(self._heap, (deliver_tick, sender, send_tick, copy, self._seq, msg))
         self._seq += 1
 
     def offer(self, link: LinkModel, send_tick: int, msg: T, stats: LinkStats | None = None) -> int:
@@ -182,10 +192,12 @@ class DelayLine(Generic[T]):
 
     def pop_due(self, tick: int) -> list[T]:
         """Remove and return every message whose delivery tick is ``<= tick``, in deterministic order."""
-        out: list[T] = []
         heap = self._heap
+        if not heap or heap[0][0] > tick:
+            return []
+        out: list[T] = []
         while heap and heap[0][0] <= tick:
-            out.append(heapq.heappop(heap)[5])
+            out.append(_heappop(heap)[5])
         return out
 
     def next_due(self) -> int | None:

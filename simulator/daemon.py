@@ -30,6 +30,11 @@ log = logging.getLogger("coload.sim")
 ZERO_WRENCH = (0.0, 0.0, 0.0)
 
 
+def _resolve(fut: asyncio.Future[None]) -> None:
+    if not fut.done():
+        fut.set_result(None)
+
+
 class SimDaemon:
     def __init__(
         self,
@@ -60,6 +65,13 @@ class SimDaemon:
         self.latest: list[tuple[float, float, float]] = [ZERO_WRENCH] * self.n
         self._changed = asyncio.Event()  # set whenever a wrench, report or liveliness change arrives
         self._subs: list = []
+        # lockstep wrench wait: resolved by the input that completes tick k's wrenches (no task,
+        # no Event round trip per wrench); None when nobody waits
+        self._wrench_wait: asyncio.Future[None] | None = None
+        # keys built and parsed once: agent keys of this run -> agent id (anything else is parsed)
+        self._meas_keys = [keys.meas(run, i) for i in range(self.n)]
+        self._agent_ids = {keys.agent(run, i, kind): i for i in range(self.n)
+                           for kind in ("wrench", "estimate", "report")}
 
     # ---- inputs ----------------------------------------------------------------------------
     def _decode(self, payload: bytes, kind: type):
@@ -70,6 +82,9 @@ class SimDaemon:
             return None
 
     def _agent_of(self, key: str) -> int | None:
+        i = self._agent_ids.get(key)
+        if i is not None:
+            return i
         parsed = keys.parse_agent_key(key)
         if parsed is None or not 0 <= parsed[1] < self.n:
             self.drops["unknown_sender"] += 1
@@ -88,6 +103,7 @@ class SimDaemon:
                                 "event": "agent_up" if alive else "agent_down", "agent": i})
             log.info("agent %d %s at tick %d", i, "up" if alive else "down", self.tick)
         self._changed.set()
+        self._check_wrenches()
 
     def _on_wrench(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key)
@@ -104,7 +120,32 @@ class SimDaemon:
             self.drops["stale" if w.tick < self.tick else "future"] += 1
             return
         self.wrenches[i] = (w.fx, w.fy, w.tau)
-        self._changed.set()
+        self._check_wrenches()
+
+    def _check_wrenches(self) -> None:
+        """Wakes the lockstep wait once every live agent's wrench for this tick is in."""
+        fut = self._wrench_wait
+        if fut is not None and not fut.done() and self.alive <= self.wrenches.keys():
+            fut.set_result(None)
+
+    async def _wait_wrenches(self, timeout: float) -> bool:
+        """Waits until every live agent's wrench for ``self.tick`` is in; False on timeout.
+
+        One future per tick, resolved by the input that completes the set (a wrench, or a
+        liveliness change that removes the last one missing); the timeout is a ``call_later``
+        on the loop, cancelled when the future resolves first.
+        """
+        if self.alive <= self.wrenches.keys():
+            return True
+        loop = asyncio.get_running_loop()
+        fut = self._wrench_wait = loop.create_future()
+        timer = loop.call_later(timeout, _resolve, fut)
+        try:
+            await fut
+        finally:
+            timer.cancel()
+            self._wrench_wait = None
+        return self.alive <= self.wrenches.keys()
 
     def _on_estimate(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key)
@@ -176,13 +217,14 @@ class SimDaemon:
                 if lag > 0:
                     await asyncio.sleep(lag)
             meas = self.plant.measure(self.rng)
-            self.recorder.truth(self.plant.truth())
             self.wrenches = {}
+            publish, meas_keys = self.transport.publish, self._meas_keys
             for i, (vx, vy) in enumerate(meas):
-                t_pub = keys.meas(self.run_name, i)
-                self.transport.publish(t_pub, encode(Measurement(k, i, vx, vy)))
+                publish(meas_keys[i], encode(Measurement(k, i, vx, vy)))
+            # recorded once the measurements are out: the agents are busy with them meanwhile
+            self.recorder.truth(self.plant.truth())
             if sc.mode == "lockstep":
-                got = await self._wait_for(lambda: self.alive <= self.wrenches.keys(), sc.timing.wrench_timeout_s)
+                got = await self._wait_wrenches(sc.timing.wrench_timeout_s)
                 if not got:
                     self.wrench_timeouts += 1
                     log.warning("tick %d: no wrench from %s", k, sorted(self.alive - self.wrenches.keys()))
