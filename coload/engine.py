@@ -131,10 +131,10 @@ def run_inproc(
                     st.duplicated += len(delays) - 1
                     for copy, d in enumerate(delays):
                         push(deliver_tick(k, d, dt, mode), i, k, copy, state)
-            if rec is not None:
-                rec.sample(k, i, meas[i], wr)
-                if keep:
-                    rec.estimate(res.estimate)
+            if keep:
+                rec.estimate(res.estimate)  # type: ignore[union-attr]
+        if rec is not None:
+            rec.samples(k, meas, wrenches)
         plant.apply_and_step(wrenches)
         if progress is not None and (k % report_every == 0 or k == ticks - 1):
             progress(k + 1, ticks)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -66,9 +67,14 @@ class Recorder:
     def keeps(self, tick: int) -> bool:
         return tick % self.every == 0
 
-    def sample(self, tick: int, agent: int, v: tuple[float, float], w: tuple[float, float, float]) -> None:
-        t = _f(tick * self.dt)
-        self._samples.add(f"{t},{agent},{_f(v[0])},{_f(v[1])},{_f(w[0])},{_f(w[1])},{_f(w[2])}")
+    def samples(
+        self, tick: int, velocities: Sequence[tuple[float, float]], wrenches: Sequence[tuple[float, float, float]]
+    ) -> None:
+        """One tick of measured data: every agent's measured velocity and applied wrench (Python floats)."""
+        t = repr(tick * self.dt)
+        add = self._samples.add
+        for agent, ((vx, vy), (fx, fy, tau)) in enumerate(zip(velocities, wrenches)):
+            add(f"{t},{agent},{vx!r},{vy!r},{fx!r},{fy!r},{tau!r}")
 
     def truth(self, truth: Any) -> None:
         if not self.keeps(truth.tick):

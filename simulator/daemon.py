@@ -232,8 +232,7 @@ class SimDaemon:
             else:
                 await asyncio.sleep(0)  # let arrived wrenches in
                 applied = list(self.latest)
-            for i in range(self.n):
-                self.recorder.sample(k, i, meas[i], applied[i])
+            self.recorder.samples(k, meas, applied)
             self.plant.apply_and_step(applied)
             if k % report_every == 0 or k == ticks - 1:
                 self._publish_control("progress", k + 1)

@@ -48,7 +48,7 @@ def test_wrap_range_and_equivalence(a: float) -> None:
 @given(fin, fin, fin, fin)
 def test_cross_dot_match_numpy(ax: float, ay: float, bx: float, by: float) -> None:
     a, b = complex(ax, ay), complex(bx, by)
-    assert math.isclose(cross(a, b), float(np.cross([ax, ay], [bx, by])), rel_tol=1e-9, abs_tol=1e-6)
+    assert math.isclose(cross(a, b), float(np.cross([ax, ay, 0.0], [bx, by, 0.0])[2]), rel_tol=1e-9, abs_tol=1e-6)
     assert math.isclose(dot(a, b), ax * bx + ay * by, rel_tol=1e-9, abs_tol=1e-6)
 
 
