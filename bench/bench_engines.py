@@ -55,7 +55,7 @@ def main() -> int:
             step[n] = s["agent_step_us"]
 
     rows = [
-        ("in-process, n=10, recording everything", rec["sim_s"] / rec["wall_s"], "x real time"),
+        ("in-process, n=10, recording (samples every tick, estimates 10 Hz)", rec["sim_s"] / rec["wall_s"], "x real time"),
         ("in-process, n=10, no recording", bare["sim_s"] / bare["wall_s"], "x real time"),
         ("Zenoh lockstep, n=10, 12 processes", zen["sim_s"] / zen["wall_s"], "x real time"),
         ("in-process over Zenoh (same scenario)", (rec["sim_s"] / rec["wall_s"]) / (zen["sim_s"] / zen["wall_s"]), "ratio"),

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import asyncio
 from collections import defaultdict
-from typing import Callable
 
 from net.keys import key_matches
-from net.transport import OnAliveChange, OnSample, Subscription, Transport, _Closable
+from net.transport import OnAliveChange, OnSample, Subscription, Transport, _Closable, _Handles
 
 
 class _Sub(_Closable):
@@ -98,7 +97,7 @@ class MemoryTransport(Transport):
         if loop is not None and loop is not bus.loop:
             raise ValueError("every MemoryTransport of a bus must use the bus's loop")
         self._bus = bus
-        self._handles: set[_Closable] = set()
+        self._handles = _Handles()
         self._closed = False
 
     @property
@@ -109,15 +108,6 @@ class MemoryTransport(Transport):
         if self._closed:
             raise RuntimeError("transport is closed")
 
-    def _track(self, h: _Closable, undeclare: Callable[[], None]) -> _Closable:
-        def on_close() -> None:
-            self._handles.discard(h)
-            undeclare()
-
-        h._on_close = on_close
-        self._handles.add(h)
-        return h
-
     def publish(self, key: str, payload: bytes) -> None:
         self._check_open()
         self._bus._publish(key, bytes(payload))
@@ -126,18 +116,18 @@ class MemoryTransport(Transport):
         self._check_open()
         sub = _Sub(key_expr, on_sample)
         self._bus._add_sub(sub)
-        return self._track(sub, lambda: self._bus._remove_sub(sub))
+        return self._handles.track(sub, lambda: self._bus._remove_sub(sub))
 
     def declare_alive(self, key: str) -> Subscription:
         self._check_open()
         self._bus._token_up(key)
-        return self._track(_Closable(), lambda: self._bus._token_down(key))
+        return self._handles.track(_Closable(), lambda: self._bus._token_down(key))
 
     def watch_alive(self, key_expr: str, on_change: OnAliveChange) -> Subscription:
         self._check_open()
         w = _Sub(key_expr, on_change)
         self._bus._add_watcher(w)
-        return self._track(w, lambda: self._bus._watchers.remove(w))
+        return self._handles.track(w, lambda: self._bus._watchers.remove(w))
 
     async def wait_subscribed(self, key: str, timeout: float) -> bool:
         self._check_open()
@@ -155,5 +145,4 @@ class MemoryTransport(Transport):
         if self._closed:
             return
         self._closed = True
-        for h in list(self._handles):
-            h.close()
+        self._handles.close_all()

@@ -90,3 +90,27 @@ class _Closable:
         if self._on_close is not None:
             on_close, self._on_close = self._on_close, None
             on_close()
+
+
+class _Handles:
+    """The open handles of one transport, so that closing the transport closes them all."""
+
+    __slots__ = ("_open",)
+
+    def __init__(self) -> None:
+        self._open: set[_Closable] = set()
+
+    def track(self, h: _Closable, undeclare: Callable[[], None]) -> _Closable:
+        """Registers ``h``; closing it runs ``undeclare`` once and forgets it."""
+
+        def on_close() -> None:
+            self._open.discard(h)
+            undeclare()
+
+        h._on_close = on_close
+        self._open.add(h)
+        return h
+
+    def close_all(self) -> None:
+        for h in list(self._open):
+            h.close()

@@ -25,7 +25,7 @@ from typing import Literal
 
 import zenoh
 
-from net.transport import OnAliveChange, OnSample, Subscription, Transport, _Closable
+from net.transport import OnAliveChange, OnSample, Subscription, Transport, _Closable, _Handles
 
 Mode = Literal["peer", "client", "router"]
 
@@ -130,7 +130,7 @@ class ZenohTransport(Transport):
         self._express = express
         self._session = zenoh.open(config)
         self._pubs: dict[str, zenoh.Publisher] = {}
-        self._handles: set[_Closable] = set()
+        self._handles = _Handles()
         self._closed = False
         # Samples handed over by Zenoh threads, drained on the loop thread. One loop wake-up
         # (call_soon_threadsafe, a self-pipe write) per burst, not per sample: ``_wake_pending`` is
@@ -181,15 +181,6 @@ class ZenohTransport(Transport):
                 self._loop.call_exception_handler(
                     {"message": f"exception in a transport callback for {key}", "exception": exc})
 
-    def _track(self, h: _Closable, undeclare: Callable[[], None]) -> _Closable:
-        def on_close() -> None:
-            self._handles.discard(h)
-            undeclare()
-
-        h._on_close = on_close
-        self._handles.add(h)
-        return h
-
     def _publisher(self, key: str) -> zenoh.Publisher:
         pub = self._pubs.get(key)
         if pub is None:
@@ -222,12 +213,12 @@ class ZenohTransport(Transport):
         zsub = self._session.declare_subscriber(key_expr, on_zenoh_sample)
         # Gotcha: a subscriber declared with a callback lives on when its Python object is dropped;
         # only undeclare() (or closing the session) stops it.
-        return self._track(h, zsub.undeclare)
+        return self._handles.track(h, zsub.undeclare)
 
     def declare_alive(self, key: str) -> Subscription:
         self._check_open()
         token = self._session.liveliness().declare_token(key)
-        return self._track(_Closable(), token.undeclare)
+        return self._handles.track(_Closable(), token.undeclare)
 
     def watch_alive(self, key_expr: str, on_change: OnAliveChange) -> Subscription:
         self._check_open()
@@ -237,7 +228,7 @@ class ZenohTransport(Transport):
             self._handoff(h, on_change, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
 
         zsub = self._session.liveliness().declare_subscriber(key_expr, on_zenoh_sample, history=True)
-        return self._track(h, zsub.undeclare)
+        return self._handles.track(h, zsub.undeclare)
 
     async def wait_subscribed(self, key: str, timeout: float) -> bool:
         """Wait on the publisher's matching status (Zenoh knows when a subscriber matches)."""
@@ -273,8 +264,7 @@ class ZenohTransport(Transport):
         if self._closed:
             return
         self._closed = True
-        for h in list(self._handles):
-            h.close()
+        self._handles.close_all()
         for pub in self._pubs.values():
             pub.undeclare()
         self._pubs.clear()
