@@ -32,3 +32,12 @@ def max_table_difference(dir_a: Path, dir_b: Path, name: str, keys: int) -> floa
     both_nan = np.isnan(a) & np.isnan(b)
     diff = np.where(both_nan, 0.0, np.abs(a - b))
     return float(np.nanmax(np.where(np.isnan(diff), np.inf, diff))) if diff.size else 0.0
+
+
+@pytest.fixture(autouse=True)
+def _global_rng_untouched():
+    """Every RNG must be a Generator derived from a run seed: nothing may draw from numpy's global one."""
+    before = np.random.get_state()
+    yield
+    after = np.random.get_state()
+    assert before[2] == after[2] and np.array_equal(before[1], after[1]), "numpy's global RNG was used"

@@ -235,9 +235,13 @@ def test_same_seed_same_measurements_and_streams_are_isolated():
         return out
 
     a = run(11)
-    np.random.seed(0)  # the global RNG must play no part
-    np.random.random(100)
-    assert run(11) == a
+    saved = np.random.get_state()
+    try:
+        np.random.seed(0)  # the global RNG must play no part
+        np.random.random(100)
+        assert run(11) == a
+    finally:
+        np.random.set_state(saved)  # leave it as found (the autouse fixture checks)
     assert run(12) != a
 
 
