@@ -82,6 +82,22 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Run a Zenoh router in this process (nothing to install).")
     _add_zenoh_args(p, router_default=True)
 
+    p = sub.add_parser("compose", help="write a docker-compose file: router, simulator and N agents",
+                       description="Write a docker-compose file for one run (one image, explicit endpoints, "
+                                   "liveliness health checks).")
+    p.add_argument("--agents", type=int, required=True, help="number of agent services")
+    p.add_argument("--scenario", default="config/scenarios/paper-fig4.toml",
+                   help="scenario path inside the image (default: %(default)s); n is set to --agents")
+    p.add_argument("--run", default="compose", help="run name (key-expression namespace)")
+    p.add_argument("--out", type=Path, default=Path("docker/compose.yaml"), help="file to write (default: %(default)s)")
+
+    p = sub.add_parser("alive", help="health check: exit 0 if the router answers (and a liveliness token matches)",
+                       description="Exit 0 if a client session opens on --connect and, with --key, a liveliness "
+                                   "token matching the key expression is alive; exit 1 otherwise.")
+    p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT", help="router endpoint")
+    p.add_argument("--key", help="liveliness key expression, e.g. coload/RUN/alive/agent/3")
+    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the token (default: %(default)s)")
+
     p = sub.add_parser("report", help="draw report.png for a run directory and print its summary table",
                        description="Draw report.png (true vs estimated quantities) and print a summary table.")
     p.add_argument("run_dir", type=Path, help="a run directory")
@@ -168,6 +184,20 @@ def cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_compose(args: argparse.Namespace) -> int:
+    from coload.compose import write_compose
+
+    path = write_compose(args.out, args.agents, args.scenario, args.run)
+    print(f"wrote {path}: docker compose -f {path} up --build")
+    return 0
+
+
+def cmd_alive(args: argparse.Namespace) -> int:
+    from coload.compose import check_alive
+
+    return 0 if check_alive(args.connect, args.key, args.timeout) else 1
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from coload.orchestrate import default_run_dir, run_inproc_cli, run_processes
 
@@ -189,7 +219,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report}
+COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
+            "compose": cmd_compose, "alive": cmd_alive}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
