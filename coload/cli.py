@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import logging
 import os
 import signal
@@ -97,6 +98,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT", help="router endpoint")
     p.add_argument("--key", help="liveliness key expression, e.g. coload/RUN/alive/agent/3")
     p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the token (default: %(default)s)")
+
+    p = sub.add_parser("observer", help="immersion-and-invariance speed observer (paper 004)",
+                       description="Speed observer for Euler-Lagrange robots from joint positions only (paper 004).")
+    osub = p.add_subparsers(dest="observer_command", required=True, metavar="ACTION")
+    q = osub.add_parser("run", help="integrate a robot and its observer; draw observer.png",
+                        description="Integrate the robot and the observer of a scenario (e.g. "
+                                    "config/scenarios/ii-two-link.toml); write observer.png and summary.json.")
+    q.add_argument("scenario", type=Path, help="observer scenario TOML")
+    q.add_argument("--out", type=Path, required=True, help="output directory")
+    q.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario field (dotted key, TOML value; repeatable)")
 
     p = sub.add_parser("report", help="draw report.png for a run directory and print its summary table",
                        description="Draw report.png (true vs estimated quantities) and print a summary table.")
@@ -198,6 +210,15 @@ def cmd_alive(args: argparse.Namespace) -> int:
     return 0 if check_alive(args.connect, args.key, args.timeout) else 1
 
 
+def cmd_observer(args: argparse.Namespace) -> int:
+    from coload.observer_run import run_observer_cli
+
+    summary = run_observer_cli(args.scenario, args.out, list(args.overrides))
+    print(json.dumps(summary, indent=2, default=str))
+    print(f"plot: {args.out / 'observer.png'}")
+    return 0
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from coload.orchestrate import default_run_dir, run_inproc_cli, run_processes
 
@@ -220,7 +241,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
-            "compose": cmd_compose, "alive": cmd_alive}
+            "compose": cmd_compose, "alive": cmd_alive, "observer": cmd_observer}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -216,7 +216,10 @@ def plot(sc: ObserverScenario, res: dict[str, Any], png: Path) -> None:
     ax = axes[3, 1]
     ax.axis("off")
     m = metrics(res)
-    lines = [f"{k}: e0={v['initial']:.3g} final={v['final']:.2e} t5%={v['t_5pct']} t1%={v['t_1pct']}"
+    def fmt(v: float | None) -> str:
+        return "never" if v is None else f"{v:.3g} s"
+
+    lines = [f"{k}: e0={v['initial']:.3g} final={v['final']:.2e} t5%={fmt(v['t_5pct'])} t1%={fmt(v['t_1pct'])}"
              for k, v in m.items() if k != "r"]
     lines.append(f"r: r0={m['r']['initial']:g} max={m['r']['max']:.4g} at t={m['r']['t_max']:.3g} s, final={m['r']['final']:.3g}")
     ax.text(0, 0.9, "\n".join(lines), va="top", family="monospace", fontsize=8)
