@@ -14,10 +14,10 @@ import logging
 from collections import Counter
 
 from coload.engine import deliver_tick
-from coload.world import build_agent, build_in_links
+from coload.world import build_agent
 from config.scenario import Scenario
 from net import keys
-from net.link import DelayLine, LinkStats
+from net.link import DelayLine, LinkStats, build_in_links
 from net.messages import AgentReport, Control, Measurement, StateMsg
 from net.schema import DecodeError, decode, encode
 from net.transport import Transport
@@ -26,6 +26,18 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
+
+# Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
+# consumes a link-model draw). The simulator publishes measurements tick after tick on one key, and a
+# neighbour publishes its state tick after tick, and Zenoh delivers one publisher's samples in order
+# and reliably (puts are RELIABLE + BLOCK). So in lockstep a genuine measurement is always the one
+# after the last accepted one, and a genuine state is the one after the last accepted one from that
+# neighbour -- or, after a neighbour restarted and jumped to the current tick, one no further ahead
+# than our own next tick + 1. Anything else is replayed (``stale``) or ahead of time (``future``),
+# and is dropped: before these rules, a state claiming a tick a few hundred ahead consumed a draw of
+# the link model and made every genuine state of that neighbour look stale (a silent corruption).
+# What no rule at the edge can catch is a well-formed forgery of exactly the next tick that arrives
+# before the genuine message: that needs authenticated publishers (Zenoh access control / TLS).
 
 
 class AgentDaemon:
@@ -45,6 +57,8 @@ class AgentDaemon:
         self.drops: Counter[str] = Counter()
         self.timeouts = 0
         self.next_tick = 0  # the tick the core steps next
+        self.last_meas = -1  # tick of the last accepted measurement
+        self.seen_start = False  # the simulator's start notice arrived: we are in from tick 0
         self.pending_meas: dict[int, Measurement] = {}
         self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
         self.alive: set[int] = set()
@@ -129,7 +143,12 @@ class AgentDaemon:
         msg = self._decode(payload, Control)
         if msg is None:
             return
-        if msg.kind == "done":
+        if msg.ticks != self.scenario.ticks or (msg.kind == "done" and msg.tick != msg.ticks):
+            self.drops["bad_control"] += 1  # not this run's simulator (or a forgery): ignore it
+            return
+        if msg.kind == "start":
+            self.seen_start = True
+        elif msg.kind == "done":
             self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))
             self.done.set()
 
@@ -140,12 +159,20 @@ class AgentDaemon:
         if m.agent != self.id:
             self.drops["wrong_agent"] += 1
             return
-        if m.tick < self.next_tick or m.tick in self.pending_meas:
+        if m.tick <= self.last_meas or m.tick < self.next_tick or m.tick in self.pending_meas:
             self.drops["stale"] += 1
             return
         if m.tick > self.next_tick + MAX_TICK_LEAD:
             self.drops["future"] += 1
             return
+        if self.mode == "lockstep" and m.tick != self.last_meas + 1:
+            if self.seen_start or self.ticks_stepped or self.pending_meas:
+                self.drops["future"] += 1  # the simulator never skips a tick
+                return
+            # a (re)joiner that missed the start: join the run at the simulator's current tick
+            log.info("agent %d joins the run at tick %d", self.id, m.tick)
+            self.next_tick = m.tick
+        self.last_meas = m.tick
         if self.mode == "realtime" and m.tick > self.next_tick:
             # act on the latest data: skip ticks we never got
             self.pending_meas.clear()
@@ -167,10 +194,13 @@ class AgentDaemon:
         if msg.sender != sender:
             self.drops["spoofed_sender"] += 1
             return
-        if msg.tick <= self.last_from[sender]:
+        last = self.last_from[sender]
+        if msg.tick <= last:
             self.drops["stale"] += 1
             return
-        if msg.tick > self.next_tick + MAX_TICK_LEAD:
+        if msg.tick > self.next_tick + MAX_TICK_LEAD or (
+            self.mode == "lockstep" and msg.tick != last + 1 and msg.tick > self.next_tick + 1
+        ):
             self.drops["future"] += 1
             return
         self.last_from[sender] = msg.tick
@@ -179,7 +209,10 @@ class AgentDaemon:
         st.sent += 1
         delays = self.links[sender].deliveries(msg.tick)
         if not delays:
-            st.dropped += 1
+            if self.links[sender].partitioned(msg.tick):
+                st.partitioned += 1
+            else:
+                st.dropped += 1
         for copy, d in enumerate(delays):
             due = deliver_tick(msg.tick, d, self.scenario.dt, self.mode)
             if due < self.next_tick:

@@ -44,6 +44,9 @@ import scipy.sparse as sp
 from scipy.optimize import least_squares
 
 Z95 = 1.959963984540054
+# lsmr inside TRF: unregularised and tight, so that each step is a true Gauss-Newton step (the
+# defaults needed 60+ evaluations without converging on the penalty-weighted problem; these take ~20)
+_LSMR_OPTS: dict = {"regularize": False, "atol": 1e-10, "btol": 1e-10}
 
 
 class BatchFitError(ValueError):
@@ -221,7 +224,7 @@ def _initialise(s: np.ndarray, dt: float, opt: FitOptions) -> tuple[_Init, list[
     F = np.stack((fx.sum(axis=1), fy.sum(axis=1)), axis=1)
     S = _cum_impulse(F, dt)
     # ybar_k = v0 + a S_k + i omega_k e^{i theta_k} zc   (complex; unknowns v0 (2), a, zc (2))
-    ybar = np.nanmean(w, axis=1)
+    ybar = w.mean(axis=1)  # NaN on ticks with a missing agent: those are left out below (okb)
     okb = ~np.isnan(ybar) & full
     e = 1j * omega * np.exp(1j * theta)
     cols = [np.ones(T) + 0j, 1j * np.ones(T), S[:, 0] + 1j * S[:, 1], e, 1j * e]
@@ -267,6 +270,7 @@ class _Seg:
     fy: np.ndarray
     tau: np.ndarray  # (S, L) total
     F: np.ndarray  # (S, L, 2) total
+    jsel: np.ndarray  # steps within a segment whose measurements are used (every ``decimate``-th)
 
 
 def _segments(s: np.ndarray, L: int, decimate: int = 1) -> _Seg:
@@ -275,13 +279,12 @@ def _segments(s: np.ndarray, L: int, decimate: int = 1) -> _Seg:
     pad = S * L - T
     sp_ = np.concatenate((s, np.zeros((pad, n, 5))), axis=0).reshape(S, L, n, 5)
     valid = np.concatenate((~np.isnan(s[..., 0]) & ~np.isnan(s[..., 1]), np.zeros((pad, n), bool)))
-    valid = valid.reshape(S, L, n).astype(float)
-    if decimate > 1:
-        valid[:, np.arange(L) % decimate != 0, :] = 0.0
-    y = np.nan_to_num(sp_[..., :2])
+    jsel = np.arange(0, L, decimate)
+    valid = valid.reshape(S, L, n)[:, jsel].astype(float)
+    y = np.nan_to_num(sp_[:, jsel, :, :2])
     fx, fy = sp_[..., 2], sp_[..., 3]
     return _Seg(L=L, S=S, T=T, y=y, mask=valid, fx=fx, fy=fy, tau=sp_[..., 4].sum(axis=2),
-                F=np.stack((fx.sum(axis=2), fy.sum(axis=2)), axis=-1))  # fmt: skip
+                F=np.stack((fx.sum(axis=2), fy.sum(axis=2)), axis=-1), jsel=jsel)  # fmt: skip
 
 
 def _simulate(seg: _Seg, r: np.ndarray, a: float, b: float, x0: np.ndarray, dt: float, sens: bool = True):
@@ -327,15 +330,16 @@ def _simulate(seg: _Seg, r: np.ndarray, a: float, b: float, x0: np.ndarray, dt: 
 
 
 def _meas(seg: _Seg, r, a, b, x0, dt, sens=True):
-    """Velocity residuals (S, L, n, 2) and their Jacobian (S, L, n, 2, 2n + 2 + 4) wrt [r, a, b | v0, omega0, theta0]."""
+    """Velocity residuals (S, J, n, 2) at the steps ``seg.jsel`` and their Jacobian (S, J, n, 2, 2n + 2 + 4)
+    wrt [r, a, b | v0, omega0, theta0]."""
     n = r.shape[0]
-    L = seg.L
+    js = seg.jsel
     v, om, th, Sv, dom, dth = _simulate(seg, r, a, b, x0, dt, sens)
-    c, s_ = np.cos(th[:, :L]), np.sin(th[:, :L])
+    c, s_ = np.cos(th[:, js]), np.sin(th[:, js])
     Rx = c[..., None] * r[:, 0] - s_[..., None] * r[:, 1]  # (S, L, n)
     Ry = s_[..., None] * r[:, 0] + c[..., None] * r[:, 1]
-    w = om[:, :L, None]
-    pred = v[:, :L, None, :] + w[..., None] * np.stack((-Ry, Rx), axis=-1)
+    w = om[:, js, None]
+    pred = v[:, js, None, :] + w[..., None] * np.stack((-Ry, Rx), axis=-1)
     m = seg.mask[..., None]
     res = (pred - seg.y) * m
     if not sens:
@@ -345,7 +349,7 @@ def _meas(seg: _Seg, r, a, b, x0, dt, sens=True):
     # through omega_j and theta_j: d pred/d omega = (R r)^perp, d pred/d theta = -omega R r
     A_om = np.stack((-Ry, Rx), axis=-1)  # (S, L, n, 2)
     A_th = -w[..., None] * np.stack((Rx, Ry), axis=-1)
-    sensi = A_om[..., None] * dom[:, :L, None, None, :] + A_th[..., None] * dth[:, :L, None, None, :]
+    sensi = A_om[..., None] * dom[:, js, None, None, :] + A_th[..., None] * dth[:, js, None, None, :]
     # K columns [r (2n), b, omega0, theta0] -> [r, a, b | v0x, v0y, omega0, theta0]
     Jb[..., : 2 * n] = sensi[..., : 2 * n]
     Jb[..., 2 * n + 1] = sensi[..., 2 * n]
@@ -353,12 +357,12 @@ def _meas(seg: _Seg, r, a, b, x0, dt, sens=True):
     Jb[..., G + 3] = sensi[..., 2 * n + 2]
     # direct terms
     ii = np.arange(n)
-    wv = om[:, :L, None]
+    wv = w
     Jb[:, :, ii, 0, 2 * ii] += -s_[..., None] * wv  # d pred_x / d r_ix = omega (-s)
     Jb[:, :, ii, 1, 2 * ii] += c[..., None] * wv
     Jb[:, :, ii, 0, 2 * ii + 1] += -c[..., None] * wv
     Jb[:, :, ii, 1, 2 * ii + 1] += -s_[..., None] * wv
-    Jb[..., 2 * n] = Sv[:, :L, None, :]
+    Jb[..., 2 * n] = Sv[:, js, None, :]
     Jb[..., 0, G] = 1.0
     Jb[..., 1, G + 1] = 1.0
     Jb *= m[..., None]
@@ -398,9 +402,10 @@ def _multiple_shooting(s: np.ndarray, dt: float, ini: _Init, opt: FitOptions, fi
         return f[: 2 * n].reshape(n, 2), f[2 * n], f[2 * n + 1], f[G:].reshape(S, 4)
 
     # sparsity pattern (fixed): measurement rows, then 4 continuity rows per segment boundary
-    nm = S * L * n * 2
+    used = np.repeat(seg.mask.ravel() > 0, 2)  # only the measured (and kept) velocity components
+    nm = int(used.sum())
     rows_m = np.repeat(np.arange(nm), G + 4)
-    seg_of_row = np.repeat(np.arange(S), L * n * 2)
+    seg_of_row = np.repeat(np.arange(S), len(seg.jsel) * n * 2)[used]
     cols_m = np.concatenate(
         (np.tile(np.arange(G), (nm, 1)), G + 4 * seg_of_row[:, None] + np.arange(4)), axis=1
     ).ravel()
@@ -439,15 +444,16 @@ def _multiple_shooting(s: np.ndarray, dt: float, ini: _Init, opt: FitOptions, fi
             Jd[:, row, G + 3] = e[:, 2 * n + 2]
         Jd[:, 0, G + 4], Jd[:, 1, G + 5], Jd[:, 2, G + 6], Jd[:, 3, G + 7] = -1.0, -1.0, -1.0, -1.0
         Jd *= W
-        data = np.concatenate((Jb.ravel(), Jd.ravel()))[sel]
+        data = np.concatenate((Jb.reshape(-1, G + 4)[used].ravel(), Jd.ravel()))[sel]
         jac = sp.csr_matrix((data, (rows, cols)), shape=(nm + nd, P))
-        out = (np.concatenate((res.ravel(), defect.ravel())), jac)
+        out = (np.concatenate((res.ravel()[used], defect.ravel())), jac)
         cache[key] = out
         return out
 
     sol = least_squares(
         lambda x: evaluate(x)[0], full0[keep], jac=lambda x: evaluate(x)[1], method="trf",
-        tr_solver="lsmr", x_scale="jac", max_nfev=opt.max_nfev, xtol=1e-10, ftol=1e-10, gtol=1e-10,
+        tr_solver="lsmr", x_scale="jac", max_nfev=opt.max_nfev, xtol=1e-9, ftol=1e-9, gtol=1e-10,
+        tr_options=_LSMR_OPTS,
     )  # fmt: skip
     r, a, b, xs = unpack(sol.x)
     return r, a, b, xs[0, :3].copy(), sol

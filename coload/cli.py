@@ -104,7 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     osub = p.add_subparsers(dest="observer_command", required=True, metavar="ACTION")
     q = osub.add_parser("run", help="integrate a robot and its observer; draw observer.png",
                         description="Integrate the robot and the observer of a scenario (e.g. "
-                                    "config/scenarios/ii-two-link.toml); write observer.png and summary.json.")
+                                    "config/observers/ii-two-link.toml); write observer.png and summary.json.")
     q.add_argument("scenario", type=Path, help="observer scenario TOML")
     q.add_argument("--out", type=Path, required=True, help="output directory")
     q.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",

@@ -14,9 +14,9 @@ from typing import Any
 
 from agents.agent import ESTIMATE_NAMES
 from coload.recorder import Recorder
-from coload.world import build_agent, build_in_links
+from coload.world import build_agent
 from config.scenario import Scenario
-from net.link import DelayLine, LinkStats
+from net.link import DelayLine, LinkStats, build_in_links, partition_events
 from simulator.plant import Plant, sensor_rng
 
 Progress = Callable[[int, int], None]
@@ -126,7 +126,10 @@ def run_inproc(
                         push(k1 + int(delays[0]) if lockstep else k1 + int(delays[0] // dt), i, k, 0, state)
                         continue
                     if not delays:
-                        st.dropped += 1
+                        if link.partitioned(k):
+                            st.partitioned += 1
+                        else:
+                            st.dropped += 1
                         continue
                     st.duplicated += len(delays) - 1
                     for copy, d in enumerate(delays):
@@ -140,9 +143,9 @@ def run_inproc(
             progress(k + 1, ticks)
     wall = time.perf_counter() - wall0
     for st in stats.values():
-        # one message per link per tick; each one delivered once unless dropped or duplicated
+        # one message per link per tick; each one delivered once unless dropped, partitioned or duplicated
         st.sent += ticks
-        st.delivered += ticks - st.dropped + st.duplicated
+        st.delivered += ticks - st.dropped - st.partitioned + st.duplicated
 
     summary: dict[str, Any] = {
         "engine": "inproc",
@@ -156,7 +159,7 @@ def run_inproc(
         "links": {f"{s}->{r}": st.as_dict() for (s, r), st in sorted(stats.items())},
         "drops": {},
         "timeouts": {"wrench": 0, "neighbour": 0},
-        "events": [],
+        "events": partition_events(scenario),
     }
     if rec is not None:
         summary = rec.close(summary)

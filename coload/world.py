@@ -1,14 +1,13 @@
-"""Builds the pieces of a run from a scenario, the same way for every engine.
+"""Builds an agent from a scenario, the same way for every engine.
 
-The in-process engine and the daemons both call these, so a lockstep run over Zenoh and an
-in-process run with the same seed start from identical agents and identical link models.
+The in-process engine and the daemons both call this (and ``net.link.build_in_links`` for the
+links), so a lockstep run over Zenoh and an in-process run with the same seed start identical.
 """
 
 from __future__ import annotations
 
 from agents.agent import AgentCore
 from config.scenario import Scenario
-from net.link import LinkModel
 
 
 def build_agent(scenario: Scenario, agent_id: int) -> AgentCore:
@@ -22,12 +21,3 @@ def build_agent(scenario: Scenario, agent_id: int) -> AgentCore:
         estimator=scenario.estimator,
         control=scenario.control,
     )
-
-
-def build_in_links(scenario: Scenario, receiver: int, mode: str | None = None) -> dict[int, LinkModel]:
-    """The fault models of every link that ends at ``receiver``, keyed by sender."""
-    mode = mode or scenario.mode
-    return {
-        sender: LinkModel(scenario.link, scenario.seed, sender, receiver, mode)
-        for sender in scenario.neighbours()[receiver]
-    }

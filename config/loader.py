@@ -310,6 +310,9 @@ def _toml_value(value: Any) -> str:
             rows = [", ".join(items[k : k + 8]) for k in range(0, len(items), 8)]
             return "[\n" + "".join(f"    {row},\n" for row in rows) + "]"
         return "[" + ", ".join(items) + "]"
+    if isinstance(value, dict):
+        # an inline table: only inside arrays (e.g. link.partitions); unset (None) fields are omitted
+        return "{" + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items() if v is not None) + "}"
     raise TypeError(f"cannot write {type(value).__name__} as TOML")
 
 

@@ -89,6 +89,53 @@ class LossSpec(_Strict):
     loss_bad: float = Field(0.8, ge=0, le=1, description="gilbert_elliott: loss probability in the bad state")
 
 
+class PartitionSpec(_Strict):
+    """A network partition over a time window: the listed links carry nothing from ``start`` to ``end``.
+
+    Give either ``cut`` (undirected edges, both directions cut) or ``groups`` (every edge between two
+    different groups is cut; agents listed in no group form one more group together, so
+    ``groups = [[0, 1, 2]]`` splits agents 0-2 from the rest). A message sent on a cut link at a tick
+    t with ``start <= t * dt < end`` is lost (counted as ``partitioned``); the links heal at ``end``.
+    """
+
+    start: float = Field(..., ge=0, description="time the partition begins (s, simulated time)")
+    end: float = Field(..., gt=0, description="time the links heal (s, simulated time; after start)")
+    cut: list[tuple[int, int]] | None = Field(None, description="undirected edges [i, j] cut during the window")
+    groups: list[list[int]] | None = Field(
+        None, description="disjoint groups of agents; every edge between two groups is cut during the window"
+    )
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> PartitionSpec:
+        if self.end <= self.start:
+            raise ValueError(f"end ({self.end}) must be after start ({self.start})")
+        if (self.cut is None) == (self.groups is None):
+            raise ValueError("give exactly one of 'cut' (edges) or 'groups' (agent groups)")
+        if self.cut is not None and any(i == j or min(i, j) < 0 for i, j in self.cut):
+            raise ValueError("cut: every edge is a pair of distinct non-negative agent ids")
+        if self.groups is not None:
+            flat = [i for g in self.groups for i in g]
+            if not self.groups or any(not g for g in self.groups):
+                raise ValueError("groups: give at least one non-empty group")
+            if len(set(flat)) != len(flat) or min(flat) < 0:
+                raise ValueError("groups: the groups must be disjoint lists of non-negative agent ids")
+        return self
+
+    def cuts(self, i: int, j: int) -> bool:
+        """True if this partition cuts the link between agents ``i`` and ``j`` (either direction)."""
+        if self.cut is not None:
+            return any((a, b) in ((i, j), (j, i)) for a, b in self.cut)
+        assert self.groups is not None
+
+        def group(k: int) -> int:
+            for g, members in enumerate(self.groups):  # type: ignore[arg-type]
+                if k in members:
+                    return g
+            return -1  # the implicit group of agents listed nowhere
+
+        return group(i) != group(j)
+
+
 class LinkSpec(_Strict):
     """Fault model applied at the receiving end of every directed agent-to-agent link.
 
@@ -102,6 +149,9 @@ class LinkSpec(_Strict):
     jitter_s: float = Field(0.0, ge=0, description="realtime: extra delay uniform in [0, jitter_s] (s)")
     loss: LossSpec = LossSpec()
     duplicate: float = Field(0.0, ge=0, le=1, description="probability that a delivered message arrives twice")
+    partitions: list[PartitionSpec] = Field(
+        [], description="time windows during which some links carry nothing (see PartitionSpec); they heal at the end"
+    )
 
 
 class InitialSpec(_Strict):
@@ -163,6 +213,15 @@ class Scenario(_Strict):
         for i, j in self.graph.edges or ():
             if not (0 <= i < self.n and 0 <= j < self.n) or i == j:
                 raise ValueError(f"graph.edges: [{i}, {j}] is not a pair of distinct agents in 0..{self.n - 1}")
+        for p, part in enumerate(self.link.partitions):
+            ids = [i for e in part.cut or () for i in e] + [i for g in part.groups or () for i in g]
+            bad = [i for i in ids if i >= self.n]
+            if bad:
+                raise ValueError(f"link.partitions: partition {p} names agent {bad[0]}, not in 0..{self.n - 1}")
+            edges = set(self.edges())
+            for i, j in part.cut or ():
+                if (min(i, j), max(i, j)) not in edges:
+                    raise ValueError(f"link.partitions: partition {p} cuts [{i}, {j}], not an edge of the graph")
         if not _connected(self.n, self.edges()):
             field = "graph.edges" if self.graph.topology == "explicit" else "graph"
             raise ValueError(f"{field}: the communication graph must be connected (agents 0..{self.n - 1})")

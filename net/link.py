@@ -2,7 +2,9 @@
 
 A :class:`LinkModel` owns the random stream of one directed link (sender -> receiver), seeded from
 (run seed, sender, receiver) only. It is consulted once per message, in send order, and says after
-which delays the copies arrive (none: lost; two: duplicated). Because the draws depend on nothing
+which delays the copies arrive (none: lost; two: duplicated). Partitions (``LinkSpec.partitions``)
+cut a link over time windows: a message sent at a tick inside a window that cuts this link is lost,
+and :meth:`LinkModel.partitioned` says so, so that callers count it apart from random loss. Because the draws depend on nothing
 but the seed and the message's rank on that link, the in-process engine and the Zenoh daemons see
 the same faults for the same seed, whatever the wall-clock timing (principles 2 and 3).
 
@@ -19,7 +21,7 @@ from typing import Final, Generic, Literal, TypeVar
 
 import numpy as np
 
-from config.scenario import LinkSpec
+from config.scenario import LinkSpec, Scenario
 
 STREAM_ID: Final = 0x11C4
 """Fourth word of every link RNG seed: keeps link streams apart from other users of the run seed."""
@@ -47,9 +49,25 @@ class LinkModel:
     its stationary distribution and steps once per message, after that message's loss draw.
     """
 
-    __slots__ = ("spec", "mode", "sender", "receiver", "_rng", "_u", "_k", "_bad", "_last_tick", "_fixed")
+    __slots__ = (
+        "_bad",
+        "_fate",
+        "_fixed",
+        "_k",
+        "_last_tick",
+        "_rng",
+        "_u",
+        "_windows",
+        "mode",
+        "receiver",
+        "sender",
+        "spec",
+    )
 
-    def __init__(self, spec: LinkSpec, seed: int, sender: int, receiver: int, mode: Mode = "lockstep") -> None:
+    def __init__(
+        self, spec: LinkSpec, seed: int, sender: int, receiver: int, mode: Mode = "lockstep",
+        dt: float | None = None,
+    ) -> None:
         if mode not in ("lockstep", "realtime"):
             raise ValueError(f"mode must be 'lockstep' or 'realtime': {mode!r}")
         if min(seed, sender, receiver) < 0:
@@ -70,7 +88,12 @@ class LinkModel:
         # a link without loss, jitter or duplication has one fate: skip the draws on the hot path
         jitter = spec.jitter_ticks if mode == "lockstep" else spec.jitter_s
         faultless = loss.model == "none" and spec.duplicate == 0 and jitter == 0
-        self._fixed = (self._delay(0.0),) if faultless else None
+        # partition windows of this link, as half-open tick ranges [t0, t1) of the send tick
+        self._windows = partition_windows(spec, dt, sender, receiver)
+        # _fate: the one fate of an otherwise faultless link (no draws); _fixed: the same when no
+        # partition touches the link either (then deliveries() is a constant)
+        self._fate = (self._delay(0.0),) if faultless else None
+        self._fixed = self._fate if not self._windows else None
 
     def _next_uniforms(self) -> np.ndarray:
         if self._k == len(self._u):
@@ -92,6 +115,8 @@ class LinkModel:
         self._last_tick = tick
         if self._fixed is not None:
             return self._fixed
+        if self._fate is not None:  # faultless but partitioned at times: no draws, as without partitions
+            return () if self.partitioned(tick) else self._fate
         u_step, u_loss, u_dup, u_j1, u_j2 = self._next_uniforms().tolist()
         loss = self.spec.loss
         if loss.model == "bernoulli":
@@ -101,7 +126,9 @@ class LinkModel:
             self._bad = (u_step >= loss.p_bad_to_good) if self._bad else (u_step < loss.p_good_to_bad)
         else:
             lost = False
-        if lost:
+        # the draws above are made whatever the partition schedule, so that a partition changes
+        # the fate of the messages in its window only
+        if lost or (self._windows and self.partitioned(tick)):
             return ()
         if u_dup < self.spec.duplicate:
             return (self._delay(u_j1), self._delay(u_j2))
@@ -112,6 +139,13 @@ class LinkModel:
         if self.mode == "lockstep":
             return s.delay_ticks + min(int(u * (s.jitter_ticks + 1)), s.jitter_ticks)
         return s.delay_s + u * s.jitter_s
+
+    def partitioned(self, tick: int) -> bool:
+        """True if a message sent at ``tick`` on this link falls in a partition window that cuts it."""
+        for t0, t1 in self._windows:
+            if t0 <= tick < t1:
+                return True
+        return False
 
     @property
     def fixed_delays(self) -> tuple[int, ...] | tuple[float, ...] | None:
@@ -135,7 +169,8 @@ class LinkStats:
     ``sent``: messages offered to the link; ``delivered``: copies handed to the receiver (duplicates
     included); ``dropped``: messages lost by the fault model; ``duplicated``: extra copies;
     ``late``: copies that arrived after the receiver had moved past their tick; ``malformed``:
-    payloads rejected by :func:`net.schema.decode`.
+    payloads rejected by :func:`net.schema.decode`; ``partitioned``: messages lost because a partition
+    cut the link when they were sent (not counted in ``dropped``, which is random loss only).
     """
 
     sent: int = 0
@@ -144,6 +179,7 @@ class LinkStats:
     duplicated: int = 0
     late: int = 0
     malformed: int = 0
+    partitioned: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -186,7 +222,10 @@ class DelayLine(Generic[T]):
         if stats is not None:
             stats.sent += 1
             if not delays:
-                stats.dropped += 1
+                if link.partitioned(send_tick):
+                    stats.partitioned += 1
+                else:
+                    stats.dropped += 1
             stats.duplicated += max(0, len(delays) - 1)
         return len(delays)
 
@@ -206,3 +245,55 @@ class DelayLine(Generic[T]):
 
     def __len__(self) -> int:
         return len(self._heap)
+
+
+def window_ticks(start: float, end: float, dt: float) -> tuple[int, int]:
+    """A partition window [start, end) in seconds as the half-open range of send ticks it covers.
+
+    Tick k is sent at time k * dt; it is in the window if start <= k * dt < end (up to rounding of
+    the bounds to whole ticks, so that every engine agrees on the same ticks).
+    """
+    return round(start / dt), round(end / dt)
+
+
+def partition_windows(spec: LinkSpec, dt: float | None, sender: int, receiver: int) -> tuple[tuple[int, int], ...]:
+    """The send-tick windows during which the link ``sender -> receiver`` is cut."""
+    parts = [p for p in spec.partitions if p.cuts(sender, receiver)]
+    if not parts:
+        return ()
+    if dt is None or dt <= 0:
+        raise ValueError("a link with partitions needs the tick length dt")
+    return tuple(window_ticks(p.start, p.end, dt) for p in parts)
+
+
+def partition_events(scenario: Scenario) -> list[dict]:
+    """The summary events of the scenario's partition schedule, in tick order.
+
+    One ``partition_start`` (with the undirected graph edges it cuts) and one ``partition_end`` per
+    partition whose tick falls inside the run; both engines record exactly these.
+    """
+    edges = scenario.edges()
+    events = []
+    for p, part in enumerate(scenario.link.partitions):
+        t0, t1 = window_ticks(part.start, part.end, scenario.dt)
+        cut = [[i, j] for i, j in edges if part.cuts(i, j)]
+        for tick, kind in ((t0, "partition_start"), (t1, "partition_end")):
+            if tick < scenario.ticks:
+                ev = {"tick": tick, "t": tick * scenario.dt, "event": kind, "partition": p}
+                if kind == "partition_start":
+                    ev["cut"] = cut
+                events.append(ev)
+    events.sort(key=lambda e: (e["tick"], e["partition"], e["event"] == "partition_start"))
+    return events
+
+
+def build_in_links(scenario: Scenario, receiver: int, mode: str | None = None) -> dict[int, LinkModel]:
+    """The fault models of every link that ends at ``receiver``, keyed by sender, partitions included.
+
+    Both engines build their links here (it passes the tick length, which partition windows need).
+    """
+    mode = mode or scenario.mode
+    return {
+        sender: LinkModel(scenario.link, scenario.seed, sender, receiver, mode, scenario.dt)  # type: ignore[arg-type]
+        for sender in scenario.neighbours()[receiver]
+    }

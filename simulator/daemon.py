@@ -20,6 +20,7 @@ from agents.agent import ESTIMATE_NAMES
 from coload.recorder import Recorder
 from config.scenario import Scenario
 from net import keys
+from net.link import partition_events
 from net.messages import AgentReport, Control, Estimate, Measurement, Wrench
 from net.schema import DecodeError, decode, encode
 from net.transport import Transport
@@ -60,6 +61,8 @@ class SimDaemon:
         self.wrench_timeouts = 0
         self.events: list[dict[str, Any]] = []
         self.reports: dict[int, AgentReport] = {}
+        self.last_estimate: list[int] = [-1] * self.n  # tick of the last estimate recorded per agent
+        self._partition_events = partition_events(scenario)  # recorded as their tick comes
         self.tick = 0
         self.wrenches: dict[int, tuple[float, float, float]] = {}
         self.latest: list[tuple[float, float, float]] = [ZERO_WRENCH] * self.n
@@ -119,6 +122,9 @@ class SimDaemon:
         if w.tick != self.tick:
             self.drops["stale" if w.tick < self.tick else "future"] += 1
             return
+        if i in self.wrenches:
+            self.drops["duplicate"] += 1  # first one wins: a replay cannot overwrite the genuine wrench
+            return
         self.wrenches[i] = (w.fx, w.fy, w.tau)
         self._check_wrenches()
 
@@ -155,12 +161,33 @@ class SimDaemon:
         if est.agent != i:
             self.drops["spoofed_sender"] += 1
             return
+        # an agent publishes an estimate once per recorded tick, after stepping it (so never for a
+        # tick the simulator has not reached): anything else would write a forged row
+        if est.tick <= self.last_estimate[i]:
+            self.drops["stale"] += 1
+            return
+        if est.tick > self.tick:
+            self.drops["future"] += 1
+            return
+        if not self.recorder.keeps(est.tick):
+            self.drops["off_grid"] += 1
+            return
+        self.last_estimate[i] = est.tick
         self.recorder.estimate(est)
 
     def _on_report(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key)
         rep = self._decode(payload, AgentReport) if i is not None else None
-        if rep is None or rep.agent != i:
+        if rep is None:
+            return
+        if rep.agent != i:
+            self.drops["spoofed_sender"] += 1
+            return
+        if self.tick < self.scenario.ticks:
+            self.drops["early"] += 1  # agents report after the simulator's done notice only
+            return
+        if i in self.reports:
+            self.drops["duplicate"] += 1
             return
         self.reports[i] = rep
         self._changed.set()
@@ -210,8 +237,13 @@ class SimDaemon:
         wall0 = time.perf_counter()
         ticks = sc.ticks
         report_every = max(1, ticks // 100)
+        pevents = list(self._partition_events)
         for k in range(ticks):
             self.tick = k
+            while pevents and pevents[0]["tick"] <= k:
+                ev = pevents.pop(0)
+                self.events.append(ev)
+                log.info("tick %d: %s %d", k, ev["event"], ev["partition"])
             if sc.mode == "realtime":
                 lag = wall0 + k * sc.dt - time.perf_counter()
                 if lag > 0:

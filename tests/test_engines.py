@@ -21,10 +21,13 @@ FAULTS = [
     ["link.delay_ticks=2", "link.jitter_ticks=3", 'link.loss.model="bernoulli"', "link.loss.p=0.2",
      "link.duplicate=0.1"],
     ['link.loss.model="gilbert_elliott"', "link.loss.p_good_to_bad=0.05", "link.loss.p_bad_to_good=0.3"],
+    # a partition that splits the line in two (edge 1-2 cut) and heals, one that cuts an edge, with loss
+    ["link.partitions=[{start=0.5, end=1.5, groups=[[0, 1]]}, {start=1.0, end=2.2, cut=[[3, 4]]}]",
+     'link.loss.model="bernoulli"', "link.loss.p=0.1", "link.jitter_ticks=1"],
 ]
 
 
-@pytest.mark.parametrize("faults", FAULTS, ids=["clean", "delay-loss-dup", "bursty"])
+@pytest.mark.parametrize("faults", FAULTS, ids=["clean", "delay-loss-dup", "bursty", "partition"])
 def test_memory_daemons_reproduce_inproc(tmp_path, faults):
     sc = load_scenario(SCENARIOS / "quick.toml", ["duration=3.0", *faults])
     a, b = tmp_path / "inproc", tmp_path / "memory"
@@ -39,3 +42,13 @@ def test_memory_daemons_reproduce_inproc(tmp_path, faults):
     assert links_a == summary["links"]
     if faults:
         assert sum(v["dropped"] for v in links_a.values()) > 0
+    # the partition schedule is recorded alike, and cut links count it apart from random loss
+    events_a = json.loads((a / "summary.json").read_text())["events"]
+    assert [e for e in summary["events"] if e["event"].startswith("partition")] == events_a
+    if any("partitions" in f for f in faults):
+        assert [e["event"] for e in events_a] == ["partition_start", "partition_start", "partition_end",
+                                                  "partition_end"]
+        assert events_a[0]["cut"] == [[1, 2]] and events_a[1]["cut"] == [[3, 4]]
+        # 100 ticks cut in each direction of 1-2, 120 of 3-4
+        assert {k: v["partitioned"] for k, v in links_a.items() if v["partitioned"]} == {
+            "1->2": 100, "2->1": 100, "3->4": 120, "4->3": 120}

@@ -205,21 +205,21 @@ def test_property_residuals_of_the_two_link_model():
 def test_bundled_scenario_loads_with_tables_i_ii_and_rejects_unknown_keys():
     from coload.observer_run import ObserverScenarioError, load_observer_scenario
 
-    sc = load_observer_scenario(ROOT / "config/scenarios/ii-two-link.toml")
+    sc = load_observer_scenario(ROOT / "config/observers/ii-two-link.toml")
     assert sc.observer.k1 == 40 and sc.observer.k2 == 8 and sc.observer.k3 == 25 and sc.observer.c_r == 0.001
     assert sc.initial.xi == [-8.45, 68.33] and sc.initial.x == [-0.29, 6.66] and sc.initial.r == 0.1
-    sc2 = load_observer_scenario(ROOT / "config/scenarios/ii-two-link.toml", ["observer.k1=50", "run.t_end=0.5"])
+    sc2 = load_observer_scenario(ROOT / "config/observers/ii-two-link.toml", ["observer.k1=50", "run.t_end=0.5"])
     assert sc2.observer.k1 == 50 and sc2.run.t_end == 0.5
     with pytest.raises(ObserverScenarioError, match="observer.kk1"):
-        load_observer_scenario(ROOT / "config/scenarios/ii-two-link.toml", ["observer.kk1=5"])
+        load_observer_scenario(ROOT / "config/observers/ii-two-link.toml", ["observer.kk1=5"])
     with pytest.raises(ObserverScenarioError, match="observer.k1"):
-        load_observer_scenario(ROOT / "config/scenarios/ii-two-link.toml", ["observer.k1=3"])
+        load_observer_scenario(ROOT / "config/observers/ii-two-link.toml", ["observer.k1=3"])
 
 
 def test_run_observer_cli_writes_png_and_summary(tmp_path):
     from coload.observer_run import run_observer_cli
 
-    s = run_observer_cli(ROOT / "config/scenarios/ii-two-link.toml", tmp_path,
+    s = run_observer_cli(ROOT / "config/observers/ii-two-link.toml", tmp_path,
                          ["run.t_end=0.3", "run.samples=61", "run.rtol=1e-6", "observer.nodes=8"])
     assert (tmp_path / "observer.png").stat().st_size > 10_000 and (tmp_path / "summary.json").exists()
     assert s["metrics"]["s_x-x"]["t_5pct"] is not None and s["metrics"]["r"]["max"] < 1
