@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from coload.batch_fit import FitOptions, fit_run_dir  # noqa: E402
-from coload.rundir_format import read_run  # noqa: E402
+from coload.batch_fit import FitOptions, fit_run_dir
+from coload.rundir_format import read_run
 
 
 def record(cache: Path, scenario: str, overrides: list[str]) -> Path:
@@ -49,7 +49,7 @@ def score(run_dir: Path, options: FitOptions) -> dict[str, float]:
     k = np.rint(tr.t / run.dt).astype(int)
     zc = np.stack((tr.columns["zc_x"], tr.columns["zc_y"]), axis=1)
     vc = np.stack((tr.columns["vc_x"], tr.columns["vc_y"]), axis=1)
-    rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, axis=-1))))  # noqa: E731
+    rms = lambda e: float(np.sqrt(np.mean(np.sum(e**2, axis=-1))))
     return {
         "m_rel": (fit.m.value - m) / m,
         "m_ci_rel": fit.m.ci95 / m,

@@ -206,7 +206,7 @@ def _initialise(s: np.ndarray, dt: float, opt: FitOptions) -> tuple[_Init, list[
     idx = np.flatnonzero(good)
     phi = np.unwrap(np.angle(h[idx]))
     # signed rate from the local slope of the phase (the phase of h advances at omega whatever its sign)
-    win = max(3, int(round(0.25 / dt)))
+    win = max(3, round(0.25 / dt))
     slope = np.gradient(np.convolve(phi, np.ones(win) / win, mode="same"), idx * dt)
     sign = np.where(slope >= 0, 1.0, -1.0)
     # |h| = |c| |omega|: the scale of the geometry from the phase rate
@@ -376,7 +376,7 @@ def _wrap(x):
 # --- stage 3: multiple shooting -----------------------------------------------------------------
 def _multiple_shooting(s: np.ndarray, dt: float, ini: _Init, opt: FitOptions, fix_a: bool, fix_b: bool):
     n = s.shape[1]
-    L = max(opt.decimate, int(round(opt.segment_s / dt)) // opt.decimate * opt.decimate)
+    L = max(opt.decimate, round(opt.segment_s / dt) // opt.decimate * opt.decimate)
     seg = _segments(s, L, opt.decimate)
     S = seg.S
     G = 2 * n + 2

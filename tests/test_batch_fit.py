@@ -12,7 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coload.batch_fit import BatchFitError, FitOptions, fit_recording, fit_run_dir, samples_array
+from coload.batch_fit import (
+    BatchFitError,
+    FitOptions,
+    fit_recording,
+    fit_run_dir,
+    samples_array,
+)
 from config.loader import load_scenario
 from simulator.plant import Plant
 
@@ -27,7 +33,7 @@ def record(duration=15.0, sigma=0.0, seed=1, force=5.0, torque=True, spin=1.5):
     plant = Plant(sc)
     n, dt = sc.n, sc.dt
     rng = np.random.default_rng(seed)
-    T = int(round(duration / dt))
+    T = round(duration / dt)
     out = np.empty((T, n, 5))
     zi = np.empty((T, n, 2))
     zc = np.empty((T, 2))
