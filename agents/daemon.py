@@ -69,6 +69,10 @@ class AgentDaemon:
         self.sim_alive = False
         self.done = asyncio.Event()
         self._timer: asyncio.TimerHandle | None = None
+        self._jump: Measurement | None = None  # lockstep: a measurement that skips ticks, held back
+        self._jump_timer: asyncio.TimerHandle | None = None
+        self._jump_base = -1  # last_meas when the skip was held back
+        self.rejoins = 0
         self._subs: list = []
         self._k_state = keys.state(run, agent_id)
         self._k_wrench = keys.wrench(run, agent_id)
@@ -97,8 +101,9 @@ class AgentDaemon:
         return self.report()
 
     def stop(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
+        for timer in (self._timer, self._jump_timer):
+            if timer is not None:
+                timer.cancel()
         for s in reversed(self._subs):
             s.close()
         self._subs.clear()
@@ -167,17 +172,53 @@ class AgentDaemon:
             return
         if self.mode == "lockstep" and m.tick != self.last_meas + 1:
             if self.seen_start or self.ticks_stepped or self.pending_meas:
-                self.drops["future"] += 1  # the simulator never skips a tick
+                # the simulator never skips a tick, so either this agent was cut off (partition,
+                # restart) and the run went on without it, or the message is forged: hold it back
+                # and rejoin at its tick only if the real next measurement does not come
+                self._hold_jump(m)
                 return
             # a (re)joiner that missed the start: join the run at the simulator's current tick
             log.info("agent %d joins the run at tick %d", self.id, m.tick)
             self.next_tick = m.tick
         self.last_meas = m.tick
+        if self._jump is not None and self._jump.tick <= m.tick:
+            self._jump = None  # the real stream went past it: it was not ours (counted when held)
         if self.mode == "realtime" and m.tick > self.next_tick:
             # act on the latest data: skip ticks we never got
             self.pending_meas.clear()
             self.next_tick = m.tick
         self.pending_meas[m.tick] = m
+        self._try_step()
+
+    def _hold_jump(self, m: Measurement) -> None:
+        """Counted as a ``future`` drop now; taken back if the agent does rejoin with it."""
+        self.drops["future"] += 1
+        if self._jump is None or m.tick > self._jump.tick:
+            self._jump = m
+            self._jump_base = self.last_meas
+        if self._jump_timer is None:
+            self._jump_timer = asyncio.get_running_loop().call_later(
+                self.scenario.timing.rejoin_after_s, self._rejoin
+            )
+
+    def _rejoin(self) -> None:
+        """No measurement came since the skip was held back: the run went on without this agent,
+        so it goes on from the held tick. If the stream moved meanwhile, the skip was forged."""
+        self._jump_timer = None
+        m, self._jump = self._jump, None
+        if m is None or self.last_meas != self._jump_base or m.tick <= self.last_meas:
+            return
+        log.warning("agent %d: measurements %d..%d never came; rejoining at tick %d",
+                    self.id, self.last_meas + 1, m.tick - 1, m.tick)
+        self.drops["future"] -= 1
+        self.rejoins += 1
+        self.pending_meas.clear()
+        self.next_tick = m.tick
+        self.last_meas = m.tick
+        self.pending_meas[m.tick] = m
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
         self._try_step()
 
     def _on_state(self, key: str, payload: bytes) -> None:

@@ -169,6 +169,11 @@ class TimingSpec(_Strict):
     startup_timeout_s: float = Field(30.0, gt=0, description="wait for every daemon to come alive")
     wrench_timeout_s: float = Field(2.0, gt=0, description="lockstep: simulator waits this long for a wrench")
     neighbour_timeout_s: float = Field(2.0, gt=0, description="lockstep: agent waits this long for a neighbour")
+    rejoin_after_s: float = Field(
+        0.5, gt=0,
+        description="lockstep: an agent whose next measurement is missing (cut off, restarted) takes a later one "
+                    "and rejoins at its tick after this long; a forged early one is ignored while the real stream goes on",
+    )
 
 
 class RecordSpec(_Strict):

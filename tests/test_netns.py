@@ -65,3 +65,98 @@ def test_run_across_test_hosts_equals_inproc(tmp_path):
     assert summary["agents_reported"] == [0, 1, 2, 3, 4]
     for name, nkeys in (("estimates.csv", 2), ("pairs.csv", 3), ("samples.csv", 2)):
         assert max_table_difference(tmp_path / "run", tmp_path / "inproc", name, nkeys) <= 1e-9, name
+
+
+MONITOR = """
+import sys, zenoh
+sys.path.insert(0, {root!r})
+from net import keys
+from net.messages import Control
+from net.schema import decode
+from net.zenoh_transport import zenoh_config
+def on(sample):
+    m = decode(sample.payload.to_bytes(), Control)
+    print(m.kind, m.tick, flush=True)
+with zenoh.open(zenoh_config(mode="client", connect=[{endpoint!r}])) as s:
+    s.declare_subscriber(keys.sim_control({run!r}), on)
+    print("ready", flush=True)
+    sys.stdin.read()
+"""
+
+
+@pytest.mark.skip(reason="known open problem (issue 5): after a real link cut, the healthy agents "
+                         "sometimes stop getting measurements for ~10 s, and the cut-off agents do not "
+                         "always reconnect after the heal; remove this mark to reproduce")
+def test_real_partition_is_survived_and_healed(tmp_path):
+    """Cut the veth link of the host carrying agents 1 and 3 mid-run, then heal it: the simulator and
+    the other agents go on without them (liveliness), the cut-off agents rejoin, the run completes.
+
+    Passed in one of two runs here (rejoin at the simulator's current tick after the heal); in the
+    other, agents 0, 2, 4 got no measurement for 10 ticks x wrench timeout right after the cut, and
+    1, 3 never reconnected. The Zenoh side (congestion control BLOCK towards a dead link, lease,
+    client reconnection) needs investigating before this can be a regular test."""
+    scenario = tmp_path / "s.toml"
+    scenario.write_text((SCENARIOS / "quick.toml").read_text())
+    zconf = tmp_path / "zenoh.json5"
+    zconf.write_text('{ transport: { link: { tx: { lease: 1000, keep_alive: 4, '
+                     'queue: { congestion_control: { block: { wait_before_close: 200000 } } } } } } }')
+    zen = ["--zenoh-config", str(zconf)]
+    sets = ["--set", "duration=12.0", "--set", "timing.wrench_timeout_s=1.0", "--set", "timing.neighbour_timeout_s=1.0"]
+    procs: list[subprocess.Popen] = []
+    local = f"tcp/127.0.0.1:{PORT}"
+    with Hosts(leaves=2) as hosts:
+        def start(name: str, ns: str, argv: list[str], **kw) -> subprocess.Popen:
+            log = (tmp_path / f"{name}.log").open("w")
+            kw.setdefault("stdout", log)
+            p = subprocess.Popen(hosts.argv(ns, argv), stderr=log, cwd=ROOT, **kw)
+            procs.append(p)
+            return p
+
+        def ticks_until(stream, target: int) -> int:
+            while True:
+                line = stream.readline().decode()
+                assert line, "the monitor stopped"
+                kind, tick = line.split()
+                if kind == "done" or int(tick) >= target:
+                    return int(tick)
+
+        try:
+            listen = [f"tcp/{hosts.hub_addr(k)}:{PORT}" for k in range(2)] + [local]
+            router = start("router", hosts.hub, _coload("router", *zen, *sum((["--listen", e] for e in listen), [])),
+                           stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
+            assert router.stdout.readline().decode().startswith("ready")
+            monitor = start("monitor", hosts.hub, [sys.executable, "-c", MONITOR.format(
+                root=str(ROOT), endpoint=local, run="part")], stdout=subprocess.PIPE, stdin=subprocess.PIPE)
+            assert monitor.stdout.readline().decode().startswith("ready")
+            agents = []
+            for i in range(5):
+                leaf = 1 if i in (1, 3) else 0
+                common = [str(scenario), *sets, *zen, "--connect", f"tcp/{hosts.hub_addr(leaf)}:{PORT}", "--run", "part"]
+                agents.append(start(f"agent{i}", hosts.leaf(leaf), _coload("agent", "--id", str(i), *common),
+                                    stdin=subprocess.DEVNULL))
+            sim = start("sim", hosts.hub, _coload("sim", str(scenario), *sets, *zen, "--connect", local, "--run", "part",
+                                                 "--out", str(tmp_path / "run")), stdin=subprocess.DEVNULL)
+            cut_at = ticks_until(monitor.stdout, 300)
+            hosts.cut(1)
+            # the run must go on without agents 1 and 3: 200 more ticks while they are cut off
+            healed_at = ticks_until(monitor.stdout, cut_at + 200)
+            hosts.heal(1)
+            assert sim.wait(180) == 0
+            for a in agents:
+                assert a.wait(60) == 0
+            monitor.stdin.close()
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                p.wait()
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    events = [(e["event"], e.get("agent")) for e in summary["events"]]
+    for i in (1, 3):
+        assert ("agent_down", i) in events and ("agent_up", i) in events, events
+    assert summary["agents_reported"] == [0, 1, 2, 3, 4]
+    assert healed_at > cut_at
+    rows = (tmp_path / "run" / "samples.csv").read_text().splitlines()
+    assert len(rows) == 1 + 5 * 1200  # every tick recorded, the cut-off agents' with zero wrench
+    # every agent, the rejoined ones included, ends with estimates
+    assert all(v is not None for v in summary["errors"]["zi_err_per_agent"])
