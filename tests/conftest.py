@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -41,3 +43,43 @@ def _global_rng_untouched():
     yield
     after = np.random.get_state()
     assert before[2] == after[2] and np.array_equal(before[1], after[1]), "numpy's global RNG was used"
+
+
+def coload_cmd(*args: str) -> list[str]:
+    """``coload ARGS`` with this interpreter (works without the console script on PATH)."""
+    return [sys.executable, "-m", "coload", *args]
+
+
+class Processes:
+    """Real OS processes of one test, each logging to ``log_dir/NAME.log``; all killed at teardown."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.log_dir = log_dir
+        self.procs: list[subprocess.Popen] = []
+        self._logs: list = []
+
+    def start(self, name: str, argv: list[str], **kw) -> subprocess.Popen:
+        log = (self.log_dir / f"{name}.log").open("w")
+        self._logs.append(log)
+        kw.setdefault("stdout", log)
+        kw.setdefault("stdin", subprocess.DEVNULL)
+        p = subprocess.Popen(argv, stderr=log, **kw)
+        self.procs.append(p)
+        return p
+
+    def kill_all(self) -> None:
+        for p in self.procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()
+        for f in self._logs:
+            f.close()
+
+
+@pytest.fixture
+def processes(tmp_path):
+    procs = Processes(tmp_path)
+    try:
+        yield procs
+    finally:
+        procs.kill_all()

@@ -61,17 +61,12 @@ def _wait(cond, timeout: float) -> bool:
 
 
 @pytest.mark.zenoh
-def test_compose_commands_run_as_local_processes(tmp_path):
+def test_compose_commands_run_as_local_processes(tmp_path, processes):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     services = compose_spec(N, str(ROOT / "config" / "scenarios" / "quick.toml"), run="c2")["services"]
     extra = ["--set", "duration=2.0"]
-    procs: list[subprocess.Popen] = []
-
     def start(name: str, argv: list[str]) -> subprocess.Popen:
-        log = (tmp_path / f"{name}.log").open("w")
-        p = subprocess.Popen(argv, stdout=log, stderr=log, stdin=subprocess.DEVNULL, cwd=ROOT)
-        procs.append(p)
-        return p
+        return processes.start(name, argv, cwd=ROOT)
 
     try:
         start("router", _local(services["router"]["command"], endpoint, tmp_path))
@@ -88,10 +83,7 @@ def test_compose_commands_run_as_local_processes(tmp_path):
             assert a.wait(30) == 0
         assert not check_alive([endpoint], key, 0.5)  # gone with its daemon
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-            p.wait()
+        processes.kill_all()
     summary = json.loads((tmp_path / "c2" / "summary.json").read_text())
     assert summary["agents_reported"] == list(range(N))
     assert summary["n"] == N

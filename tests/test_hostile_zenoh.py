@@ -20,10 +20,8 @@ from __future__ import annotations
 import json
 import math
 import subprocess
-import sys
 import threading
 from collections import Counter
-from pathlib import Path
 
 import msgpack
 import pytest
@@ -35,7 +33,7 @@ from net import keys
 from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
 from net.schema import DecodeError, decode, encode
 from net.zenoh_transport import free_tcp_port, zenoh_config
-from tests.conftest import SCENARIOS, max_table_difference
+from tests.conftest import SCENARIOS, Processes, coload_cmd, max_table_difference
 
 pytestmark = pytest.mark.zenoh
 
@@ -123,33 +121,6 @@ def hostile_messages(run: str, now: int, ticks: int) -> tuple[list[tuple[str, by
     return out, want
 
 
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "coload", *args]
-
-
-class _Procs:
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: list[subprocess.Popen] = []
-        self.logs: list = []
-
-    def start(self, name: str, argv: list[str], **kw) -> subprocess.Popen:
-        log = (self.log_dir / f"{name}.log").open("w")
-        self.logs.append(log)
-        kw.setdefault("stdout", log)
-        p = subprocess.Popen(argv, stderr=log, stdin=subprocess.DEVNULL, **kw)
-        self.procs.append(p)
-        return p
-
-    def kill_all(self) -> None:
-        for p in self.procs:
-            if p.poll() is None:
-                p.kill()
-            p.wait()
-        for f in self.logs:
-            f.close()
-
-
 def test_hostile_publisher_during_lockstep_run(tmp_path):
     sc = load_scenario(SCENARIOS / "quick.toml", OVERRIDES)
     sc_path = tmp_path / "scenario.toml"
@@ -158,11 +129,11 @@ def test_hostile_publisher_during_lockstep_run(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     run, out = "hostile-test", tmp_path / "run"
     common = [str(sc_path), *sets, "--connect", endpoint, "--run", run]
-    procs = _Procs(tmp_path)
+    procs = Processes(tmp_path)
     progress = {"tick": -1}
     moved = threading.Condition()
     try:
-        router = procs.start("router", _cli("router", "--listen", endpoint), stdout=subprocess.PIPE)
+        router = procs.start("router", coload_cmd("router", "--listen", endpoint), stdout=subprocess.PIPE)
         ready = router.stdout.readline().decode()
         assert ready.startswith("ready"), ready
 
@@ -184,8 +155,8 @@ def test_hostile_publisher_during_lockstep_run(tmp_path):
 
         with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
             session.declare_subscriber(keys.sim_control(run), on_control)
-            sim = procs.start("sim", _cli("sim", *common, "--out", str(out)))
-            agents = [procs.start(f"agent{i}", _cli("agent", "--id", str(i), *common)) for i in range(sc.n)]
+            sim = procs.start("sim", coload_cmd("sim", *common, "--out", str(out)))
+            agents = [procs.start(f"agent{i}", coload_cmd("agent", "--id", str(i), *common)) for i in range(sc.n)]
             now = wait_tick(30, 90)  # well into the run: tick 0 of everything is in
             messages, want = hostile_messages(run, now, sc.ticks)
             for key, payload in messages:

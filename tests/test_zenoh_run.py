@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 import threading
-from pathlib import Path
 
 import pytest
 import zenoh
@@ -24,7 +22,7 @@ from net import keys
 from net.messages import Control
 from net.schema import DecodeError, decode
 from net.zenoh_transport import free_tcp_port, zenoh_config
-from tests.conftest import SCENARIOS, max_table_difference
+from tests.conftest import SCENARIOS, Processes, coload_cmd, max_table_difference
 
 pytestmark = pytest.mark.zenoh
 
@@ -46,29 +44,6 @@ def test_lockstep_over_zenoh_equals_inproc(tmp_path):
     assert zen["links"] == inproc_links
 
 
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "coload", *args]
-
-
-class _Procs:
-    def __init__(self, log_dir: Path) -> None:
-        self.log_dir = log_dir
-        self.procs: list[subprocess.Popen] = []
-
-    def start(self, name: str, argv: list[str], **kw) -> subprocess.Popen:
-        log = (self.log_dir / f"{name}.log").open("w")
-        kw.setdefault("stdout", log)
-        p = subprocess.Popen(argv, stderr=log, stdin=subprocess.DEVNULL, **kw)
-        self.procs.append(p)
-        return p
-
-    def kill_all(self) -> None:
-        for p in self.procs:
-            if p.poll() is None:
-                p.kill()
-            p.wait()
-
-
 GARBAGE = [b"", b"\xc1", b"not msgpack at all", b"\x93\xa4meas\x01\x80", b"\x00" * 70_000,
            b"\x93\xa5state\x01\x87\xa4tick\xcb\x7f\xf8\x00\x00\x00\x00\x00\x00"]
 
@@ -79,9 +54,9 @@ def test_hand_started_daemons_drop_and_count_garbage(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     run, out = "garbage-test", tmp_path / "run"
     common = [str(sc_path), "--set", "duration=4.0", "--connect", endpoint, "--run", run]
-    procs = _Procs(tmp_path)
+    procs = Processes(tmp_path)
     try:
-        router = procs.start("router", _cli("router", "--listen", endpoint), stdout=subprocess.PIPE)
+        router = procs.start("router", coload_cmd("router", "--listen", endpoint), stdout=subprocess.PIPE)
         ready = router.stdout.readline().decode()
         assert ready.startswith("ready"), ready
         started, done = threading.Event(), threading.Event()
@@ -95,8 +70,8 @@ def test_hand_started_daemons_drop_and_count_garbage(tmp_path):
 
         with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
             session.declare_subscriber(keys.sim_control(run), on_control)
-            sim = procs.start("sim", _cli("sim", *common, "--out", str(out)))
-            agents = [procs.start(f"agent{i}", _cli("agent", "--id", str(i), *common)) for i in range(5)]
+            sim = procs.start("sim", coload_cmd("sim", *common, "--out", str(out)))
+            agents = [procs.start(f"agent{i}", coload_cmd("agent", "--id", str(i), *common)) for i in range(5)]
             assert started.wait(60), "the run never started"
             targets = [keys.meas(run, 0), keys.state(run, 1), keys.wrench(run, 2), keys.estimate(run, 3),
                        keys.sim_control(run)]
