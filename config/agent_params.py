@@ -77,6 +77,9 @@ class ControlSpec(_Strict):
         1.5, ge=0, description="|omega| held by the torque regulation once omega_hat is trusted (rad/s)"
     )
     k_omega: float = Field(
-        10.0, ge=0, description="regulation gain per agent: tau = k_omega (omega_target - omega_hat) (N m s/rad)"
+        3.0, ge=0,
+        description="regulation gain per agent: tau = k_omega (omega_target - omega_hat) (N m s/rad); low on "
+                    "purpose: the loop only has to keep omega away from zero, and with 10 it diverged under "
+                    "200 ms link delay (omega_hat lags by the delay plus the consensus filter)",
     )
     torque_max: float = Field(5.0, ge=0, description="saturation of the regulation torque per agent (N m)")

@@ -58,7 +58,7 @@ def test_link_faults() -> None:
 def _n40_control() -> ControlSpec:
     # load 4x larger in length, m = 5 n: J grows ~64x, n 4x -> per-agent torques x16
     k = reference_load(40, 4.0).inertia / 86.89 / 4.0
-    return ControlSpec(spin_torque=3.0 * k, k_omega=10.0 * k, torque_max=5.0 * k)
+    return ControlSpec(spin_torque=3.0 * k, k_omega=3.0 * k, torque_max=5.0 * k)
 
 
 @pytest.mark.slow
