@@ -66,11 +66,11 @@ class SimDaemon:
         self.tick = 0
         self.wrenches: dict[int, tuple[float, float, float]] = {}
         self.latest: list[tuple[float, float, float]] = [ZERO_WRENCH] * self.n
-        self._changed = asyncio.Event()  # set whenever a wrench, report or liveliness change arrives
         self._subs: list = []
-        # lockstep wrench wait: resolved by the input that completes tick k's wrenches (no task,
-        # no Event round trip per wrench); None when nobody waits
-        self._wrench_wait: asyncio.Future[None] | None = None
+        # the one thing the run waits for (all agents up, tick k's wrenches, the reports): its
+        # condition and a future that the input completing it resolves (no task, no Event round
+        # trip per input); None when nobody waits
+        self._waiting: tuple[Callable[[], bool], asyncio.Future[None]] | None = None
         # keys built and parsed once: agent keys of this run -> agent id (anything else is parsed)
         self._meas_keys = [keys.meas(run, i) for i in range(self.n)]
         self._agent_ids = {keys.agent(run, i, kind): i for i in range(self.n)
@@ -105,8 +105,7 @@ class SimDaemon:
             self.events.append({"tick": self.tick, "t": self.tick * self.scenario.dt,
                                 "event": "agent_up" if alive else "agent_down", "agent": i})
             log.info("agent %d %s at tick %d", i, "up" if alive else "down", self.tick)
-        self._changed.set()
-        self._check_wrenches()
+        self._poke()
 
     def _on_wrench(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key)
@@ -126,31 +125,9 @@ class SimDaemon:
             self.drops["duplicate"] += 1  # first one wins: a replay cannot overwrite the genuine wrench
             return
         self.wrenches[i] = (w.fx, w.fy, w.tau)
-        self._check_wrenches()
+        self._poke()
 
-    def _check_wrenches(self) -> None:
-        """Wakes the lockstep wait once every live agent's wrench for this tick is in."""
-        fut = self._wrench_wait
-        if fut is not None and not fut.done() and self.alive <= self.wrenches.keys():
-            fut.set_result(None)
-
-    async def _wait_wrenches(self, timeout: float) -> bool:
-        """Waits until every live agent's wrench for ``self.tick`` is in; False on timeout.
-
-        One future per tick, resolved by the input that completes the set (a wrench, or a
-        liveliness change that removes the last one missing); the timeout is a ``call_later``
-        on the loop, cancelled when the future resolves first.
-        """
-        if self.alive <= self.wrenches.keys():
-            return True
-        loop = asyncio.get_running_loop()
-        fut = self._wrench_wait = loop.create_future()
-        timer = loop.call_later(timeout, _resolve, fut)
-        try:
-            await fut
-        finally:
-            timer.cancel()
-            self._wrench_wait = None
+    def _have_wrenches(self) -> bool:
         return self.alive <= self.wrenches.keys()
 
     def _on_estimate(self, key: str, payload: bytes) -> None:
@@ -190,23 +167,34 @@ class SimDaemon:
             self.drops["duplicate"] += 1
             return
         self.reports[i] = rep
-        self._changed.set()
+        self._poke()
+
+    def _poke(self) -> None:
+        """Called by every input that can complete what the run waits for."""
+        if self._waiting is not None:
+            cond, fut = self._waiting
+            if not fut.done() and cond():
+                fut.set_result(None)
 
     async def _wait_for(self, cond: Callable[[], bool], timeout: float) -> bool:
-        """Waits until ``cond()`` holds, re-checking on every input; False on timeout."""
-        deadline = time.monotonic() + timeout
-        while not cond():
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return False
-            self._changed.clear()
-            try:
-                await asyncio.wait_for(self._changed.wait(), left)
-            except TimeoutError:
-                return cond()
-        return True
+        """Waits until ``cond()`` holds, re-checked on every input; False on timeout.
 
-    # ---- the run ---------------------------------------------------------------------------
+        One future per wait, resolved by the input that makes ``cond`` true; the timeout is a
+        ``call_later`` on the loop, cancelled when the future resolves first.
+        """
+        if cond():
+            return True
+        loop = asyncio.get_running_loop()
+        fut = loop.create_future()
+        self._waiting = (cond, fut)
+        timer = loop.call_later(timeout, _resolve, fut)
+        try:
+            await fut
+        finally:
+            timer.cancel()
+            self._waiting = None
+        return cond()
+
     def _publish_control(self, kind: str, tick: int) -> None:
         self.transport.publish(keys.sim_control(self.run_name), encode(Control(kind, tick, self.scenario.ticks)))
 
@@ -256,7 +244,7 @@ class SimDaemon:
             # recorded once the measurements are out: the agents are busy with them meanwhile
             self.recorder.truth(self.plant.truth())
             if sc.mode == "lockstep":
-                got = await self._wait_wrenches(sc.timing.wrench_timeout_s)
+                got = await self._wait_for(self._have_wrenches, sc.timing.wrench_timeout_s)
                 if not got:
                     self.wrench_timeouts += 1
                     log.warning("tick %d: no wrench from %s", k, sorted(self.alive - self.wrenches.keys()))
