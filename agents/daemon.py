@@ -61,18 +61,15 @@ class AgentDaemon:
         self.seen_start = False  # the simulator's start notice arrived: we are in from tick 0
         self.pending_meas: dict[int, Measurement] = {}
         self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
-        self.alive: set[int] = set()
         # neighbours whose previous-tick state a lockstep step waits for: all of them at the start
         # (the simulator starts only when every agent is up); a dead one leaves, and comes back
         # with its first message after a restart
         self.expect: set[int] = set(self.neighbours)
-        self.sim_alive = False
         self.done = asyncio.Event()
         self._timer: asyncio.TimerHandle | None = None
         self._jump: Measurement | None = None  # lockstep: a measurement that skips ticks, held back
         self._jump_timer: asyncio.TimerHandle | None = None
         self._jump_base = -1  # last_meas when the skip was held back
-        self.rejoins = 0
         self._subs: list = []
         self._k_state = keys.state(run, agent_id)
         self._k_wrench = keys.wrench(run, agent_id)
@@ -132,17 +129,10 @@ class AgentDaemon:
         if parsed is None:
             return
         _, role, ident = parsed
-        if role == "sim":
-            self.sim_alive = alive
-            return
-        if role != "agent" or ident not in self.last_from:
-            return
-        if alive:
-            self.alive.add(ident)
-        else:
-            self.alive.discard(ident)
-            self.expect.discard(ident)
-            self._try_step()
+        if alive or role != "agent" or ident not in self.last_from:
+            return  # a neighbour that comes back is waited for again from its first message
+        self.expect.discard(ident)
+        self._try_step()
 
     def _on_control(self, _key: str, payload: bytes) -> None:
         msg = self._decode(payload, Control)
@@ -211,7 +201,6 @@ class AgentDaemon:
         log.warning("agent %d: measurements %d..%d never came; rejoining at tick %d",
                     self.id, self.last_meas + 1, m.tick - 1, m.tick)
         self.drops["future"] -= 1
-        self.rejoins += 1
         self.pending_meas.clear()
         self.next_tick = m.tick
         self.last_meas = m.tick
