@@ -237,12 +237,10 @@ class AgentDaemon:
         self.expect.add(sender)
         st = self.stats[sender]
         st.sent += 1
-        delays = self.links[sender].deliveries(msg.tick)
+        link = self.links[sender]
+        delays = link.deliveries(msg.tick)
         if not delays:
-            if self.links[sender].partitioned(msg.tick):
-                st.partitioned += 1
-            else:
-                st.dropped += 1
+            st.count_lost(link, msg.tick)
         for copy, d in enumerate(delays):
             due = deliver_tick(msg.tick, d, self.scenario.dt, self.mode)
             if due < self.next_tick:

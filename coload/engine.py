@@ -126,10 +126,7 @@ def run_inproc(
                         push(k1 + int(delays[0]) if lockstep else k1 + int(delays[0] // dt), i, k, 0, state)
                         continue
                     if not delays:
-                        if link.partitioned(k):
-                            st.partitioned += 1
-                        else:
-                            st.dropped += 1
+                        st.count_lost(link, k)
                         continue
                     st.duplicated += len(delays) - 1
                     for copy, d in enumerate(delays):

@@ -181,6 +181,13 @@ class LinkStats:
     malformed: int = 0
     partitioned: int = 0
 
+    def count_lost(self, link: LinkModel, send_tick: int) -> None:
+        """A message the link did not deliver: cut by a partition, or lost at random."""
+        if link.partitioned(send_tick):
+            self.partitioned += 1
+        else:
+            self.dropped += 1
+
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
 
@@ -222,10 +229,7 @@ class DelayLine(Generic[T]):
         if stats is not None:
             stats.sent += 1
             if not delays:
-                if link.partitioned(send_tick):
-                    stats.partitioned += 1
-                else:
-                    stats.dropped += 1
+                stats.count_lost(link, send_tick)
             stats.duplicated += max(0, len(delays) - 1)
         return len(delays)
 
