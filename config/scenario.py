@@ -184,6 +184,138 @@ class RecordSpec(_Strict):
     )
 
 
+class FrictionSpec(_Strict):
+    """Floor friction on the load (the agents' model has none). Forces act at the CoM, torques about it."""
+
+    viscous: float = Field(0.0, ge=0, description="viscous floor friction on the CoM: F = -viscous v_C (N s/m)")
+    coulomb: float = Field(
+        0.0, ge=0,
+        description="Coulomb friction magnitude on the CoM (N), smoothed: F = -coulomb tanh(|v_C|/coulomb_speed) v_C/|v_C|",
+    )
+    coulomb_speed: float = Field(0.01, gt=0, description="smoothing speed of the Coulomb friction (m/s)")
+    rotational: float = Field(0.0, ge=0, description="rotational damping about the CoM: torque = -rotational omega (N m s)")
+
+
+class SensorEffectSpec(_Strict):
+    """Imperfections of every agent's velocity sensor (on top of noise.sigma_v); truth stays the true state."""
+
+    delay: float = Field(
+        0.0, ge=0,
+        description="measurement delay (s), rounded to whole ticks: the measurement at tick k is the true "
+                    "contact-point velocity of tick k - round(delay/dt) (of tick 0 before that) plus noise",
+    )
+    velocity_bias: Vec2 = Field((0.0, 0.0), description="constant bias added to every measured velocity, world frame (m/s)")
+
+
+class LoadChangeSpec(_Strict):
+    """A step change of the load at simulated time t (Algorithm 2 of paper 000): mass, inertia and CoM jump.
+
+    The contact points stay where they are on the body; the rigid-body velocity field is continuous
+    at the change (every point of the body keeps its velocity; omega is unchanged).
+    """
+
+    t: float = Field(..., ge=0, description="time of the change (s, simulated; applied at the first tick k with k dt >= t)")
+    mass: float = Field(..., gt=0, description="new mass (kg)")
+    inertia: float | None = Field(
+        None, gt=0, description="new J about the new CoM (kg m^2); default: uniform density over the shape"
+    )
+    com_offset: Vec2 | None = Field(
+        None, description="new CoM relative to the polygon centroid, body frame (m), like load.com_offset; default: unchanged"
+    )
+
+
+class PlantSpec(_Strict):
+    """Physical effects of the plant that the agents' model lacks. Never told to the agents (see docs/diagnose.md)."""
+
+    friction: FrictionSpec = FrictionSpec()
+    sensor: SensorEffectSpec = SensorEffectSpec()
+    actuator_gain: float = Field(
+        1.0, gt=0, description="factor on the applied wrench: the plant gets actuator_gain times what the agents command (-)"
+    )
+    external_force: Vec2 = Field(
+        (0.0, 0.0), description="constant external force on the CoM, world frame, e.g. a slope m g sin(alpha) (N)"
+    )
+    load_changes: list[LoadChangeSpec] = Field(
+        [], description="step changes of mass, inertia and CoM during the run, in time order"
+    )
+
+    @model_validator(mode="after")
+    def _changes_in_order(self) -> PlantSpec:
+        times = [c.t for c in self.load_changes]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise ValueError(f"load_changes: times must be strictly increasing (got {times})")
+        return self
+
+    @property
+    def active(self) -> bool:
+        """True if any effect is configured (with none, the plant runs its untouched nominal path)."""
+        return self != PlantSpec()
+
+
+class ArmMotionSpec(_Strict):
+    """The rigid rocking motion every arm tracks at its grasp point (agents/arm.py MotionPlan).
+
+    theta(t) = amplitude sin(2 pi t / period) g(t) about the contacts' centroid at t = 0, plus a
+    translation shift sin(2 pi t / shift_period) g(t) along shift_angle; g(t) = 1 - exp(-t / ramp).
+    """
+
+    amplitude: float = Field(0.8, gt=0, lt=1.6, description="rotation amplitude theta0 (rad)")
+    period: float = Field(6.0, gt=0, description="period of the rocking rotation (s)")
+    ramp: float = Field(1.5, gt=0, description="time constant of the start-up envelope g(t) (s)")
+    shift: float = Field(0.1, ge=0, description="amplitude of the translation of the rotation centre (m)")
+    shift_period: float = Field(4.3, gt=0, description="period of the translation (s)")
+    shift_angle: float = Field(0.3, description="direction of the translation, world frame, from +x (rad)")
+    kp: float = Field(400.0, ge=0, description="grasp-point tracking stiffness: f = kp (p_ref - p) + kd (v_ref - v) (N/m)")
+    kd: float = Field(80.0, ge=0, description="grasp-point tracking damping, on the agent's sensed velocity (N s/m)")
+
+
+class ArmObserverSpec(_Strict):
+    """The paper-004 speed observer each arm runs on its own model (agents/speed_observer.py)."""
+
+    k1: float = Field(20.0, gt=4, description="rate of the ideal error dynamics, > 4 (paper 004 eq. 55) (1/s)")
+    k2: float = Field(8.0, gt=0, description="extra damping of e_y (eq. 53) (1/s)")
+    k3: float = Field(25.0, gt=0, description="extra damping of e_x (eq. 54) (1/s)")
+    c_r: float = Field(1e-3, gt=0, description="lower bound of the dynamic scaling r (eq. 38) (-)")
+    r0: float = Field(0.01, gt=0, description="initial r; must exceed c_r (-)")
+    nodes: int = Field(8, ge=2, le=64, description="Gauss-Legendre nodes per integral of beta (eq. 12)")
+    substeps: int = Field(1, ge=1, le=20, description="RK4 steps of the observer per encoder sample")
+    initial_error: Vec2 = Field(
+        (0.5, -0.5), description="initial joint-speed estimate minus the true (zero) speed, to show convergence (rad/s)"
+    )
+
+
+class ArmsSpec(_Strict):
+    """Agents that are planar two-link arms on fixed bases (issue 7; ``coload arms run``).
+
+    Horizontal (SCARA-like) arms with uniform links hold the load at the contact points through free
+    pivots, sense joint angles and the wrist force, and have no speed sensor. Only ``coload arms run``
+    reads this section; the other engines ignore it.
+    """
+
+    l1: float = Field(0.8, gt=0, description="length of the upper link (m)")
+    l2: float = Field(0.8, gt=0, description="length of the forearm (m)")
+    m1: float = Field(4.0, gt=0, description="mass of the upper link, uniform rod (kg)")
+    m2: float = Field(2.0, gt=0, description="mass of the forearm, uniform rod (kg)")
+    bases: list[Vec2] | None = Field(
+        None,
+        description="world positions of the arms' bases, one per agent (m); default: each base on the ray from the "
+                    "contacts' centroid through its contact point, base_offset beyond the contact",
+    )
+    base_offset: float = Field(0.6, gt=0, description="default base placement: distance beyond the contact point (m)")
+    elbow: Literal[-1, 1] = Field(1, description="elbow branch of the initial inverse kinematics (+1 or -1)")
+    encoder_sigma: float = Field(5e-5, ge=0, description="std of the joint-encoder noise (rad)")
+    force_sigma: float = Field(0.05, ge=0, description="std of the wrist force-sensor noise per component (N)")
+    substeps: int = Field(10, ge=1, le=100, description="pymunk steps per tick (the pivot chain needs short steps)")
+    solver_iterations: int = Field(30, ge=1, le=1000, description="pymunk constraint-solver iterations per step")
+    sigma_v_assumed: float = Field(
+        0.02, gt=0,
+        description="contact-velocity noise the arm agents tell their AgentCore (m/s): the observer's error level "
+                    "(the velocity-measuring comparison run uses noise.sigma_v)",
+    )
+    motion: ArmMotionSpec = ArmMotionSpec()
+    observer: ArmObserverSpec = ArmObserverSpec()
+
+
 class Scenario(_Strict):
     name: str = Field("unnamed", description="run label (free text)")
     n: int = Field(10, ge=2, le=1000, description="number of agents")
@@ -203,6 +335,10 @@ class Scenario(_Strict):
     estimator: EstimatorSpec = EstimatorSpec()
     timing: TimingSpec = TimingSpec()
     record: RecordSpec = RecordSpec()
+    plant: PlantSpec = PlantSpec()
+    arms: ArmsSpec | None = Field(
+        None, description="agents are two-link arms on fixed bases (only `coload arms run` reads it; see ArmsSpec)"
+    )
 
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
@@ -227,6 +363,8 @@ class Scenario(_Strict):
             for i, j in part.cut or ():
                 if (min(i, j), max(i, j)) not in edges:
                     raise ValueError(f"link.partitions: partition {p} cuts [{i}, {j}], not an edge of the graph")
+        if self.arms is not None and self.arms.bases is not None and len(self.arms.bases) != self.n:
+            raise ValueError(f"arms.bases: must list exactly n = {self.n} bases (got {len(self.arms.bases)})")
         if not _connected(self.n, self.edges()):
             field = "graph.edges" if self.graph.topology == "explicit" else "graph"
             raise ValueError(f"{field}: the communication graph must be connected (agents 0..{self.n - 1})")

@@ -26,6 +26,7 @@ import pymunk
 
 from config.scenario import Scenario
 from simulator import geometry
+from simulator.effects import Effects
 
 # Separates the sensor stream from every other stream derived from the same run seed
 # (the link fault model seeds from (seed, sender, receiver)).
@@ -113,32 +114,17 @@ class Plant:
 
     __slots__ = (
         "n", "dt", "sigma_v", "mass", "inertia", "tick", "space", "body",
-        "_r", "_rbar", "_rrel_t", "_perp1", "_reduce", "_pos", "_vel", "_angle", "_omega", "_c", "_s",
+        "_r", "_rbar", "_rrel_t", "_perp1", "_reduce", "_pos", "_vel", "_angle", "_omega", "_c", "_s", "effects",
     )  # fmt: skip
 
     def __init__(self, scenario: Scenario) -> None:
-        self.n = n = scenario.n
+        self.n = scenario.n
         self.dt = scenario.dt
         self.sigma_v = scenario.noise.sigma_v
         self.mass = scenario.load.mass
         self.inertia = load_inertia(scenario)
         self.tick = 0
-        r = self._r = np.asarray(contact_points_body(scenario), dtype=float)  # (n, 2) body frame, about CoM
-        self._rbar = (float(r[:, 0].mean()), float(r[:, 1].mean()))  # p_G - p_C, body frame
-        self._rrel_t = np.ascontiguousarray((r - self._rbar).T)  # z_i in the body frame, (2, n)
-        perp = np.stack((-r[:, 1], r[:, 0]), axis=1)  # r_i^perp, body frame
-        self._perp1 = np.hstack((perp, np.ones((n, 1))))  # [r_i^perp | 1]: contact velocity = this @ K
-        # Flat wrench (fx0, fy0, tau0, fx1, ...) @ _reduce = (sum fx, sum fy, sum tau, M00, M01, M10, M11).
-        red = np.zeros((3 * n, 7))
-        red[0::3, 0] = 1.0
-        red[1::3, 1] = 1.0
-        red[2::3, 2] = 1.0
-        red[0::3, 3] = perp[:, 0]
-        red[1::3, 4] = perp[:, 0]
-        red[0::3, 5] = perp[:, 1]
-        red[1::3, 6] = perp[:, 1]
-        self._reduce = red
-
+        self._set_contacts(np.asarray(contact_points_body(scenario), dtype=float))
         space = pymunk.Space()
         space.gravity = (0.0, 0.0)
         space.damping = 1.0  # no velocity damping: the load is frictionless (g = 0 in the paper)
@@ -154,6 +140,28 @@ class Plant:
         self.space = space
         self.body = body
         self._refresh()
+        self.effects = Effects.build(scenario, _outline_about_centroid(scenario))
+        if self.effects is not None:
+            self.effects.start(self)
+
+    def _set_contacts(self, r: np.ndarray) -> None:
+        """Contact points (n, 2) relative to the CoM, body frame, and the constant matrices built from them."""
+        n = self.n
+        self._r = r
+        self._rbar = (float(r[:, 0].mean()), float(r[:, 1].mean()))  # p_G - p_C, body frame
+        self._rrel_t = np.ascontiguousarray((r - self._rbar).T)  # z_i in the body frame, (2, n)
+        perp = np.stack((-r[:, 1], r[:, 0]), axis=1)  # r_i^perp, body frame
+        self._perp1 = np.hstack((perp, np.ones((n, 1))))  # [r_i^perp | 1]: contact velocity = this @ K
+        # Flat wrench (fx0, fy0, tau0, fx1, ...) @ _reduce = (sum fx, sum fy, sum tau, M00, M01, M10, M11).
+        red = np.zeros((3 * n, 7))
+        red[0::3, 0] = 1.0
+        red[1::3, 1] = 1.0
+        red[2::3, 2] = 1.0
+        red[0::3, 3] = perp[:, 0]
+        red[1::3, 4] = perp[:, 0]
+        red[0::3, 5] = perp[:, 1]
+        red[1::3, 6] = perp[:, 1]
+        self._reduce = red
 
     def _refresh(self) -> None:
         """Snapshot the body state once per tick (each pymunk property read crosses the C boundary)."""
@@ -177,7 +185,9 @@ class Plant:
         return list(map(tuple, self._velocities().tolist()))
 
     def measure(self, rng: np.random.Generator) -> list[Vec2]:
-        """velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call."""
+        """velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call (+ sensor effects)."""
+        if self.effects is not None:
+            return self.effects.measure(self, rng)
         noisy = self._velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
         return list(map(tuple, noisy.tolist()))
 
@@ -202,6 +212,9 @@ class Plant:
             raise ValueError(f"non-finite wrench from agent(s) {bad}" if bad else "resultant wrench overflows")
         c, s = self._c, self._s
         torque = tau + m00 * c + m01 * s - m10 * s + m11 * c  # tau + tr(M R)
+        effects = self.effects
+        if effects is not None:
+            fx, fy, torque = effects.wrench(self, fx, fy, torque)
         if not math.isfinite(torque):
             raise ValueError("resultant torque overflows")
         b = self.body
@@ -210,6 +223,8 @@ class Plant:
         self.space.step(self.dt)
         self.tick += 1
         self._refresh()
+        if effects is not None:
+            effects.after_step(self)
 
     def truth(self) -> Truth:
         """The state after ``tick`` steps, with the paper's derived quantities z_C, p_G and z_i."""
