@@ -120,6 +120,35 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("spec", type=Path, help="design spec (TOML)")
     q.add_argument("--out", type=Path, help="write the gains and results here (JSON)")
 
+    p = sub.add_parser("campaign", help="paper 000's Monte Carlo grid (Fig. 7/8) on the in-process engine",
+                       description="Run the (n, sigma) grid of paper 000's appendix B: m = 5n, the load scaled so "
+                                   "the contact spacing stays that of the base, line graph, independent seeds; "
+                                   "in parallel worker processes, resumable (finished runs are kept). Writes "
+                                   "OUT/campaign.csv, OUT/campaign.png (and campaign-consensus.png once the "
+                                   "agents estimate J and m) and a run directory per run in OUT/runs/. "
+                                   "Geometry and columns: docs/campaign.md.")
+    p.add_argument("scenario", type=Path, nargs="?",
+                   help="base scenario, resized per n (default: the bundled config/scenarios/paper-fig4.toml)")
+    p.add_argument("--out", type=Path, required=True, help="campaign directory (re-use it to resume)")
+    p.add_argument("--n", dest="ns", default=",".join(map(str, (5, 8, 11, 14, 17, 20))), metavar="LIST",
+                   help="team sizes, comma-separated (default: the paper's %(default)s)")
+    p.add_argument("--sigma", dest="sigmas", default="0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1.0", metavar="LIST",
+                   help="velocity-noise levels in m/s, comma-separated (default: the paper's %(default)s)")
+    p.add_argument("--runs-per-cell", type=int, default=50, metavar="K",
+                   help="independent runs per (n, sigma) (default: the paper's %(default)s)")
+    p.add_argument("--duration", type=float, metavar="S", help="simulated time per run (s; default: the base's)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="J",
+                   help="worker processes (default: the number of CPUs, %(default)s)")
+    p.add_argument("--seed0", type=int, default=0, metavar="N",
+                   help="campaign seed: each run's seed derives from (N, n, sigma, run index) (default: %(default)s)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a field of the base scenario (dotted key, TOML value; repeatable)")
+    p.add_argument("--keep-data", action="store_true",
+                   help="keep every run's CSV tables (default: only run.toml and summary.json; a run is "
+                        "reproduced exactly by `coload run OUT/runs/NAME/run.toml --engine inproc`)")
+    p.add_argument("--plan", action="store_true", help="print the geometry table and the number of runs, run nothing")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
     p = sub.add_parser("report", help="draw report.png for a run directory and print its summary table",
                        description="Draw report.png (true vs estimated quantities) and print a summary table.")
     p.add_argument("run_dir", type=Path, help="a run directory")
@@ -248,6 +277,40 @@ def cmd_hinf(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from coload import campaign as cp
+    from coload.orchestrate import ProgressBar
+
+    overrides = list(args.overrides) + ([f"duration={args.duration}"] if args.duration is not None else [])
+    base = load_scenario(args.scenario or cp.DEFAULT_BASE, overrides)
+    try:
+        ns = cp.parse_list(args.ns, int, "--n")
+        sigmas = cp.parse_list(args.sigmas, float, "--sigma")
+        if args.jobs < 1:
+            raise ValueError(f"--jobs: must be at least 1 (got {args.jobs})")
+        runs = cp.plan(base, args.out, ns, sigmas, args.runs_per_cell, args.seed0)
+    except ValueError as exc:
+        print(f"coload campaign: {exc}", file=sys.stderr)
+        return 2
+    print(cp.geometry_table(base, ns))
+    if args.plan:
+        print(f"{len(runs)} runs ({len(ns)} n x {len(sigmas)} sigma x {args.runs_per_cell}), "
+              f"{runs[0].scenario.duration:g} s simulated each")
+        return 0
+    result = cp.run_campaign(runs, args.out, jobs=args.jobs, progress=ProgressBar("campaign runs", args.quiet),
+                             keep_data=args.keep_data)
+    print(cp.cell_table(result.rows))
+    rate = f", {result.runs_per_min:.1f} runs/min" if result.runs_per_min else ""
+    print(f"{result.planned} runs planned: {result.reused} finished before, {result.ran} run now, "
+          f"{len(result.failed)} failed; {result.wall_s:.1f} s wall{rate}")
+    for name, err in result.failed:
+        print(f"coload campaign: run {name} failed: {err}", file=sys.stderr)
+    print(f"table: {args.out / cp.CSV_NAME}")
+    for path in result.plots:
+        print(f"plot: {path}")
+    return 1 if result.failed else 0
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from coload.orchestrate import default_run_dir, run_inproc_cli, run_processes
 
@@ -270,7 +333,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
-            "compose": cmd_compose, "alive": cmd_alive, "observer": cmd_observer, "hinf": cmd_hinf}
+            "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

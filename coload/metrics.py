@@ -348,11 +348,16 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
 
     tcol = truth.columns
     ti = s.truth_est_idx
-    for col, tname, key in (("J", "inertia", "J_rel"), ("m", "mass", "m_rel")):
+    # J_local/m_local: each agent's own least-squares estimate before the averaging consensus
+    # (paper 000, Fig. 8 "before"); the per-agent lists keep the sign, for box plots over agents.
+    for col, tname, key in (("J", "inertia", "J_rel"), ("m", "mass", "m_rel"),
+                            ("J_local", "inertia", "J_local_rel"), ("m_local", "mass", "m_local_rel")):
         if est.has(col) and tname in tcol:
             true = tcol[tname][ti]
             rel, _ = last_finite((est.columns[col] - true[:, None]) / true[:, None])
             out[key] = _rms_all(rel)
+            if col.endswith("_local"):
+                out[f"{key}_per_agent"] = [_num(v) for v in rel]
     if est.has("zc_x", "zc_y") and "zc_x" in tcol and "zc_y" in tcol:
         true_zc = np.stack([tcol["zc_x"][ti], tcol["zc_y"][ti]], axis=1)[:, None, :]
         err, _ = last_finite(np.sqrt(_sq(_vec(est.columns, "zc_x", "zc_y") - true_zc)))

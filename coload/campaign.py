@@ -1,0 +1,529 @@
+"""``coload campaign``: paper 000's Monte Carlo grid (its appendix B, Fig. 7 and Fig. 8).
+
+A campaign runs one in-process engine run per (n, sigma, run index) in worker processes and leaves:
+
+* ``OUT/runs/n{n}-s{sigma}-r{k}/``: an ordinary run directory per run (no report.png);
+* ``OUT/campaign.csv``: one row per finished run (grid point, seed, geometry, every numeric error
+  key of its summary, wall time), rewritten atomically after each run, so an interrupted campaign
+  leaves a table of the runs it finished and nothing half written;
+* ``OUT/campaign.png``: box plots per sigma and n, like Fig. 7; ``OUT/campaign-consensus.png``: the
+  relative errors of J and m before and after the averaging consensus, like Fig. 8 (only when the
+  runs' estimates carry the agents' local ``J_local``/``m_local``).
+
+Resumable: a run whose directory holds a complete ``summary.json`` for the same resolved scenario
+(``run.toml``) is read back, not redone; a run killed half way (no or a truncated summary, or a
+changed scenario) is redone from scratch.
+
+Geometry (:func:`campaign_scenario`): the paper sets m = 5 n "and J accordingly". The load grows
+with the team so that the contacts stay as far apart as in the base scenario: every length of the
+base load (outline, CoM offset) is scaled by s = n / n_base, the perimeter grows as n and the
+spacing of the evenly spread contacts stays that of paper-fig4 (12.4 m / 10 = 1.24 m). J scales as
+mass times length squared, J = J_base (m / m_base) s^2 (so as n^3): for a base without an explicit
+J this is exactly the uniform lamina's J of the scaled outline (``simulator.plant.load_inertia``,
+with its parallel-axis term for the CoM offset); for paper-fig4 it keeps the paper's
+J = 86.89 kg m^2 at n = 10 (the lamina formula would give 93.33 there), so the n = 10 cell is
+paper-fig4 itself. The agents' per-agent torques (spin-up,
+regulation gain, saturation) are scaled by (n / n_base)^2 so that the team's angular acceleration,
+hence omega(t) and the kinematic signal |omega| |z_ij|, is the same for every n: the sum of n
+torques over a J growing as n^3. Forces need no scaling: n forces over m = 5 n.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import multiprocessing
+import os
+import shutil
+import time
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from config.loader import dump_scenario, scenario_from_dict
+from config.scenario import Scenario
+
+DEFAULT_BASE = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "paper-fig4.toml"
+"""The base scenario of the paper's campaign: paper-fig4 (n = 10, 4.0 m x 2.2 m, line graph)."""
+
+PAPER_N = (5, 8, 11, 14, 17, 20)
+"""The paper's team sizes (appendix B)."""
+
+PAPER_SIGMA = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0)
+"""The paper's velocity-noise levels (m/s)."""
+
+PAPER_RUNS_PER_CELL = 50
+"""Independent runs per (n, sigma) in the paper."""
+
+MASS_PER_AGENT = 5.0
+"""m = 5 n kg (paper)."""
+
+CSV_NAME = "campaign.csv"
+PLOT_NAME = "campaign.png"
+CONSENSUS_PLOT_NAME = "campaign-consensus.png"
+RUNS_DIR = "runs"
+
+ID_COLUMNS = ("n", "sigma", "run", "seed", "duration", "width", "height", "mass", "inertia", "spacing", "z_rms")
+"""Grid point, seed and the load's geometry (width/height empty for a polygon load)."""
+
+ERROR_COLUMNS = (
+    "eerd_ratio", "eerd_final", "eerd_initial", "eerd_converge_s",
+    "zi_rms", "zi_rel", "zi_rms_window", "eec_final", "omega_rms",
+    "J_local_rel", "J_rel", "m_local_rel", "m_rel", "zC_rms", "vC_rms",
+    "t_final", "window_s",
+)
+"""The error keys a campaign always has a column for, in this order (empty when a run lacks one).
+``zi_rel`` is derived here: zi_rms over the RMS |z_i| of the geometry (the paper's normalisation
+across team sizes). Other numeric keys a run's errors block has are appended, sorted."""
+
+TAIL_COLUMNS = ("finished_s", "wall_s", "agent_step_us")
+"""summary.json top-level: when the agents agreed they were done (if the scenario stops early),
+the engine loop's wall time (s) and the mean cost of one agent step (us)."""
+
+# Panels of the Fig. 7-like plot: (column, label); drawn when some run has the column.
+FIG7_PANELS = (
+    ("eerd_ratio", "EERD final / initial"),
+    ("zi_rel", "z_i RMS / RMS |z_i|"),
+    ("omega_rms", "omega RMS (rad/s)"),
+    ("vC_rms", "v_C RMS (m/s)"),
+    ("zC_rms", "z_C RMS (m)"),
+    ("J_rel", "RE of J"),
+    ("m_rel", "RE of m"),
+    ("finished_s", "finished (s)"),
+)
+# Fig. 8: relative errors before (local least squares) and after the averaging consensus.
+FIG8_PANELS = (("J_local_rel", "J_rel", "J"), ("m_local_rel", "m_rel", "m"))
+
+
+# --- the grid -----------------------------------------------------------------------------------
+
+
+def campaign_scenario(
+    base: Scenario, n: int, sigma: float, seed: int, mass_per_agent: float = MASS_PER_AGENT
+) -> Scenario:
+    """The base scenario resized for a team of ``n`` at noise ``sigma`` (see the module docstring).
+
+    Lengths scale by ``s = n / base.n`` (rectangle sides or polygon vertices, CoM offset), so the
+    contact spacing along the outline is the base's; m = ``mass_per_agent`` n; J = J_base (m /
+    m_base) s^2; per-agent torques scale by s^2; the graph is a line; name and seed identify the run.
+    """
+    from simulator.plant import load_inertia
+
+    if base.contacts.layout != "perimeter":
+        raise ValueError("campaign: the base scenario needs contacts.layout = 'perimeter' (explicit points "
+                         "cannot follow a changing n)")
+    if n < 2:
+        raise ValueError(f"campaign: n must be at least 2 (got {n})")
+    if not (sigma >= 0 and math.isfinite(sigma)):
+        raise ValueError(f"campaign: sigma must be a finite value >= 0 (got {sigma})")
+    s = n / base.n
+    data = base.model_dump(mode="python", exclude_none=True)
+    load = data["load"]
+    if base.load.shape == "rectangle":
+        load["width"] = base.load.width * s
+        load["height"] = base.load.height * s
+    else:
+        assert base.load.vertices is not None
+        load["vertices"] = [(x * s, y * s) for x, y in base.load.vertices]
+    load["com_offset"] = (base.load.com_offset[0] * s, base.load.com_offset[1] * s)
+    load["mass"] = mass_per_agent * n
+    load["inertia"] = load_inertia(base) * (load["mass"] / base.load.mass) * s * s
+    ctl = data["control"]
+    for key in ("spin_torque", "k_omega", "torque_max"):
+        ctl[key] = getattr(base.control, key) * s * s
+    data["graph"] = {"topology": "line"}
+    data["noise"]["sigma_v"] = float(sigma)
+    data["n"] = n
+    data["seed"] = int(seed)
+    data["name"] = f"{base.name}-n{n}-s{sigma:g}-seed{seed}"
+    return scenario_from_dict(data, source=f"campaign cell n={n} sigma={sigma:g}")
+
+
+def run_seed(seed0: int, n: int, sigma: float, k: int) -> int:
+    """Seed of run ``k`` of cell (n, sigma): independent across runs and cells, and a function of
+    the grid point alone, so a subset or a re-run of the grid meets the same seeds."""
+    ss = np.random.SeedSequence(int(seed0), spawn_key=(int(n), round(sigma * 1e6), int(k)))
+    return int(ss.generate_state(1, dtype=np.uint32)[0])
+
+
+def run_name(n: int, sigma: float, k: int) -> str:
+    return f"n{n}-s{sigma:g}-r{k}"
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """One run of the grid: its grid point, seed, resolved scenario and directory."""
+
+    n: int
+    sigma: float
+    k: int
+    seed: int
+    scenario: Scenario
+    run_dir: Path
+
+
+def plan(
+    base: Scenario, out: Path, ns: Sequence[int], sigmas: Sequence[float], runs_per_cell: int, seed0: int = 0
+) -> list[PlannedRun]:
+    """Every run of the grid, cell by cell (n outer, sigma inner), ``runs_per_cell`` per cell."""
+    if runs_per_cell < 1:
+        raise ValueError(f"campaign: runs per cell must be at least 1 (got {runs_per_cell})")
+    if len(set(ns)) != len(ns) or len(set(sigmas)) != len(sigmas):
+        raise ValueError("campaign: the n and sigma lists must not repeat a value")
+    runs = []
+    for n in ns:
+        for sigma in sigmas:
+            for k in range(runs_per_cell):
+                seed = run_seed(seed0, n, sigma, k)
+                scn = campaign_scenario(base, n, sigma, seed)
+                runs.append(PlannedRun(n, float(sigma), k, seed, scn, Path(out) / RUNS_DIR / run_name(n, sigma, k)))
+    return runs
+
+
+def geometry(scenario: Scenario) -> dict[str, float | None]:
+    """The load a campaign run pushes: size, m, J, contact spacing and RMS |z_i| (the z_i scale)."""
+    from simulator.plant import contact_points_body, load_inertia, load_polygon_body
+
+    outline = np.asarray(load_polygon_body(scenario))
+    perimeter = float(np.sum(np.hypot(*(np.roll(outline, -1, axis=0) - outline).T)))
+    c = np.asarray(contact_points_body(scenario))
+    z = c - c.mean(axis=0)  # z_i = p_Ci - p_G, G the contacts' centroid
+    rect = scenario.load.shape == "rectangle"
+    return {
+        "width": scenario.load.width if rect else None,
+        "height": scenario.load.height if rect else None,
+        "mass": scenario.load.mass,
+        "inertia": load_inertia(scenario),
+        "spacing": perimeter / scenario.n,
+        "z_rms": float(np.sqrt(np.mean(np.sum(z * z, axis=1)))),
+    }
+
+
+def geometry_table(base: Scenario, ns: Sequence[int]) -> str:
+    """A markdown table n -> size, m, J, spacing, RMS |z_i| (as stated in docs/campaign.md)."""
+    lines = ["| n | width x height (m) | CoM offset (m) | m (kg) | J (kg m^2) | spacing (m) | RMS \\|z_i\\| (m) |",
+             "|---|---|---|---|---|---|---|"]
+    for n in ns:
+        scn = campaign_scenario(base, n, base.noise.sigma_v, base.seed)
+        g = geometry(scn)
+        size = f"{g['width']:.2f} x {g['height']:.2f}" if g["width"] is not None else "polygon"
+        off = scn.load.com_offset
+        lines.append(f"| {n} | {size} | ({off[0]:.3f}, {off[1]:.3f}) | {g['mass']:.0f} | {g['inertia']:.1f} "
+                     f"| {g['spacing']:.3f} | {g['z_rms']:.3f} |")
+    return "\n".join(lines)
+
+
+# --- run directories ----------------------------------------------------------------------------
+
+
+def finished_summary(run: PlannedRun) -> dict[str, Any] | None:
+    """The run's summary if its directory holds a finished run of this very scenario, else None.
+
+    summary.json is the last file a run writes; a killed run has none or a truncated one, and a
+    run.toml that differs means the directory is from another campaign setting.
+    """
+    try:
+        toml = (run.run_dir / "run.toml").read_text(encoding="utf-8")
+        summary = json.loads((run.run_dir / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if toml != dump_scenario(run.scenario) or not isinstance(summary, dict) or "errors" not in summary:
+        return None
+    return summary
+
+
+BULK_FILES = ("samples.csv", "pairs.csv", "truth.csv", "estimates.csv")
+"""Dropped after a run unless ``keep_data``: the full grid would fill ~90 GB with them, and any run
+is reproduced bit for bit by ``coload run OUT/runs/NAME/run.toml --engine inproc``."""
+
+
+def _run_one(scenario: Scenario, run_dir: str, keep_data: bool = False) -> dict[str, Any]:
+    """Worker: one in-process run from a clean directory (a half-written one is removed first)."""
+    from coload.engine import run_inproc
+
+    path = Path(run_dir)
+    if path.exists():
+        shutil.rmtree(path)
+    summary = run_inproc(scenario, path)
+    if not keep_data:  # after summary.json: a kill in between leaves a finished run
+        for name in BULK_FILES:
+            (path / name).unlink(missing_ok=True)
+    return summary
+
+
+def _scalar(x: Any) -> float | None:
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return None
+    return float(x) if math.isfinite(x) else None
+
+
+def row_of(run: PlannedRun, summary: dict[str, Any]) -> dict[str, Any]:
+    """One CSV row: grid point, seed, geometry, every numeric error key, finished_s and wall time."""
+    row: dict[str, Any] = {"n": run.n, "sigma": run.sigma, "run": run.k, "seed": run.seed,
+                           "duration": run.scenario.duration}
+    g = geometry(run.scenario)
+    row.update(g)
+    errors = summary.get("errors") or {}
+    for key, value in errors.items():
+        v = _scalar(value)
+        if v is not None:
+            row[key] = v
+    if row.get("zi_rms") is not None and g["z_rms"]:
+        row["zi_rel"] = row["zi_rms"] / g["z_rms"]
+    for key in TAIL_COLUMNS:
+        v = _scalar(summary.get(key))
+        if v is not None:
+            row[key] = v
+    return row
+
+
+def columns_of(rows: Iterable[dict[str, Any]]) -> list[str]:
+    """Fixed columns first, then any other error keys the runs have (sorted), then the tail."""
+    fixed = (*ID_COLUMNS, *ERROR_COLUMNS, *TAIL_COLUMNS)
+    extra = sorted({k for r in rows for k in r} - set(fixed))
+    return [*ID_COLUMNS, *ERROR_COLUMNS, *extra, *TAIL_COLUMNS]
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Writes the table atomically (a temporary file renamed over the old one): never half a table."""
+    rows = sorted(rows, key=lambda r: (r["n"], r["sigma"], r["run"]))
+    cols = columns_of(rows)
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for r in rows:
+        w.writerow(["" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c]) for c in cols])
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(buf.getvalue(), encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def read_csv(path: Path) -> list[dict[str, Any]]:
+    """campaign.csv back as rows of floats (ints for n, run, seed); empty cells are absent."""
+    rows = []
+    with open(path, encoding="utf-8", newline="") as f:
+        for rec in csv.DictReader(f):
+            row: dict[str, Any] = {}
+            for k, v in rec.items():
+                if v == "":
+                    continue
+                row[k] = int(v) if k in ("n", "run", "seed") else float(v)
+            rows.append(row)
+    return rows
+
+
+# --- the runner ---------------------------------------------------------------------------------
+
+
+@dataclass
+class CampaignResult:
+    """What a campaign did: rows of every finished run, and counts of this invocation."""
+
+    rows: list[dict[str, Any]]
+    planned: int
+    reused: int  # finished before, read back
+    ran: int  # run now
+    failed: list[tuple[str, str]] = field(default_factory=list)  # (run name, error)
+    wall_s: float = 0.0
+    plots: list[Path] = field(default_factory=list)
+
+    @property
+    def runs_per_min(self) -> float | None:
+        return 60.0 * self.ran / self.wall_s if self.ran and self.wall_s > 0 else None
+
+
+def run_campaign(
+    runs: Sequence[PlannedRun],
+    out: Path,
+    jobs: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    plots: bool = True,
+    keep_data: bool = False,
+) -> CampaignResult:
+    """Runs what is not finished yet in ``jobs`` worker processes; writes the CSV and the plots.
+
+    ``jobs = 1`` runs in this process (no pool). ``keep_data`` keeps each run's CSV tables
+    (otherwise only run.toml, summary.json and logs/ stay, see :data:`BULK_FILES`). A run that raises is reported in ``failed`` and
+    the others go on; its directory stays without a summary, so a later call retries it.
+    """
+    t0 = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    csv_path = out / CSV_NAME
+    rows: dict[str, dict[str, Any]] = {}
+    todo: list[PlannedRun] = []
+    for r in runs:
+        s = finished_summary(r)
+        if s is None:
+            todo.append(r)
+        else:
+            rows[r.run_dir.name] = row_of(r, s)
+    reused = len(rows)
+    write_csv(csv_path, list(rows.values()))
+    failed: list[tuple[str, str]] = []
+    done = 0
+    if progress is not None:
+        progress(0, len(todo))
+
+    def finish(r: PlannedRun, fut_result: Callable[[], dict[str, Any]]) -> None:
+        nonlocal done
+        try:
+            rows[r.run_dir.name] = row_of(r, fut_result())
+            write_csv(csv_path, list(rows.values()))
+        except Exception as exc:  # noqa: BLE001  a failed run must not stop the campaign
+            failed.append((r.run_dir.name, f"{type(exc).__name__}: {exc}"))
+        done += 1
+        if progress is not None:
+            progress(done, len(todo))
+
+    jobs = max(1, jobs or os.cpu_count() or 1)
+    if jobs == 1 or len(todo) <= 1:
+        for r in todo:
+            finish(r, lambda r=r: _run_one(r.scenario, str(r.run_dir), keep_data))
+    elif todo:
+        ctx = multiprocessing.get_context("spawn")  # no fork of a possibly threaded parent
+        with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as pool:
+            pending: dict[Future, PlannedRun] = {pool.submit(_run_one, r.scenario, str(r.run_dir), keep_data): r
+                                             for r in todo}
+            try:
+                while pending:
+                    finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in finished:
+                        finish(pending.pop(fut), fut.result)
+            except BaseException:
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+    result = CampaignResult(rows=sorted(rows.values(), key=lambda r: (r["n"], r["sigma"], r["run"])),
+                            planned=len(runs), reused=reused, ran=done - len(failed), failed=failed,
+                            wall_s=time.perf_counter() - t0)
+    if plots and result.rows:
+        result.plots = plot_campaign(result.rows, out)
+    return result
+
+
+# --- plots --------------------------------------------------------------------------------------
+
+
+def _values(rows: Sequence[dict[str, Any]], col: str, n: int, sigma: float) -> list[float]:
+    return [r[col] for r in rows if r["n"] == n and r["sigma"] == sigma and r.get(col) is not None
+            and math.isfinite(r[col])]
+
+
+def _box_panel(ax: Any, rows: Sequence[dict[str, Any]], col: str, label: str, ns: list[int],
+               sigmas: list[float]) -> None:
+    """One panel: a group of boxes per sigma, one box per n (coloured), over the runs of the cell."""
+    import matplotlib.pyplot as plt
+
+    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(1, len(ns))))
+    width = 0.8 / len(ns)
+    positive = True
+    for a, n in enumerate(ns):
+        data, pos = [], []
+        for b, sigma in enumerate(sigmas):
+            v = _values(rows, col, n, sigma)
+            if v:
+                data.append(v)
+                pos.append(b + (a - (len(ns) - 1) / 2) * width)
+                positive = positive and min(v) > 0
+        if data:
+            bp = ax.boxplot(data, positions=pos, widths=0.9 * width, patch_artist=True, manage_ticks=False,
+                            flierprops={"markersize": 2})
+            for patch in bp["boxes"]:
+                patch.set_facecolor(colours[a])
+            for med in bp["medians"]:
+                med.set_color("black")
+    if positive:
+        ax.set_yscale("log")
+    ax.set_xticks(range(len(sigmas)), [f"{s:g}" for s in sigmas])
+    ax.set_ylabel(label)
+    ax.grid(True, axis="y", alpha=0.3)
+
+
+def _legend(ax: Any, ns: list[int]) -> None:
+    """Colour key of the team sizes, above the top panel."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(1, len(ns))))
+    ax.legend(handles=[Patch(facecolor=colours[a], label=f"n = {n}") for a, n in enumerate(ns)],
+              loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=len(ns), frameon=False, fontsize=8)
+
+
+def plot_campaign(rows: Sequence[dict[str, Any]], out: Path) -> list[Path]:
+    """campaign.png (Fig. 7-like) and, when local estimates exist, campaign-consensus.png (Fig. 8)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ns = sorted({int(r["n"]) for r in rows})
+    sigmas = sorted({float(r["sigma"]) for r in rows})
+    has = {c for r in rows for c, v in r.items() if v is not None}
+    written: list[Path] = []
+    panels = [(c, lab) for c, lab in FIG7_PANELS if c in has]
+    if panels:
+        fig, axes = plt.subplots(len(panels), 1, figsize=(max(7.0, 1.1 * len(sigmas) * max(1, len(ns)) ** 0.5 + 3),
+                                                          2.2 * len(panels) + 0.8), squeeze=False, sharex=True)
+        for ax, (col, lab) in zip(axes[:, 0], panels, strict=True):
+            _box_panel(ax, rows, col, lab, ns, sigmas)
+        axes[-1, 0].set_xlabel("velocity noise sigma (m/s)")
+        fig.suptitle(f"campaign: {len(rows)} runs, line graph, m = 5n (a box = the runs of one (n, sigma))",
+                     fontsize=10)
+        _legend(axes[0, 0], ns)
+        fig.tight_layout()
+        path = out / PLOT_NAME
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    pairs = [(lo, hi, q) for lo, hi, q in FIG8_PANELS if lo in has and hi in has]
+    if pairs:
+        fig, axes = plt.subplots(len(pairs), 2, figsize=(13, 2.6 * len(pairs) + 0.8), squeeze=False, sharey="row")
+        for row_axes, (lo, hi, q) in zip(axes, pairs, strict=True):
+            _box_panel(row_axes[0], rows, lo, f"RE of {q}, before consensus", ns, sigmas)
+            _box_panel(row_axes[1], rows, hi, f"RE of {q}, after consensus", ns, sigmas)
+        for ax in axes[-1]:
+            ax.set_xlabel("velocity noise sigma (m/s)")
+        fig.suptitle("relative errors before and after the averaging consensus (Fig. 8)", fontsize=10)
+        _legend(axes[0, 0], ns)
+        _legend(axes[0, 1], ns)
+        fig.tight_layout()
+        path = out / CONSENSUS_PLOT_NAME
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
+
+
+def parse_list(text: str, kind: type, what: str) -> list:
+    """``"5,8,11"`` -> [5, 8, 11], with a clear error for a bad item."""
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    if not items:
+        raise ValueError(f"{what}: give a comma-separated list, e.g. {'5,8' if kind is int else '0.1,0.3'}")
+    try:
+        return [kind(t) for t in items]
+    except ValueError:
+        raise ValueError(f"{what}: {text!r} is not a comma-separated list of "
+                         f"{'integers' if kind is int else 'numbers'}") from None
+
+
+def cell_table(rows: Sequence[dict[str, Any]]) -> str:
+    """Median [90th percentile] per (n, sigma) of the plotted errors the runs have (markdown)."""
+    cols = [c for c, _ in FIG7_PANELS if any(r.get(c) is not None for r in rows)]
+    cols += [c for lo, _, _ in FIG8_PANELS for c in (lo,) if any(r.get(c) is not None for r in rows)]
+    head = "| n | sigma | runs | " + " | ".join(f"{c} median [p90]" for c in cols) + " |"
+    lines = [head, "|" + "---|" * (3 + len(cols))]
+    for n in sorted({r["n"] for r in rows}):
+        for sigma in sorted({r["sigma"] for r in rows if r["n"] == n}):
+            cell = [r for r in rows if r["n"] == n and r["sigma"] == sigma]
+            vals = []
+            for c in cols:
+                v = _values(cell, c, n, sigma)
+                vals.append(f"{np.median(v):.3g} [{np.percentile(v, 90):.3g}]" if v else "-")
+            lines.append(f"| {n} | {sigma:g} | {len(cell)} | " + " | ".join(vals) + " |")
+    return "\n".join(lines)
