@@ -119,6 +119,30 @@ def build_parser() -> argparse.ArgumentParser:
                                     "synchronization design (Theorem 3); e.g. config/hinf/sec5-cyclic.toml.")
     q.add_argument("spec", type=Path, help="design spec (TOML)")
     q.add_argument("--out", type=Path, help="write the gains and results here (JSON)")
+    q = hsub.add_parser("run", help="design, then run the estimators (4) and controllers (10)-(11) as daemons",
+                        description="Design the spec, then simulate its [run] section: a simulator integrates "
+                                    "the LTI agents, one estimator-controller daemon per agent exchanges "
+                                    "estimates with its neighbours (zenoh: router, simulator and daemons as OS "
+                                    "processes; inproc: one process, lockstep). Writes RUN_DIR/summary.json "
+                                    "(errors, decay vs alpha, energy gain vs gamma, synchronization) and hinf.png.")
+    q.add_argument("spec", type=Path, help="spec (TOML) with an optional [run] section")
+    q.add_argument("--out", type=Path, required=True, help="run directory to write")
+    q.add_argument("--engine", choices=["zenoh", "inproc"], default="zenoh",
+                   help="zenoh: separate processes over an embedded router; inproc: this process (lockstep)")
+    q.add_argument("--mode", choices=["lockstep", "realtime"], help="time mode (overrides run.mode)")
+    q.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a spec field, dotted key, TOML value (repeatable), e.g. run.duration=10")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    for action, what in (("sim", "the LTI simulator daemon (it records RUN_DIR)"),
+                         ("agent", "one estimator-controller daemon")):
+        q = hsub.add_parser(action, help=f"run {what}; started by `coload hinf run`",
+                            description=f"Run {what} of a run directory prepared by `coload hinf run` "
+                                        "(it reads RUN_DIR/spec.json and RUN_DIR/design.json).")
+        if action == "agent":
+            q.add_argument("--id", type=int, required=True, help="agent index (0..N-1, spec order)")
+        q.add_argument("run_dir", type=Path, help="prepared run directory")
+        _add_zenoh_args(q)
+        q.add_argument("--run", required=True, help="run name: the key-expression namespace shared by all daemons")
 
     p = sub.add_parser("campaign", help="paper 000's Monte Carlo grid (Fig. 7/8) on the in-process engine",
                        description="Run the (n, sigma) grid of paper 000's appendix B: m = 5n, the load scaled so "
@@ -262,6 +286,8 @@ def cmd_hinf(args: argparse.Namespace) -> int:
     from hinf import SpecError, design_cli
     from hinf.design import HinfDesignError
 
+    if args.hinf_command != "design":
+        return cmd_hinf_runtime(args)
     try:
         result = design_cli(args.spec, args.out)
     except (SpecError, HinfDesignError) as exc:
@@ -311,6 +337,48 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     return 1 if result.failed else 0
 
 
+def cmd_hinf_runtime(args: argparse.Namespace) -> int:
+    """`coload hinf run|sim|agent`: the paper-003 runtime (hinf.daemon)."""
+    from hinf import SpecError, run_cli
+    from hinf.design import HinfDesignError
+
+    if args.hinf_command == "run":
+        try:
+            s = run_cli(args.spec, args.out, args.engine, args.mode, args.overrides, args.quiet, args.verbose)
+        except (SpecError, HinfDesignError) as exc:
+            print(f"coload hinf run: {exc}", file=sys.stderr)
+            return 2
+        if s is None:
+            return 1
+        en, de = s["energy"], s["decay"]
+        print(json.dumps({"gamma": en["gamma"], "empirical_gain": en["empirical_gain"],
+                          "sampled_norm": en["sampled_norm"], "continuous_norm": en["continuous_norm"],
+                          "alpha": de["alpha"], "V_rate_fit": de["V_rate_fit"],
+                          "alpha_bound_holds": de["alpha_bound_holds"],
+                          "own_error_final": {k: v["own_final"] for k, v in s["errors"].items()},
+                          "y_spread": [s["sync"]["y_spread_initial"], s["sync"]["y_spread_final"]]}, indent=2))
+        print(f"run directory: {args.out} (summary.json, hinf.png)")
+        return 0
+    from hinf.daemon import HinfAgentDaemon, HinfSimDaemon
+    from hinf.report import finish_run, load_run_dir
+    from net.zenoh_transport import ZenohTransport
+
+    setup = load_run_dir(args.run_dir)
+    conf = _zenoh_conf(args)
+    if args.hinf_command == "agent":
+        rep = asyncio.run(_serve(lambda t: HinfAgentDaemon(setup, args.id, t, args.run).run(),
+                                 lambda loop: ZenohTransport(conf, loop)))
+        return 0 if rep is not None else 130
+    res = asyncio.run(_serve(lambda t: HinfSimDaemon(setup, t, args.run).run(),
+                             lambda loop: ZenohTransport(conf, loop)))
+    if res is None:
+        return 130
+    trace, info = res
+    finish_run(args.run_dir, setup, trace, {**info, "engine": "zenoh"})
+    print(f"run directory: {args.run_dir}")
+    return 0
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from coload.orchestrate import default_run_dir, run_inproc_cli, run_processes
 
@@ -339,7 +407,7 @@ COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_ro
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
-    if args.command in ("sim", "agent", "router"):
+    if args.command in ("sim", "agent", "router") or getattr(args, "hinf_command", None) in ("sim", "agent"):
         level = min(level, logging.INFO)
     logging.basicConfig(level=level, format=f"%(asctime)s {args.command}[{os.getpid()}] %(levelname)s %(message)s")
     try:

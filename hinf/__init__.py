@@ -1,7 +1,8 @@
-"""Cooperative H-infinity estimation from relative measurements (paper 003), design tool.
+"""Cooperative H-infinity estimation from relative measurements (paper 003): design tool and runtime.
 
-``design_cli`` is the thin IO shell behind ``coload hinf design SPEC``; the maths lives in
-``hinf.design`` (pure) and the spec in ``hinf.spec``.
+``design_cli`` is the thin IO shell behind ``coload hinf design SPEC`` and ``run_cli`` the one behind
+``coload hinf run SPEC``; the maths lives in ``hinf.design`` and ``hinf.runtime`` (pure), the daemons
+in ``hinf.daemon``, the run directory and its checks in ``hinf.report``, the spec in ``hinf.spec``.
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from .spec import HinfSpec, SpecError, load_spec, parse_spec
 
-__all__ = ["HinfSpec", "SpecError", "load_spec", "parse_spec", "design_cli", "run_design"]
+__all__ = ["HinfSpec", "SpecError", "load_spec", "parse_spec", "design_cli", "run_design", "run_cli"]
 
 
 def run_design(spec: HinfSpec, sync: bool = True, verify: bool = True) -> dict:
@@ -48,8 +49,8 @@ def run_design(spec: HinfSpec, sync: bool = True, verify: bool = True) -> dict:
             "gamma": sd.gamma, "kappa": sd.kappa, "theta": sd.theta,
             "francis_residual": sd.francis_residual,
             "H": [h.tolist() for h in sd.H], "X": [x.tolist() for x in sd.X],
-            "gains": [{"agent": g.agent, "tracks": g.tracks, "L": g.L.tolist(), "K": g.K.tolist()}
-                      for g in sd.estimator.gains],
+            "gains": [{"agent": g.agent, "tracks": g.tracks, "L": g.L.tolist(), "K": g.K.tolist(),
+                       "P": g.P.tolist()} for g in sd.estimator.gains],
         }
     return out
 
@@ -66,3 +67,34 @@ def design_cli(spec_path: Path, out: Path | None) -> dict:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(result, indent=1) + "\n")
     return result
+
+
+def run_cli(spec_path: Path, out: Path, engine: str = "zenoh", mode: str | None = None,
+            overrides: list[str] | tuple[str, ...] = (), quiet: bool = False, verbose: int = 0) -> dict | None:
+    """Design, then simulate the spec's [run]: ``zenoh`` = router, simulator and one estimator daemon per
+    agent as OS processes; ``inproc`` = the same cores and link models in this process (lockstep only).
+    Writes the run directory (see ``hinf.report``) and returns summary.json's content (None on failure).
+    """
+    from .daemon import run_processes
+    from .report import finish_run, load_run_dir, prepare_run_dir
+    from .runtime import run_inproc
+
+    spec = load_spec(spec_path, overrides)
+    if mode is not None:
+        spec = spec.model_copy(deep=True)
+        spec.run.mode = mode  # type: ignore[assignment]
+    if engine == "inproc" and spec.run.mode != "lockstep":
+        raise SpecError("--engine inproc runs lockstep only; use --engine zenoh for --mode realtime")
+    out = Path(out)
+    prepare_run_dir(out, spec, run_design(spec))
+    setup = load_run_dir(out)  # what the daemons read: both engines start from the same floats
+    if engine == "inproc":
+        import time
+
+        wall = time.perf_counter()
+        trace, info = run_inproc(setup)
+        info.update({"engine": "inproc", "wall_s": time.perf_counter() - wall})
+        return finish_run(out, setup, trace, info)
+    if not run_processes(setup, out, quiet=quiet, verbose=verbose):
+        return None
+    return json.loads((out / "summary.json").read_text())

@@ -11,10 +11,12 @@ from __future__ import annotations
 import json
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from config.scenario import LinkSpec
 
 Matrix = list[list[float]]
 
@@ -103,6 +105,59 @@ class SyncSpec(BaseModel):
         return self
 
 
+class DisturbanceSpec(BaseModel):
+    """Disturbances xi_k and eta_kj of a run (coload hinf run); drawn from the run seed, held over a tick."""
+
+    model_config = ConfigDict(extra="forbid")
+    kind: Literal["none", "white", "worst"] = Field(
+        "none", description="none: xi = eta = 0; white: Gaussian samples held over each tick; worst: the "
+        "input direction (and frequency) at which the designed error network's gain peaks, as a sinusoid")
+    xi_std: float = Field(1.0, ge=0, description="white: std of every component of xi_k")
+    eta_std: float = Field(1.0, ge=0, description="white: std of every component of eta_kj")
+    amplitude: float = Field(1.0, ge=0, description="worst: Euclidean norm of the stacked input [xi scaled; eta]")
+    t_on: float = Field(0.0, ge=0, description="disturbances act from this time (s)")
+    t_off: float | None = Field(None, gt=0, description="disturbances stop at this time (s); default: never")
+
+
+class HinfTimingSpec(BaseModel):
+    """Waits of the hinf daemons; a timeout is counted in summary.json, never fatal."""
+
+    model_config = ConfigDict(extra="forbid")
+    startup_timeout_s: float = Field(30.0, gt=0, description="the simulator waits this long for every estimator")
+    input_timeout_s: float = Field(2.0, gt=0, description="lockstep: the simulator waits this long for u_k "
+                                   "(then holds the last one)")
+    neighbour_timeout_s: float = Field(2.0, gt=0, description="lockstep: an estimator waits this long for a "
+                                       "neighbour's estimate (then holds the last one)")
+
+
+class RunSection(BaseModel):
+    """How `coload hinf run` simulates the spec: tick, length, seed, initial states, disturbances, links."""
+
+    model_config = ConfigDict(extra="forbid")
+    dt: float = Field(0.01, gt=0, description="tick (s): the plant is discretised exactly for it, the "
+                      "estimators sample z_kj once per tick")
+    duration: float = Field(30.0, gt=0, description="simulated time (s)")
+    seed: int = Field(0, ge=0, description="run seed: initial states, disturbances and link faults derive from it")
+    mode: Literal["lockstep", "realtime"] = Field(
+        "lockstep", description="lockstep: the simulator is the clock (reproducible); realtime: wall-clock pace")
+    control: bool | None = Field(None, description="run the synchronization controllers (10)-(11) with the "
+                                 "Theorem 3 gains; default: whenever the spec has [sync]. false: u_k = 0")
+    x0: list[list[float]] | None = Field(None, description="initial agent states x_k(0), one list per agent; "
+                                         "default: drawn N(0, x0_std^2)")
+    x0_std: float = Field(1.0, ge=0, description="std of the drawn initial states (0: start at rest)")
+    zeta0: list[list[float]] | None = Field(None, description="initial internal-model states zeta_k(0), one list "
+                                            "per agent; default: drawn N(0, zeta0_std^2); every daemon knows them")
+    zeta0_std: float = Field(1.0, ge=0, description="std of the drawn zeta_k(0)")
+    disturbance: DisturbanceSpec = Field(DisturbanceSpec(), description="xi_k and eta_kj of the run")
+    link: LinkSpec = Field(LinkSpec(), description="fault model of every estimator-to-estimator link "
+                           "(agents numbered 0..N-1 in spec order)")
+    timing: HinfTimingSpec = Field(HinfTimingSpec(), description="daemon waits")
+
+    @property
+    def ticks(self) -> int:
+        return int(round(self.duration / self.dt))
+
+
 class HinfSpec(BaseModel):
     """Whole design problem: agents, directed graph, and the design constants of (6)."""
 
@@ -113,6 +168,7 @@ class HinfSpec(BaseModel):
     agents: list[AgentSpec] = Field(min_length=1)
     edges: list[tuple[str, str]] = Field(description="[j, k]: agent k measures z_kj = y_j - y_k and hears from j")
     sync: SyncSpec | None = None
+    run: RunSection = Field(RunSection(), description="simulation of the designed network (coload hinf run)")
 
     @field_validator("agents")
     @classmethod
@@ -151,7 +207,41 @@ class HinfSpec(BaseModel):
                     v = getattr(a, f)
                     if v is not None and len(v[0]) != nu:
                         raise ValueError(f"agents: agent {a.name!r} {f} must have nu={nu} columns")
+        self._check_run()
         return self
+
+    def _check_run(self) -> None:
+        """Initial states, control switch and partitions of [run] against the agents and the graph."""
+        run, N = self.run, len(self.agents)
+        if run.x0 is not None:
+            if len(run.x0) != N:
+                raise ValueError(f"run.x0: give one state per agent ({N}), got {len(run.x0)}")
+            for a, x in zip(self.agents, run.x0):
+                if len(x) != len(a.A):
+                    raise ValueError(f"run.x0: agent {a.name!r} has n_k={len(a.A)} states, got {len(x)}")
+        if run.control and self.sync is None:
+            raise ValueError("run.control: the controllers need a [sync] section")
+        if run.zeta0 is not None:
+            nu = len(self.sync.S) if self.sync is not None else 0
+            if len(run.zeta0) != N or any(len(z) != nu for z in run.zeta0):
+                raise ValueError(f"run.zeta0: give one state of length nu={nu} per agent ({N})")
+        d = run.disturbance
+        if d.t_off is not None and d.t_off <= d.t_on:
+            raise ValueError(f"run.disturbance.t_off ({d.t_off}) must be after t_on ({d.t_on})")
+        idx = {a.name: i for i, a in enumerate(self.agents)}
+        edges = {frozenset((idx[j], idx[k])) for j, k in self.edges}
+        for p, part in enumerate(run.link.partitions):
+            ids = [i for e in part.cut or () for i in e] + [i for g in part.groups or () for i in g]
+            if any(i >= N for i in ids):
+                raise ValueError(f"run.link.partitions: partition {p} names an agent id >= {N} (ids are 0..{N - 1})")
+            for i, j in part.cut or ():
+                if frozenset((i, j)) not in edges:
+                    raise ValueError(f"run.link.partitions: partition {p} cuts [{i}, {j}], not an edge")
+
+    @property
+    def control(self) -> bool:
+        """Whether a run closes the loop with the synchronization controllers."""
+        return self.sync is not None if self.run.control is None else self.run.control
 
 
 def _loc(loc: tuple[Any, ...], data: Any) -> str:
@@ -180,8 +270,18 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> HinfSpec:
         raise SpecError("\n".join(lines)) from None
 
 
-def load_spec(path: Path | str) -> HinfSpec:
-    """Read a .toml or .json spec file."""
+def _deep_merge(base: dict, extra: dict) -> dict:
+    for k, v in extra.items():
+        if isinstance(v, dict) and isinstance(base.get(k), dict):
+            _deep_merge(base[k], v)
+        else:
+            base[k] = v
+    return base
+
+
+def load_spec(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> HinfSpec:
+    """Read a .toml or .json spec file; ``overrides`` are ``dotted.key=TOML value`` strings (e.g.
+    ``run.duration=10``) applied before validation."""
     path = Path(path)
     try:
         raw = path.read_bytes()
@@ -196,6 +296,13 @@ def load_spec(path: Path | str) -> HinfSpec:
         raise SpecError(f"{path}: syntax error: {exc}") from None
     if not isinstance(data, dict):
         raise SpecError(f"{path}: top level must be a table/object")
+    if overrides:
+        from config.loader import parse_overrides
+
+        try:
+            _deep_merge(data, parse_overrides(overrides))
+        except ValueError as exc:
+            raise SpecError(f"{path}: --set: {exc}") from None
     return parse_spec(data, str(path))
 
 

@@ -9,6 +9,9 @@ Every key lives under ``coload/{run}/`` so that concurrent runs on one router ne
     coload/{run}/agent/{i}/report     agent i -> simulator, at the end report(run, i)
     coload/{run}/alive/{role}/{id}    liveliness tokens                alive(run, role, id)
     coload/{run}/sim/control          simulator run notices            sim_control(run)
+    coload/{run}/hinf/{k}/{kind}      paper-003 runtime (meas, input,  hinf(run, k, kind)
+                                      state, report)
+    coload/{run}/hinf/control         its simulator's run notices      hinf_control(run)
 
 Builders validate their inputs (a ``*`` or ``/`` smuggled into a run name would silently widen a
 subscription); parsers return ``None`` for keys that are not ours, so callers can drop and count them.
@@ -185,3 +188,39 @@ def _match(pat: list[str], chunks: list[str]) -> bool:
     while p < len(pat) and pat[p] == "**":
         p += 1
     return p == len(pat)
+
+
+# ---- paper 003 runtime (coload hinf run) ---------------------------------------------------------
+HINF_KINDS: Final = ("meas", "input", "state", "report")
+"""``meas`` simulator -> estimator k (z^(k)); ``input`` k -> simulator (u_k and the estimate);
+``state`` k -> its out-neighbours; ``report`` k -> simulator at the end (receive-side counters)."""
+
+
+def hinf(run: str, k: int, kind: str) -> str:
+    """``coload/{run}/hinf/{k}/{kind}``."""
+    if kind not in HINF_KINDS:
+        raise ValueError(f"hinf key kind must be one of {HINF_KINDS}: {kind!r}")
+    return f"{ROOT}/{validate_run(run)}/hinf/{_check_id(k)}/{kind}"
+
+
+def hinf_all(run: str, kind: str) -> str:
+    """``coload/{run}/hinf/*/{kind}``: that kind from every estimator."""
+    if kind not in HINF_KINDS:
+        raise ValueError(f"hinf key kind must be one of {HINF_KINDS}: {kind!r}")
+    return f"{ROOT}/{validate_run(run)}/hinf/*/{kind}"
+
+
+def parse_hinf_key(key: str) -> AgentKey | None:
+    """``coload/{run}/hinf/{k}/{kind}`` -> ``AgentKey(run, k, kind)``; ``None`` for any other key."""
+    parts = key.split("/")
+    if len(parts) != 5 or parts[0] != ROOT or parts[2] != "hinf" or parts[4] not in HINF_KINDS:
+        return None
+    k = _parse_id(parts[3])
+    if k is None or not _is_chunk(parts[1]):
+        return None
+    return AgentKey(parts[1], k, parts[4])
+
+
+def hinf_control(run: str) -> str:
+    """``coload/{run}/hinf/control``: the hinf simulator's run notices (start / progress / done)."""
+    return f"{ROOT}/{validate_run(run)}/hinf/control"

@@ -29,6 +29,7 @@ import msgpack
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, ValidationError
 from pydantic_core import PydanticCustomError
 
+from net.hinf_messages import HinfInput, HinfMeas, HinfState
 from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
 
 SCHEMA_VERSION: Final = 1
@@ -46,6 +47,8 @@ MAX_PAIRS: Final = 1024
 MAX_PAIR_LEN: Final = 16
 """Most floats in one ``StateMsg.pair`` value."""
 MAX_COUNT: Final = 2**63 - 1
+MAX_VEC: Final = 1024
+"""Most floats in one vector of a paper-003 message (``HinfMeas.z``, ``HinfState.xhat``, ...)."""
 """Largest counter in an ``AgentReport``."""
 CONTROL_KINDS: Final = ("start", "progress", "stop", "done")
 
@@ -67,12 +70,15 @@ KIND: Final[dict[type, str]] = {
     Estimate: "estimate",
     Control: "control",
     AgentReport: "report",
+    HinfMeas: "hinf_meas",
+    HinfState: "hinf_state",
+    HinfInput: "hinf_input",
 }
 """Message-kind tag of each message type; the same words as the last chunk of its key expression."""
 TYPE_OF_KIND: Final[dict[str, type]] = {v: k for k, v in KIND.items()}
 
-Message = Union[Measurement, Wrench, StateMsg, Estimate, Control, AgentReport]
-Msg = TypeVar("Msg", Measurement, Wrench, StateMsg, Estimate, Control, AgentReport)
+Message = Union[Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, HinfMeas, HinfState, HinfInput]
+Msg = TypeVar("Msg", Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, HinfMeas, HinfState, HinfInput)
 
 
 class DecodeError(ValueError):
@@ -159,6 +165,31 @@ class _ReportBody(_Body):
     ticks: Tick
 
 
+Vec = Annotated[tuple[float, ...], Field(max_length=MAX_VEC)]
+
+
+class _HinfMeasBody(_Body):
+    tick: Tick
+    agent: AgentId
+    z: Vec
+
+
+class _HinfStateBody(_Body):
+    tick: Tick
+    sender: AgentId
+    xhat: Vec
+    u: Vec
+    zeta: Vec
+
+
+class _HinfInputBody(_Body):
+    tick: Tick
+    agent: AgentId
+    u: Vec
+    xhat: Vec
+    zeta: Vec
+
+
 _BODY: Final[dict[type, type[_Body]]] = {
     Measurement: _MeasurementBody,
     Wrench: _WrenchBody,
@@ -166,6 +197,9 @@ _BODY: Final[dict[type, type[_Body]]] = {
     Estimate: _EstimateBody,
     Control: _ControlBody,
     AgentReport: _ReportBody,
+    HinfMeas: _HinfMeasBody,
+    HinfState: _HinfStateBody,
+    HinfInput: _HinfInputBody,
 }
 
 # Pydantic error types -> reason token; anything else is bad_schema.
@@ -223,6 +257,22 @@ def _enc_report(m: AgentReport) -> dict[str, Any]:
     }
 
 
+def _vec(v: tuple[float, ...]) -> tuple[float, ...]:
+    return tuple(float(x) for x in v)
+
+
+def _enc_hinf_meas(m: HinfMeas) -> dict[str, Any]:
+    return {"tick": m.tick, "agent": m.agent, "z": _vec(m.z)}
+
+
+def _enc_hinf_state(m: HinfState) -> dict[str, Any]:
+    return {"tick": m.tick, "sender": m.sender, "xhat": _vec(m.xhat), "u": _vec(m.u), "zeta": _vec(m.zeta)}
+
+
+def _enc_hinf_input(m: HinfInput) -> dict[str, Any]:
+    return {"tick": m.tick, "agent": m.agent, "u": _vec(m.u), "xhat": _vec(m.xhat), "zeta": _vec(m.zeta)}
+
+
 _ENCODERS: Final = {
     Measurement: _enc_meas,
     Wrench: _enc_wrench,
@@ -230,6 +280,9 @@ _ENCODERS: Final = {
     Estimate: _enc_estimate,
     Control: _enc_control,
     AgentReport: _enc_report,
+    HinfMeas: _enc_hinf_meas,
+    HinfState: _enc_hinf_state,
+    HinfInput: _enc_hinf_input,
 }
 
 
@@ -324,4 +377,8 @@ def is_finite_message(msg: Message) -> bool:
         vals = [msg.vx, msg.vy, *msg.shared.values(), *(x for v in msg.pair.values() for x in v)]
     elif isinstance(msg, Estimate):
         vals = [*msg.values.values(), *(x for v in msg.pairs.values() for x in v)]
+    elif isinstance(msg, HinfMeas):
+        vals = list(msg.z)
+    elif isinstance(msg, (HinfState, HinfInput)):
+        vals = [*msg.xhat, *msg.u, *msg.zeta]
     return all(math.isfinite(v) for v in vals)

@@ -1,0 +1,529 @@
+"""Daemons of the paper-003 runtime: the LTI simulator and one estimator-controller per agent.
+
+They own no maths (``hinf.runtime`` does): they decode and validate what arrives (a bad message is
+dropped and counted by reason, never raised), pass neighbour states through the receive-side link
+model and a ``DelayLine`` exactly as ``runtime.run_inproc`` does, and step the pure cores.
+
+Lockstep: the simulator is the clock. It publishes z^(k)(t) to every estimator, waits for every live
+estimator's u_k(t) (a timeout is counted and the last u_k held), records, then steps the plant. An
+estimator steps tick t once it has z^(k)(t) and its live in-neighbours' states sent at t - 1 (a
+timeout is counted; the neighbour's last data is held). Real time: the simulator steps at wall-clock
+rate and applies the latest u_k it has; an estimator steps as soon as z arrives, with what it has.
+
+Key expressions (``net.keys``): coload/{run}/hinf/{k}/meas|input|state|report, coload/{run}/hinf/control,
+liveliness coload/{run}/alive/hinf/{k} and coload/{run}/alive/hinfsim/0.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sys
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from net import keys
+from net.hinf_messages import HinfInput, HinfMeas, HinfState
+from net.link import DelayLine, LinkStats
+from net.messages import AgentReport, Control
+from net.schema import DecodeError, decode, encode
+from net.transport import Transport
+
+from .runtime import EstimatorCore, PlantCore, Setup, Trace, TraceWriter, deliver_tick, in_links
+
+log = logging.getLogger("coload.hinf")
+
+MAX_TICK_LEAD = 10_000
+"""A measurement or state further ahead than this many ticks is treated as hostile."""
+
+
+def _resolve(fut: asyncio.Future[None]) -> None:
+    if not fut.done():
+        fut.set_result(None)
+
+
+class _Waiter:
+    """One condition at a time, re-checked by :meth:`poke` on every input; a future per wait."""
+
+    def __init__(self) -> None:
+        self._waiting: tuple[Callable[[], bool], asyncio.Future[None]] | None = None
+
+    def poke(self) -> None:
+        if self._waiting is not None:
+            cond, fut = self._waiting
+            if not fut.done() and cond():
+                fut.set_result(None)
+
+    async def wait_for(self, cond: Callable[[], bool], timeout: float) -> bool:
+        if cond():
+            return True
+        loop = asyncio.get_running_loop()
+        fut = loop.create_future()
+        self._waiting = (cond, fut)
+        timer = loop.call_later(max(0.0, timeout), _resolve, fut)
+        try:
+            await fut
+        finally:
+            timer.cancel()
+            self._waiting = None
+        return cond()
+
+
+# ----------------------------------------------------------------------------- simulator
+
+
+class HinfSimDaemon:
+    """The N LTI agents behind a transport; records a :class:`runtime.Trace`."""
+
+    def __init__(self, setup: Setup, transport: Transport, run: str,
+                 progress: Callable[[int, int], None] | None = None) -> None:
+        self.setup = setup
+        self.transport = transport
+        self.run_name = run
+        self.progress = progress
+        self.N = setup.N
+        self.mode = setup.spec.run.mode
+        self.plant = PlantCore(setup)
+        self.rec = TraceWriter(setup)
+        self.alive: set[int] = set()
+        self.drops: Counter[str] = Counter()
+        self.input_timeouts = 0
+        self.reports: dict[int, AgentReport] = {}
+        self.tick = 0
+        self.inputs: dict[int, HinfInput] = {}  # lockstep: tick's inputs; realtime: newest per agent
+        self.last_u = [setup.input_law(k, np.zeros(setup.net.n[k]), setup.zeta0[k]) for k in range(self.N)]
+        self.waiter = _Waiter()
+        self._subs: list = []
+        self._ids = {keys.hinf(run, k, kind): k for k in range(self.N) for kind in ("input", "report")}
+        self._meas_keys = [keys.hinf(run, k, "meas") for k in range(self.N)]
+        self.wall_s = 0.0
+
+    def _agent_of(self, key: str) -> int | None:
+        k = self._ids.get(key)
+        if k is None:
+            self.drops["unknown_sender"] += 1
+        return k
+
+    def _decode(self, payload: bytes, kind: type):
+        try:
+            return decode(payload, kind)
+        except DecodeError as exc:
+            self.drops[exc.reason] += 1
+            return None
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        parsed = keys.parse_alive(key)
+        if parsed is None or parsed[1] != "hinf" or not 0 <= parsed[2] < self.N:
+            return
+        (self.alive.add if alive else self.alive.discard)(parsed[2])
+        self.waiter.poke()
+
+    def _on_input(self, key: str, payload: bytes) -> None:
+        k = self._agent_of(key)
+        msg = self._decode(payload, HinfInput) if k is not None else None
+        if msg is None:
+            return
+        s = self.setup
+        if msg.agent != k:
+            self.drops["spoofed_sender"] += 1
+            return
+        if (len(msg.u) != s.B[k].shape[1] or len(msg.xhat) != s.locs[k].sigma or len(msg.zeta) != s.nu):
+            self.drops["bad_shape"] += 1
+            return
+        if msg.tick > self.tick:
+            self.drops["future"] += 1
+            return
+        if self.mode == "lockstep":
+            if msg.tick < self.tick:
+                self.drops["stale"] += 1
+                return
+            if k in self.inputs:
+                self.drops["duplicate"] += 1
+                return
+        else:
+            old = self.inputs.get(k)
+            if old is not None and msg.tick <= old.tick:
+                self.drops["stale"] += 1
+                return
+        self.inputs[k] = msg
+        self.rec.input(msg)
+        self.waiter.poke()
+
+    def _on_report(self, key: str, payload: bytes) -> None:
+        k = self._agent_of(key)
+        rep = self._decode(payload, AgentReport) if k is not None else None
+        if rep is None:
+            return
+        if rep.agent != k:
+            self.drops["spoofed_sender"] += 1
+            return
+        if self.tick < self.setup.ticks:
+            self.drops["early"] += 1
+            return
+        self.reports.setdefault(k, rep)
+        self.waiter.poke()
+
+    def _control(self, kind: str, tick: int) -> None:
+        self.transport.publish(keys.hinf_control(self.run_name), encode(Control(kind, tick, self.setup.ticks)))
+
+    async def run(self) -> tuple[Trace, dict[str, Any]]:
+        t, run = self.transport, self.run_name
+        self._subs += [
+            t.subscribe(keys.hinf_all(run, "input"), self._on_input),
+            t.subscribe(keys.hinf_all(run, "report"), self._on_report),
+            t.watch_alive(keys.alive_all(run, "hinf"), self._on_alive),
+            t.declare_alive(keys.alive(run, "hinfsim", 0)),
+        ]
+        try:
+            return await self._run()
+        finally:
+            for s in reversed(self._subs):
+                s.close()
+            self._subs.clear()
+
+    async def _run(self) -> tuple[Trace, dict[str, Any]]:
+        s, run = self.setup, self.setup.spec.run
+        events: list[dict[str, Any]] = []
+        if not await self.waiter.wait_for(lambda: len(self.alive) == self.N, run.timing.startup_timeout_s):
+            missing = sorted(set(range(self.N)) - self.alive)
+            log.warning("starting without estimators %s", missing)
+            events.append({"tick": 0, "event": "start_without", "agents": missing})
+        self._control("start", 0)
+        ticks, dt = s.ticks, s.dt
+        every = max(1, ticks // 100)
+        wall0 = time.perf_counter()
+        lockstep = self.mode == "lockstep"
+        for k in range(ticks):
+            if not lockstep:
+                lag = wall0 + k * dt - time.perf_counter()
+                if lag > 0:
+                    await asyncio.sleep(lag)
+            self.tick = k
+            if lockstep:
+                self.inputs = {}
+            zs = self.plant.measure(k)
+            self.rec.truth(k, self.plant)
+            for i, z in enumerate(zs):
+                self.transport.publish(self._meas_keys[i], encode(HinfMeas(k, i, z)))
+            if lockstep:
+                if not await self.waiter.wait_for(lambda: self.alive <= self.inputs.keys(), run.timing.input_timeout_s):
+                    self.input_timeouts += 1
+                    log.warning("tick %d: no input from %s", k, sorted(self.alive - self.inputs.keys()))
+            else:
+                await self.waiter.wait_for(
+                    lambda: all(m.tick == self.tick for m in self.inputs.values()) and len(self.inputs) == self.N,
+                    wall0 + (k + 1) * dt - time.perf_counter())
+            for i, m in self.inputs.items():
+                self.last_u[i] = np.asarray(m.u)
+            self.rec.applied(k, self.last_u)
+            self.plant.step(self.last_u)
+            if k % every == 0 or k == ticks - 1:
+                self._control("progress", k + 1)
+                if self.progress is not None:
+                    self.progress(k + 1, ticks)
+        self.wall_s = time.perf_counter() - wall0
+        self.tick = ticks
+        self._control("done", ticks)
+        expected = set(self.alive)
+        if not await self.waiter.wait_for(lambda: expected <= self.reports.keys(), run.timing.startup_timeout_s):
+            log.warning("no end-of-run report from estimators %s", sorted(expected - self.reports.keys()))
+        return self.rec.trace, self._info(events)
+
+    def _info(self, events: list[dict[str, Any]]) -> dict[str, Any]:
+        links: dict[str, dict[str, int]] = {}
+        drops: Counter[str] = Counter({f"sim:{r}": c for r, c in self.drops.items()})
+        timeouts = 0
+        held = {}
+        for k, rep in sorted(self.reports.items()):
+            for j, c in sorted(rep.links.items()):
+                links[f"{j}->{k}"] = dict(c)
+            held[str(k)] = rep.drops.get("_held", 0)
+            drops.update({f"{k}:{r}": c for r, c in rep.drops.items() if not r.startswith("_")})
+            timeouts += rep.timeouts
+        return {"links": dict(sorted(links.items())), "drops": dict(sorted(drops.items())),
+                "timeouts": {"input": self.input_timeouts, "neighbour": timeouts}, "held": held,
+                "events": events, "agents_reported": sorted(self.reports), "wall_s": self.wall_s}
+
+
+# ----------------------------------------------------------------------------- estimator
+
+
+class HinfAgentDaemon:
+    """Estimator-controller k: schedules one :class:`runtime.EstimatorCore` over a transport."""
+
+    def __init__(self, setup: Setup, k: int, transport: Transport, run: str) -> None:
+        if not 0 <= k < setup.N:
+            raise ValueError(f"--id {k} is not an agent of this spec (0..{setup.N - 1})")
+        self.setup, self.id, self.transport, self.run_name = setup, k, transport, run
+        self.mode = setup.spec.run.mode
+        self.core = EstimatorCore(setup, k)
+        self.nbrs = setup.nbrs(k)
+        self.links = in_links(setup, k, self.mode)
+        self.stats = {j: LinkStats() for j in self.nbrs}
+        self.line: DelayLine = DelayLine()
+        self.drops: Counter[str] = Counter()
+        self.timeouts = 0
+        self.next_tick = 0
+        self.last_meas = -1
+        self.last_z: tuple[float, ...] | None = None
+        self.pending: dict[int, tuple[float, ...]] = {}
+        self.last_from = {j: -1 for j in self.nbrs}
+        self.expect = set(self.nbrs)
+        self.done = asyncio.Event()
+        self._timer: asyncio.TimerHandle | None = None
+        self._subs: list = []
+        self._k_input = keys.hinf(run, k, "input")
+        self._k_state = keys.hinf(run, k, "state")
+        self._state_keys = {keys.hinf(run, j, "state"): j for j in self.nbrs}
+        self.nz = setup.net.r * len(self.nbrs)
+        self.ticks_stepped = 0
+
+    def start(self) -> None:
+        t, run, k = self.transport, self.run_name, self.id
+        self._subs.append(t.subscribe(keys.hinf(run, k, "meas"), self._on_meas))
+        for j in self.nbrs:
+            self._subs.append(t.subscribe(keys.hinf(run, j, "state"), self._on_state))
+        self._subs.append(t.subscribe(keys.hinf_control(run), self._on_control))
+        self._subs.append(t.watch_alive(keys.alive_all(run, "hinf"), self._on_alive))
+        self._subs.append(t.declare_alive(keys.alive(run, "hinf", k)))
+        log.info("estimator %d up: in-neighbours %s, mode %s", k, self.nbrs, self.mode)
+
+    async def run(self) -> AgentReport:
+        self.start()
+        try:
+            await self.done.wait()
+        finally:
+            if self._timer is not None:
+                self._timer.cancel()
+            for s in reversed(self._subs):
+                s.close()
+            self._subs.clear()
+        return self.report()
+
+    def report(self) -> AgentReport:
+        drops = dict(self.drops)
+        drops["_held"] = self.core.held  # ticks stepped with some neighbour's data held (not a drop)
+        return AgentReport(self.id, {j: s.as_dict() for j, s in self.stats.items()}, drops, self.timeouts,
+                           self.ticks_stepped)
+
+    def _decode(self, payload: bytes, kind: type, link: int | None = None):
+        try:
+            return decode(payload, kind)
+        except DecodeError as exc:
+            self.drops[exc.reason] += 1
+            if link is not None:
+                self.stats[link].malformed += 1
+            return None
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        parsed = keys.parse_alive(key)
+        if parsed is None or alive or parsed[2] not in self.last_from:
+            return
+        self.expect.discard(parsed[2])  # back in with its next message
+        self._try_step()
+
+    def _on_control(self, _key: str, payload: bytes) -> None:
+        msg = self._decode(payload, Control)
+        if msg is None:
+            return
+        if msg.ticks != self.setup.ticks:
+            self.drops["bad_control"] += 1
+            return
+        if msg.kind == "done" and msg.tick == msg.ticks:
+            self.transport.publish(keys.hinf(self.run_name, self.id, "report"), encode(self.report()))
+            self.done.set()
+
+    def _on_meas(self, _key: str, payload: bytes) -> None:
+        m = self._decode(payload, HinfMeas)
+        if m is None:
+            return
+        if m.agent != self.id:
+            self.drops["wrong_agent"] += 1
+            return
+        if len(m.z) != self.nz:
+            self.drops["bad_shape"] += 1
+            return
+        if m.tick <= self.last_meas or m.tick < self.next_tick:
+            self.drops["stale"] += 1
+            return
+        if m.tick > self.next_tick + MAX_TICK_LEAD or (self.mode == "lockstep" and m.tick != self.last_meas + 1):
+            self.drops["future"] += 1  # the lockstep simulator never skips a tick
+            return
+        self.last_meas = m.tick
+        if self.mode == "realtime":
+            # act on the newest data: the ticks we never got are stepped with the last z held
+            z_hold = self.last_z if self.last_z is not None else m.z
+            for t in range(self.next_tick, m.tick):
+                self._step(t, z_hold, publish=False)
+        self.pending[m.tick] = m.z
+        self._try_step()
+
+    def _on_state(self, key: str, payload: bytes) -> None:
+        sender = self._state_keys.get(key)
+        if sender is None:
+            self.drops["unknown_sender"] += 1
+            return
+        msg = self._decode(payload, HinfState, link=sender)
+        if msg is None:
+            return
+        s = self.setup
+        if msg.sender != sender:
+            self.drops["spoofed_sender"] += 1
+            return
+        if len(msg.xhat) != s.net.n[sender] or len(msg.u) != s.B[sender].shape[1] or len(msg.zeta) != s.nu:
+            self.drops["bad_shape"] += 1
+            self.stats[sender].malformed += 1
+            return
+        last = self.last_from[sender]
+        if msg.tick <= last:
+            self.drops["stale"] += 1
+            return
+        if msg.tick > self.next_tick + MAX_TICK_LEAD or (self.mode == "lockstep" and msg.tick != last + 1):
+            self.drops["future"] += 1
+            return
+        self.last_from[sender] = msg.tick
+        self.expect.add(sender)
+        st, link = self.stats[sender], self.links[sender]
+        st.sent += 1
+        delays = link.deliveries(msg.tick)
+        if not delays:
+            st.count_lost(link, msg.tick)
+        for copy, d in enumerate(delays):
+            due = deliver_tick(msg.tick, d, s.dt, self.mode)
+            if due < self.next_tick:
+                st.late += 1
+            self.line.push(due, sender, msg.tick, copy, msg)
+        st.delivered += len(delays)
+        st.duplicated += max(0, len(delays) - 1)
+        self._try_step()
+
+    def _ready(self, t: int) -> bool:
+        return self.mode == "realtime" or t == 0 or all(self.last_from[j] >= t - 1 for j in self.expect)
+
+    def _try_step(self) -> None:
+        while self.next_tick in self.pending:
+            t = self.next_tick
+            if not self._ready(t):
+                if self._timer is None:
+                    self._timer = asyncio.get_running_loop().call_later(
+                        self.setup.spec.run.timing.neighbour_timeout_s, self._on_timeout, t)
+                return
+            self._step(t, self.pending.pop(t))
+
+    def _on_timeout(self, t: int) -> None:
+        self._timer = None
+        if self.next_tick != t:
+            return
+        missing = [j for j in self.expect if self.last_from[j] < t - 1]
+        log.warning("estimator %d: tick %d: no state from %s in time; holding their last data", self.id, t, missing)
+        self.timeouts += 1
+        self.expect.difference_update(missing)
+        self._try_step()
+
+    def _step(self, t: int, z: tuple[float, ...], publish: bool = True) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        inp, st = self.core.step(t, z, self.line.pop_due(t))
+        self.last_z = z
+        if publish:
+            self.transport.publish(self._k_input, encode(inp))  # first: the simulator waits for it
+        self.transport.publish(self._k_state, encode(st))
+        self.next_tick = t + 1
+        self.ticks_stepped += 1
+
+
+# ----------------------------------------------------------------------------- running them
+
+
+async def run_daemons_in_memory(setup: Setup, run: str = "hinf-mem") -> tuple[Trace, dict[str, Any]]:
+    """Simulator and estimators on the in-memory transport in this loop: the daemons' code paths
+    (codec, link model, lockstep waits) without sockets; the fast way to test them."""
+    from net.memory import MemoryBus, MemoryTransport
+
+    loop = asyncio.get_running_loop()
+    bus = MemoryBus()
+    ts = [MemoryTransport(bus, loop) for _ in range(setup.N + 1)]
+    agents = [HinfAgentDaemon(setup, k, ts[k], run) for k in range(setup.N)]
+    tasks = [asyncio.ensure_future(a.run()) for a in agents]
+    try:
+        trace, info = await HinfSimDaemon(setup, ts[-1], run).run()
+        await asyncio.wait_for(asyncio.gather(*tasks), 10.0)
+    finally:
+        for t in tasks:
+            t.cancel()
+        for t in ts:
+            t.close()
+    return trace, info
+
+
+def run_processes(setup: Setup, run_dir: Path, quiet: bool = False, verbose: int = 0) -> bool:
+    """An embedded Zenoh router, the simulator and one estimator daemon per agent, each its own process.
+
+    ``run_dir`` must already hold spec.json and design.json (``hinf.report.prepare_run_dir``); the
+    simulator writes the rest. Returns True if the simulator finished.
+    """
+    import zenoh
+
+    from coload.orchestrate import ProgressBar, _Children, _read_line, run_name_for
+    from net.zenoh_transport import free_tcp_port, zenoh_config
+
+    run_dir = Path(run_dir)
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    run = run_name_for(run_dir)
+    py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)
+    children = _Children(run_dir / "logs")
+    bar = ProgressBar(f"{setup.spec.name} (zenoh, {setup.N} estimators)", quiet)
+    try:
+        router = children.start("router", [*py, "router", "--listen", endpoint], pipe_stdout=True)
+        line = _read_line(router.stdout, 30.0)
+        if not line or not line.startswith("ready"):
+            print(f"coload hinf run: the router did not come up (see {run_dir / 'logs' / 'router.log'})",
+                  file=sys.stderr)
+            return False
+        common = [str(run_dir), "--connect", endpoint, "--run", run]
+        sim = children.start("sim", [*py, "hinf", "sim", *common])
+        for k in range(setup.N):
+            children.start(f"estimator-{k}", [*py, "hinf", "agent", "--id", str(k), *common])
+        progressed = threading.Event()
+        state = {"tick": 0}
+
+        def on_control(sample: Any) -> None:  # Zenoh thread: record and signal only
+            try:
+                msg = decode(sample.payload.to_bytes(), Control)
+            except DecodeError:
+                return
+            state["tick"] = msg.tick
+            progressed.set()
+
+        conf = zenoh_config(mode="client", connect=[endpoint], listen=[])
+        run_spec = setup.spec.run
+        budget = 120.0 + run_spec.timing.startup_timeout_s + 50.0 * run_spec.duration
+        with zenoh.open(conf) as session:
+            session.declare_subscriber(keys.hinf_control(run), on_control)
+            deadline = time.monotonic() + budget
+            while sim.poll() is None:
+                if progressed.wait(0.5):
+                    progressed.clear()
+                    bar(state["tick"], setup.ticks)
+                bad = children.crashed()
+                if bad:
+                    print(f"coload hinf run: {', '.join(bad)} exited with an error (logs in {run_dir / 'logs'})",
+                          file=sys.stderr)
+                    if "sim" in bad:
+                        return False
+                if time.monotonic() > deadline:
+                    print("coload hinf run: the run exceeded its time budget; stopping", file=sys.stderr)
+                    return False
+        bar(setup.ticks, setup.ticks)
+        children.stop([n for n in children.procs if n.startswith("estimator-")], let_finish=10.0)
+        return sim.returncode == 0
+    finally:
+        children.close()
