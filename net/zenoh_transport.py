@@ -9,14 +9,26 @@ drop, a hung one when its lease expires.
 
 Configs are explicit: endpoints are listed, multicast scouting is off, nothing listens beyond the
 endpoints given (coload runs on loopback or on the hosts named in the compose file).
+
+Dead links (a cable pulled, a robot out of range): Zenoh sets ``SO_LINGER`` = 10 s on its TCP
+sockets (a compile-time constant, no config key). When a lease expires on a link whose peer is
+unreachable, the socket still holds unsent data, so closing it blocks the closing thread for 10 s;
+a router closes on its RX runtime threads (two of them), so two dead links froze the whole router
+for 10 s (measured: tests/test_netns.py, docs/faults.md; upstream eclipse-zenoh/zenoh#1101).
+:class:`_LingerGuard` turns the linger off on this process's TCP sockets, so a close returns at once
+and the kernel flushes or drops the data in the background. Every session and router opened here
+runs it.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import os
 import signal
 import socket
+import stat
+import struct
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -28,6 +40,111 @@ import zenoh
 from net.transport import OnAliveChange, OnSample, Subscription, Transport, _Closable, _Handles
 
 Mode = Literal["peer", "client", "router"]
+
+#: Reconnection to a lost router (client) or peer: first retry after 200 ms, then at most every 1 s
+#: (Zenoh's default backs off to 4 s, too slow for a link that heals during a run).
+RETRY = {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 2}
+
+_FD_DIR = "/proc/self/fd"
+_NO_LINGER = struct.pack("ii", 0, 0)  # l_onoff = 0: close returns at once, the kernel finishes
+
+
+def disable_linger_once(seen: set[int] | None = None) -> int:
+    """Turn ``SO_LINGER`` off on every TCP socket of this process; returns how many were changed.
+
+    Linux only (reads /proc/self/fd); elsewhere it does nothing. ``seen`` (socket inodes already
+    handled) keeps repeated scans cheap. A socket is reached through a duplicate of its descriptor,
+    so it shares the option with Zenoh's own descriptor; the duplicate is closed right away.
+    """
+    try:
+        names = os.listdir(_FD_DIR)
+    except OSError:
+        return 0
+    changed = 0
+    for name in names:
+        try:
+            fd = int(name)
+            st = os.fstat(fd)
+        except (ValueError, OSError):
+            continue  # closed since the listing
+        if not stat.S_ISSOCK(st.st_mode) or (seen is not None and st.st_ino in seen):
+            continue
+        try:
+            sock = socket.socket(fileno=os.dup(fd))
+        except OSError:
+            continue
+        try:
+            if sock.type == socket.SOCK_STREAM and sock.family in (socket.AF_INET, socket.AF_INET6):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, _NO_LINGER)
+                changed += 1
+            if seen is not None:
+                seen.add(st.st_ino)
+        except OSError:
+            pass
+        finally:
+            sock.close()  # closes the duplicate only
+    return changed
+
+
+class _LingerGuard:
+    """A background thread that runs :func:`disable_linger_once` every ``period`` s while at least
+    one Zenoh session or router of this process is open (reference counted).
+
+    Zenoh opens sockets on its own threads (accepts, reconnections), so they are found by polling;
+    a scan of a daemon's ~20 descriptors costs tens of microseconds. Only a link that is opened and
+    dies within one period keeps Zenoh's linger.
+    """
+
+    def __init__(self, period: float = 0.2) -> None:
+        self.period = period
+        self._lock = threading.Lock()
+        self._users = 0
+        self._stop: threading.Event | None = None
+
+    def acquire(self) -> None:
+        with self._lock:
+            self._users += 1
+            if self._stop is None:
+                self._stop = threading.Event()
+                threading.Thread(target=self._loop, args=(self._stop,), name="coload-linger",
+                                 daemon=True).start()
+
+    def release(self) -> None:
+        with self._lock:
+            self._users = max(0, self._users - 1)
+            if self._users == 0 and self._stop is not None:
+                self._stop.set()
+                self._stop = None
+
+    def _loop(self, stop: threading.Event) -> None:
+        seen: set[int] = set()
+        while True:
+            disable_linger_once(seen)
+            if stop.wait(self.period):
+                return
+
+
+_linger_guard = _LingerGuard()
+
+
+def open_session(config: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open`` with the linger guard running for the session's life (see the module doc);
+    close it with :func:`close_session`."""
+    _linger_guard.acquire()
+    try:
+        session = zenoh.open(config)
+    except BaseException:
+        _linger_guard.release()
+        raise
+    disable_linger_once()  # the links opened by zenoh.open, without waiting for the first poll
+    return session
+
+
+def close_session(session: zenoh.Session) -> None:
+    try:
+        session.close()
+    finally:
+        _linger_guard.release()
 
 
 def zenoh_config(
@@ -44,6 +161,8 @@ def zenoh_config(
     session listens nowhere (Zenoh's default would be every interface). ``lease_ms`` shortens the
     lease after which a silent (hung, partitioned) session is declared dead; default 10 s.
     ``config_file`` (a Zenoh JSON5 config) is the base; the arguments above override its keys.
+    Clients and peers retry a lost connection after 200 ms, then every 1 s at most (:data:`RETRY`),
+    unless the config file sets ``connect/retry`` itself.
     """
     if mode not in ("peer", "client", "router"):
         raise ValueError(f"mode must be peer, client or router: {mode!r}")
@@ -56,6 +175,8 @@ def zenoh_config(
         if lease_ms <= 0:
             raise ValueError("lease_ms must be positive")
         conf.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
+    if mode != "router" and json.loads(conf.get_json("connect/retry")) is None:
+        conf.insert_json5("connect/retry", json.dumps(RETRY))
     return conf
 
 
@@ -65,7 +186,7 @@ def open_router(
     """Open an embedded Zenoh router listening on ``listen``; the caller closes the session."""
     if not listen:
         raise ValueError("a router needs at least one listen endpoint")
-    return zenoh.open(zenoh_config("router", listen=listen, lease_ms=lease_ms, config_file=config_file))
+    return open_session(zenoh_config("router", listen=listen, lease_ms=lease_ms, config_file=config_file))
 
 
 def _print_ready(listen: Sequence[str]) -> None:
@@ -97,7 +218,7 @@ def run_router(
         while not stop.wait(1.0):  # a timed wait keeps the main thread responsive to signals
             pass
     finally:
-        session.close()
+        close_session(session)
     return 0
 
 
@@ -128,7 +249,7 @@ class ZenohTransport(Transport):
     ) -> None:
         self._loop = loop if loop is not None else asyncio.get_running_loop()
         self._express = express
-        self._session = zenoh.open(config)
+        self._session = open_session(config)
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._handles = _Handles()
         self._closed = False
@@ -268,4 +389,4 @@ class ZenohTransport(Transport):
         for pub in self._pubs.values():
             pub.undeclare()
         self._pubs.clear()
-        self._session.close()
+        close_session(self._session)
