@@ -85,14 +85,17 @@ def summarize(setup: Setup, trace: Trace, info: dict[str, Any]) -> dict[str, Any
     bound_ratio = float(np.nanmax(V[ok] * np.exp(alpha * t[ok]) / V[0])) if V[0] > 0 else None
     en = np.linalg.norm(e, axis=1)
     half = t >= t[-1] / 2
+    # the alpha guarantee is about disturbance-free runs that start with an error
+    undisturbed = run.disturbance.kind == "none" and V[0] > 0
     decay = {
         "alpha": alpha,
+        "applies": undisturbed,
         "V0": float(V[0]),
         "V_final": float(V[-1]),
         "V_rate_overall": float(-math.log(V[-1] / V[0]) / t[-1]) if V[0] > 0 and V[-1] > 0 else None,
         "V_rate_fit": _rate(t, V, 1e-24),
         "max_V_exp_alpha_t_over_V0": bound_ratio,
-        "alpha_bound_holds": bool(bound_ratio is not None and bound_ratio <= 1.0 + 1e-9),
+        "alpha_bound_holds": bool(bound_ratio <= 1.0 + 1e-9) if undisturbed and bound_ratio is not None else None,
         "error_rate_second_half": _rate(t[half], en[half], 1e-12),
         "continuous_error_rate": float(-np.linalg.eigvals(_cont_A(setup)).real.max()),
     }
