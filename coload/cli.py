@@ -110,6 +110,22 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario field (dotted key, TOML value; repeatable)")
 
+    p = sub.add_parser("arms", help="agents that are two-link arms with encoders only (paper 004 observer in the loop)",
+                       description="Agents that are planar two-link arms on fixed bases, holding the load through "
+                                   "pivots, with joint encoders and wrist force sensors but no speed sensor (issue 7).")
+    asub = p.add_subparsers(dest="arms_command", required=True, metavar="ACTION")
+    q = asub.add_parser("run", help="arm agents vs velocity-measuring agents on the same load; comparison report",
+                        description="Run a scenario with an [arms] section (e.g. config/scenarios/arms-rocking.toml) "
+                                    "twice in-process on the same load and seed: arm agents (speed observer + "
+                                    "Jacobian) and velocity-measuring agents. Writes OUT/observer/ and "
+                                    "OUT/velocity/ (run directories), OUT/comparison.json and OUT/comparison.png, "
+                                    "and prints the comparison table. See docs/speed-observer.md.")
+    _add_scenario_args(q)
+    q.add_argument("--out", type=Path, required=True, help="output directory")
+    q.add_argument("--no-batch-fit", action="store_true",
+                   help="skip the centralized batch fit of m and J on each run's samples.csv")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+
     p = sub.add_parser("hinf", help="cooperative H-infinity estimation from relative measurements (paper 003)",
                        description="Cooperative H-infinity estimators and synchronization controllers (paper 003).")
     hsub = p.add_subparsers(dest="hinf_command", required=True, metavar="ACTION")
@@ -282,6 +298,21 @@ def cmd_observer(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_arms(args: argparse.Namespace) -> int:
+    from coload.arm_run import run_arms_cli
+    from simulator.arms import ArmSetupError
+
+    scenario = _scenario(args)
+    try:
+        _, table = run_arms_cli(scenario, args.out, batch_fit=not args.no_batch_fit, quiet=args.quiet)
+    except (ArmSetupError, ValueError) as exc:
+        print(f"coload arms run: {args.scenario}: {exc}", file=sys.stderr)
+        return 2
+    print(table)
+    print(f"runs: {args.out / 'observer'}, {args.out / 'velocity'}; comparison: {args.out / 'comparison.png'}")
+    return 0
+
+
 def cmd_hinf(args: argparse.Namespace) -> int:
     from hinf import SpecError, design_cli
     from hinf.design import HinfDesignError
@@ -401,7 +432,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
-            "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf}
+            "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
+            "arms": cmd_arms}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
