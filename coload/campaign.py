@@ -97,6 +97,8 @@ FIG7_PANELS = (
     ("m_rel", "RE of m"),
     ("finished_s", "finished (s)"),
 )
+LINEAR_COLUMNS = frozenset({"finished_s"})
+"""Panels on a linear axis (times); errors spanning decades get a log axis when all are positive."""
 # Fig. 8: relative errors before (local least squares) and after the averaging consensus.
 FIG8_PANELS = (("J_local_rel", "J_rel", "J"), ("m_local_rel", "m_rel", "m"))
 
@@ -438,7 +440,7 @@ def _box_panel(ax: Any, rows: Sequence[dict[str, Any]], col: str, label: str, ns
                 patch.set_facecolor(colours[a])
             for med in bp["medians"]:
                 med.set_color("black")
-    if positive:
+    if positive and col not in LINEAR_COLUMNS:
         ax.set_yscale("log")
     ax.set_xticks(range(len(sigmas)), [f"{s:g}" for s in sigmas])
     ax.set_ylabel(label)
@@ -468,7 +470,7 @@ def plot_campaign(rows: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     written: list[Path] = []
     panels = [(c, lab) for c, lab in FIG7_PANELS if c in has]
     if panels:
-        fig, axes = plt.subplots(len(panels), 1, figsize=(max(7.0, 1.1 * len(sigmas) * max(1, len(ns)) ** 0.5 + 3),
+        fig, axes = plt.subplots(len(panels), 1, figsize=(min(20.0, max(7.0, 0.25 * len(sigmas) * len(ns) + 4)),
                                                           2.2 * len(panels) + 0.8), squeeze=False, sharex=True)
         for ax, (col, lab) in zip(axes[:, 0], panels, strict=True):
             _box_panel(ax, rows, col, lab, ns, sigmas)
@@ -483,7 +485,9 @@ def plot_campaign(rows: Sequence[dict[str, Any]], out: Path) -> list[Path]:
         written.append(path)
     pairs = [(lo, hi, q) for lo, hi, q in FIG8_PANELS if lo in has and hi in has]
     if pairs:
-        fig, axes = plt.subplots(len(pairs), 2, figsize=(13, 2.6 * len(pairs) + 0.8), squeeze=False, sharey="row")
+        wide = min(12.0, max(5.0, 0.2 * len(sigmas) * len(ns) + 2))
+        fig, axes = plt.subplots(len(pairs), 2, figsize=(2 * wide, 2.6 * len(pairs) + 0.8), squeeze=False,
+                                 sharey="row")
         for row_axes, (lo, hi, q) in zip(axes, pairs, strict=True):
             _box_panel(row_axes[0], rows, lo, f"RE of {q}, before consensus", ns, sigmas)
             _box_panel(row_axes[1], rows, hi, f"RE of {q}, after consensus", ns, sigmas)
