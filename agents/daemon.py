@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections import Counter
+from collections.abc import Callable
 
 from coload.engine import deliver_tick
 from coload.world import build_agent
@@ -38,10 +40,24 @@ MAX_TICK_LEAD = 10_000
 # the link model and made every genuine state of that neighbour look stale (a silent corruption).
 # What no rule at the edge can catch is a well-formed forgery of exactly the next tick that arrives
 # before the genuine message: that needs authenticated publishers (Zenoh access control / TLS).
+#
+# The simulator's liveliness token tells the agent when it lost the simulator (the simulator died,
+# or this agent's own link went down) and when it is back. While it is gone a lockstep agent simply
+# waits for its next measurement. When it comes back the agent re-publishes its last wrench and
+# estimate (a restarted simulator resumes at the tick it had not finished and may have missed them),
+# and takes the next measurement even if it skips ticks (the run went on while this agent was cut
+# off): no rejoin_after_s hold then.
 
 
 class AgentDaemon:
-    def __init__(self, scenario: Scenario, agent_id: int, transport: Transport, run: str) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        agent_id: int,
+        transport: Transport,
+        run: str,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         if not 0 <= agent_id < scenario.n:
             raise ValueError(f"--id {agent_id} is not an agent of this scenario (0..{scenario.n - 1})")
         self.scenario = scenario
@@ -77,6 +93,12 @@ class AgentDaemon:
         self._state_keys = {keys.state(run, j): j for j in self.neighbours}  # parsed once, not per sample
         self._record_every = scenario.record.every_ticks
         self.ticks_stepped = 0
+        self.clock = clock  # wall clock (s): only the real-time age check reads it
+        self._meas_wall: dict[int, float] = {}  # real time: when each pending measurement arrived
+        self.max_age_ticks = scenario.timing.max_age_s / scenario.dt
+        self.sim_alive = False
+        self._sim_lost = False  # the simulator's token went away after the run started; cleared by a measurement
+        self._resend: dict[str, bytes] = {}  # key -> last wrench / estimate published, re-sent to a returning simulator
 
     # ---- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
@@ -129,10 +151,28 @@ class AgentDaemon:
         if parsed is None:
             return
         _, role, ident = parsed
+        if role == "sim":
+            self._on_sim_alive(alive)
+            return
         if alive or role != "agent" or ident not in self.last_from:
             return  # a neighbour that comes back is waited for again from its first message
         self.expect.discard(ident)
         self._try_step()
+
+    def _on_sim_alive(self, alive: bool) -> None:
+        if alive == self.sim_alive:
+            return
+        self.sim_alive = alive
+        if not alive:
+            if self.done.is_set() or not (self.seen_start or self.ticks_stepped):
+                return  # the run is over, or has not started
+            self._sim_lost = True
+            log.warning("agent %d: the simulator is gone (next tick %d); waiting for it", self.id, self.next_tick)
+            return
+        if self._sim_lost:
+            log.info("agent %d: the simulator is back; re-sending the last wrench and estimate", self.id)
+            for key, payload in self._resend.items():
+                self.transport.publish(key, payload)
 
     def _on_control(self, _key: str, payload: bytes) -> None:
         msg = self._decode(payload, Control)
@@ -154,14 +194,29 @@ class AgentDaemon:
         if m.agent != self.id:
             self.drops["wrong_agent"] += 1
             return
-        if m.tick <= self.last_meas or m.tick < self.next_tick or m.tick in self.pending_meas:
+        if m.tick == self.last_meas or m.tick in self.pending_meas:
+            # the simulator re-sends the current measurement to an agent that (re)appears while it
+            # waits for that tick's wrench; this agent may have had it already
+            self.drops["duplicate"] += 1
+            return
+        if m.tick < self.last_meas or m.tick < self.next_tick:
             self.drops["stale"] += 1
             return
         if m.tick > self.next_tick + MAX_TICK_LEAD:
             self.drops["future"] += 1
             return
         if self.mode == "lockstep" and m.tick != self.last_meas + 1:
-            if self.seen_start or self.ticks_stepped or self.pending_meas:
+            if self._sim_lost and self.sim_alive:
+                # cut off from the simulator and back: the run went on meanwhile, this is its tick
+                log.warning("agent %d: back after losing the simulator; rejoining at tick %d (missed %d..%d)",
+                            self.id, m.tick, self.last_meas + 1, m.tick - 1)
+                self._jump = None
+                self.pending_meas.clear()
+                if self._timer is not None:
+                    self._timer.cancel()
+                    self._timer = None
+                self.next_tick = m.tick
+            elif self.seen_start or self.ticks_stepped or self.pending_meas:
                 # the simulator never skips a tick, so either this agent was cut off (partition,
                 # restart) and the run went on without it, or the message is forged: hold it back
                 # and rejoin at its tick only if the real next measurement does not come
@@ -171,6 +226,7 @@ class AgentDaemon:
             log.info("agent %d joins the run at tick %d", self.id, m.tick)
             self.next_tick = m.tick
         self.last_meas = m.tick
+        self._sim_lost = False
         if self._jump is not None and self._jump.tick <= m.tick:
             self._jump = None  # the real stream went past it: it was not ours (counted when held)
         if self.mode == "realtime" and m.tick > self.next_tick:
@@ -178,6 +234,8 @@ class AgentDaemon:
             self.pending_meas.clear()
             self.next_tick = m.tick
         self.pending_meas[m.tick] = m
+        if self.mode == "realtime":
+            self._meas_wall[m.tick] = self.clock()
         self._try_step()
 
     def _hold_jump(self, m: Measurement) -> None:
@@ -282,13 +340,37 @@ class AgentDaemon:
             self._timer.cancel()
             self._timer = None
         m = self.pending_meas.pop(k)
-        res = self.core.step(k, m.vx, m.vy, self.line.pop_due(k))
+        inbox = self.line.pop_due(k)
+        if self.mode == "realtime":
+            inbox = self._fresh(k, inbox)
+        res = self.core.step(k, m.vx, m.vy, inbox)
         pub = self.transport.publish
         # the wrench first: the simulator waits for it (critical path), neighbours need the state
         # only for the next tick
-        pub(self._k_wrench, encode(res.wrench))
+        wrench = encode(res.wrench)
+        pub(self._k_wrench, wrench)
+        self._resend[self._k_wrench] = wrench
         pub(self._k_state, encode(res.state))
         if k % self._record_every == 0:  # the recorder keeps only these
-            pub(self._k_estimate, encode(res.estimate))
+            estimate = encode(res.estimate)
+            pub(self._k_estimate, estimate)
+            self._resend[self._k_estimate] = estimate
         self.next_tick = k + 1
         self.ticks_stepped += 1
+
+    def _fresh(self, k: int, inbox: list[StateMsg]) -> list[StateMsg]:
+        """Real time: neighbour states older than ``timing.max_age_s`` are dropped (``stale_age``).
+
+        A state sent at tick j describes its sender at j; stepping tick k it is (k - j) ticks old on
+        the plant's clock, which in real time is the wall clock, plus however long measurement k
+        waited before this step (normally nothing: real-time agents step as it arrives).
+        """
+        arrived = self._meas_wall.pop(k, None)
+        for t in [t for t in self._meas_wall if t < k]:
+            del self._meas_wall[t]
+        lag_ticks = max(0.0, self.clock() - arrived) / self.scenario.dt if arrived is not None else 0.0
+        limit = self.max_age_ticks - lag_ticks
+        fresh = [msg for msg in inbox if k - msg.tick <= limit]
+        if len(fresh) != len(inbox):
+            self.drops["stale_age"] += len(inbox) - len(fresh)
+        return fresh

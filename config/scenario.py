@@ -174,6 +174,16 @@ class TimingSpec(_Strict):
         description="lockstep: an agent whose next measurement is missing (cut off, restarted) takes a later one "
                     "and rejoins at its tick after this long; a forged early one is ignored while the real stream goes on",
     )
+    max_age_s: float = Field(
+        0.5, gt=0,
+        description="realtime: an agent drops neighbour states older than this when it steps (ticks since they "
+                    "were sent x dt, plus the step's own lag), counted as stale_age in summary.json drops",
+    )
+    sim_restart_wait_s: float = Field(
+        30.0, gt=0,
+        description="a restarted simulator (resuming from its journal) waits this long for the agents that were "
+                    "alive before it died; those still missing are recorded as agent_down",
+    )
 
 
 class RecordSpec(_Strict):

@@ -4,12 +4,26 @@ Lockstep: the simulator is the clock. It publishes tick k's measurements, waits 
 every live agent for tick k (a timeout is counted, the missing wrench taken as zero), then steps.
 Real time: it steps at wall-clock rate and applies each agent's latest wrench.
 It records samples, truth and every agent's published estimates into the run directory.
+
+Restart: the daemon keeps a journal in the run directory (``sim.journal``, JSON lines, one write per
+tick: the wrenches it applied, plus every estimate it recorded and every event, liveliness change and
+drop count). Killed and started again with the same run name and scenario, it replays the journal:
+the plant is stepped again with the journaled wrenches and the sensor RNG draws again, so plant,
+noise and recorded tables are exactly where they were, and the run goes on from the first tick it
+had not finished. The agents, which noticed it leave through its liveliness token, wait for it and
+re-send their last wrench and estimate when it is back. The journal is deleted once summary.json is
+written. (The plant is *re-created*, not re-estimated: the load does not jump, so the agents' estimates
+stay valid.)
 """
 
 from __future__ import annotations
 
 import asyncio
+import base64
+import hashlib
+import json
 import logging
+import os
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -18,6 +32,7 @@ from typing import Any
 
 from agents.agent import ESTIMATE_NAMES
 from coload.recorder import Recorder
+from config.loader import dump_scenario
 from config.scenario import Scenario
 from net import keys
 from net.link import partition_events
@@ -29,6 +44,10 @@ from simulator.plant import Plant, sensor_rng
 log = logging.getLogger("coload.sim")
 
 ZERO_WRENCH = (0.0, 0.0, 0.0)
+
+#: The restart journal in the run directory (deleted at the end of a completed run).
+JOURNAL = "sim.journal"
+_JOURNAL_VERSION = 1
 
 
 def _resolve(fut: asyncio.Future[None]) -> None:
@@ -64,7 +83,7 @@ class SimDaemon:
         self.last_estimate: list[int] = [-1] * self.n  # tick of the last estimate recorded per agent
         self._partition_events = partition_events(scenario)  # recorded as their tick comes
         self.tick = 0
-        self.wrenches: dict[int, tuple[float, float, float]] = {}
+        self.wrenches: dict[int, tuple[float, float, float]] = {}  # of self.tick; emptied after each step
         self.latest: list[tuple[float, float, float]] = [ZERO_WRENCH] * self.n
         self._subs: list = []
         # the one thing the run waits for (all agents up, tick k's wrenches, the reports): its
@@ -75,6 +94,13 @@ class SimDaemon:
         self._meas_keys = [keys.meas(run, i) for i in range(self.n)]
         self._agent_ids = {keys.agent(run, i, kind): i for i in range(self.n)
                            for kind in ("wrench", "estimate", "report")}
+        self._meas_out: list[bytes] | None = None  # lockstep: this tick's measurements while its wrenches are awaited
+        # restart: the journal, what it said was alive, and the tick the run resumed at (-1: not resumed)
+        self._journal = None
+        self._journal_drops: dict[str, int] = {}
+        self._expected_alive: set[int] = set()
+        self.resumed_at = -1
+        self.scenario_hash = hashlib.sha256(dump_scenario(scenario).encode()).hexdigest()
 
     # ---- inputs ----------------------------------------------------------------------------
     def _decode(self, payload: bytes, kind: type):
@@ -102,10 +128,22 @@ class SimDaemon:
         was = i in self.alive
         (self.alive.add if alive else self.alive.discard)(i)
         if was != alive and 0 < self.tick < self.scenario.ticks:  # not start-up, not shutdown
-            self.events.append({"tick": self.tick, "t": self.tick * self.scenario.dt,
-                                "event": "agent_up" if alive else "agent_down", "agent": i})
-            log.info("agent %d %s at tick %d", i, "up" if alive else "down", self.tick)
+            if alive and i in self._expected_alive:
+                self._expected_alive.discard(i)  # alive before the restart: found again, not an event
+            else:
+                self._event("agent_up" if alive else "agent_down", agent=i)
+                log.info("agent %d %s at tick %d", i, "up" if alive else "down", self.tick)
+            self._write_journal({"alive": sorted(self.alive)})
+            if alive and self._meas_out is not None:
+                # it (re)appeared while this tick's wrenches are awaited: it may have subscribed after
+                # its measurement went out, and would otherwise make the tick wait for nothing
+                self.transport.publish(self._meas_keys[i], self._meas_out[i])
         self._poke()
+
+    def _event(self, event: str, **fields: Any) -> None:
+        ev = {"tick": self.tick, "t": self.tick * self.scenario.dt, "event": event, **fields}
+        self.events.append(ev)
+        self._write_journal({"ev": ev})
 
     def _on_wrench(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key)
@@ -119,7 +157,10 @@ class SimDaemon:
             self.latest[i] = (w.fx, w.fy, w.tau)
             return
         if w.tick != self.tick:
-            self.drops["stale" if w.tick < self.tick else "future"] += 1
+            if w.tick == self.resumed_at - 1:
+                self.drops["resent"] += 1  # an agent re-sends its last wrench to the restarted simulator
+            else:
+                self.drops["stale" if w.tick < self.tick else "future"] += 1
             return
         if i in self.wrenches:
             self.drops["duplicate"] += 1  # first one wins: a replay cannot overwrite the genuine wrench
@@ -141,7 +182,8 @@ class SimDaemon:
         # an agent publishes an estimate once per recorded tick, after stepping it (so never for a
         # tick the simulator has not reached): anything else would write a forged row
         if est.tick <= self.last_estimate[i]:
-            self.drops["stale"] += 1
+            # after a restart agents re-send their last estimate, which the journal may already hold
+            self.drops["resent" if est.tick == self.last_estimate[i] and self.resumed_at >= 0 else "stale"] += 1
             return
         if est.tick > self.tick:
             self.drops["future"] += 1
@@ -151,6 +193,7 @@ class SimDaemon:
             return
         self.last_estimate[i] = est.tick
         self.recorder.estimate(est)
+        self._write_journal({"e": base64.b64encode(payload).decode("ascii")})
 
     def _on_report(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key)
@@ -198,7 +241,106 @@ class SimDaemon:
     def _publish_control(self, kind: str, tick: int) -> None:
         self.transport.publish(keys.sim_control(self.run_name), encode(Control(kind, tick, self.scenario.ticks)))
 
+    # ---- restart journal -------------------------------------------------------------------
+    def _write_journal(self, record: dict[str, Any]) -> None:
+        if self._journal is not None:
+            self._journal.write((json.dumps(record, separators=(",", ":")) + "\n").encode())
+
+    def _journal_tick(self, k: int, applied: list[tuple[float, float, float]], timeout: bool) -> None:
+        """One unbuffered write per tick, before the plant steps: a killed daemon loses nothing it
+        applied (the OS keeps what was written)."""
+        if self._journal is None:
+            return
+        w = ",".join(f"[{fx!r},{fy!r},{tau!r}]" for fx, fy, tau in applied)
+        extra = ',"to":1' if timeout else ""
+        if self.drops != self._journal_drops:
+            self._journal_drops = dict(self.drops)
+            extra += ',"drops":' + json.dumps(self._journal_drops, separators=(",", ":"))
+        self._journal.write(f'{{"k":{k},"w":[{w}]{extra}}}\n'.encode())
+
+    def _read_journal(self) -> list[dict[str, Any]] | None:
+        """The records of a journal left by this run (same run name and scenario), else None."""
+        path = self.run_dir / JOURNAL
+        try:
+            raw = path.read_bytes()
+        except OSError:
+            return None
+        records: list[dict[str, Any]] = []
+        good = 0
+        for line in raw.split(b"\n"):
+            try:
+                records.append(json.loads(line))
+            except ValueError:
+                break  # a line cut by the kill, or the end
+            good += len(line) + 1
+        if not records or records[0].get("journal") != _JOURNAL_VERSION:
+            return None
+        head = records[0]
+        if head.get("run") != self.run_name or head.get("scenario") != self.scenario_hash:
+            log.warning("%s is from another run or scenario: starting afresh", path)
+            return None
+        if good < len(raw):
+            with path.open("r+b") as f:
+                f.truncate(good)  # drop the cut line: appends go after the last whole record
+        return records[1:]
+
+    def _resume(self, records: list[dict[str, Any]]) -> None:
+        """Replays the journal: plant, sensor noise, tables and counters as they were when it died."""
+        alive: set[int] = set()
+        for rec in records:
+            if "k" in rec:
+                k = rec["k"]
+                if k != self.tick:
+                    raise RuntimeError(f"{JOURNAL}: tick {k} follows tick {self.tick - 1}")
+                meas = self.plant.measure(self.rng)
+                self.recorder.truth(self.plant.truth())
+                applied = [tuple(w) for w in rec["w"]]
+                self.recorder.samples(k, meas, applied)
+                self.plant.apply_and_step(applied)
+                self.latest = list(applied)
+                self.wrench_timeouts += rec.get("to", 0)
+                if "drops" in rec:
+                    self.drops = Counter(rec["drops"])
+                self.tick = k + 1
+            elif "e" in rec:
+                est = decode(base64.b64decode(rec["e"]), Estimate)
+                self.last_estimate[est.agent] = est.tick
+                self.recorder.estimate(est)
+            elif "ev" in rec:
+                self.events.append(rec["ev"])
+            elif "alive" in rec:
+                alive = set(rec["alive"])
+        self._journal_drops = dict(self.drops)
+        self._expected_alive = alive
+        self.resumed_at = self.tick
+        while self._partition_events and self._partition_events[0]["tick"] < self.tick:
+            self._partition_events.pop(0)  # already in self.events (journaled as they came)
+
+    def _open_journal(self, records: list[dict[str, Any]] | None) -> None:
+        path = self.run_dir / JOURNAL
+        if records is None:
+            self._journal = path.open("wb", buffering=0)
+            self._write_journal({"journal": _JOURNAL_VERSION, "run": self.run_name, "scenario": self.scenario_hash})
+        else:
+            self._journal = path.open("ab", buffering=0)
+
+    def _close_journal(self, completed: bool) -> None:
+        if self._journal is not None:
+            self._journal.close()
+            self._journal = None
+            if completed:
+                (self.run_dir / JOURNAL).unlink(missing_ok=True)
+
     async def run(self) -> dict[str, Any]:
+        records = self._read_journal()
+        down_s = None
+        if records is not None:
+            down_s = max(0.0, time.time() - (self.run_dir / JOURNAL).stat().st_mtime)
+            self._resume(records)  # before subscribing: inputs then meet the resumed tick
+            log.warning("restarted: resuming run %s at tick %d (replayed from %s)", self.run_name, self.tick, JOURNAL)
+        self._open_journal(records)
+        if records is not None:
+            self._event("sim_restart", replayed_ticks=self.tick, down_s=round(down_s, 3))
         t, run = self.transport, self.run_name
         self._subs += [
             t.subscribe(keys.agent_all(run, "wrench"), self._on_wrench),
@@ -207,44 +349,64 @@ class SimDaemon:
             t.watch_alive(keys.alive_all(run), self._on_alive),
             t.declare_alive(keys.alive(run, "sim", 0)),
         ]
+        completed = False
         try:
-            return await self._run()
+            summary = await self._run()
+            completed = True
+            return summary
         finally:
             for s in reversed(self._subs):
                 s.close()
             self._subs.clear()
+            self._close_journal(completed)
 
     async def _run(self) -> dict[str, Any]:
         sc = self.scenario
-        log.info("waiting for %d agents (run %s)", self.n, self.run_name)
-        if not await self._wait_for(lambda: len(self.alive) == self.n, sc.timing.startup_timeout_s):
-            missing = sorted(set(range(self.n)) - self.alive)
-            log.warning("starting without agents %s", missing)
-            self.events.append({"tick": 0, "t": 0.0, "event": "start_without", "agents": missing})
-        self._publish_control("start", 0)
-        wall0 = time.perf_counter()
+        start = self.tick
+        if self.resumed_at < 0:
+            log.info("waiting for %d agents (run %s)", self.n, self.run_name)
+            if not await self._wait_for(lambda: len(self.alive) == self.n, sc.timing.startup_timeout_s):
+                missing = sorted(set(range(self.n)) - self.alive)
+                log.warning("starting without agents %s", missing)
+                self._event("start_without", agents=missing)
+            self._write_journal({"alive": sorted(self.alive)})
+            self._publish_control("start", 0)
+        else:
+            expected = set(self._expected_alive)
+            if not await self._wait_for(lambda: not self._expected_alive, sc.timing.sim_restart_wait_s):
+                for i in sorted(self._expected_alive):
+                    log.warning("agent %d did not come back after the restart", i)
+                    self._event("agent_down", agent=i)
+            self._expected_alive.clear()
+            log.info("resuming at tick %d with agents %s (before: %s)", self.tick, sorted(self.alive), sorted(expected))
+        t_begin = time.perf_counter()
+        wall0 = t_begin - start * sc.dt  # real time: tick k is due at wall0 + k dt (resumed: from now on)
         ticks = sc.ticks
         report_every = max(1, ticks // 100)
-        pevents = list(self._partition_events)
-        for k in range(ticks):
+        pevents = self._partition_events
+        for k in range(start, ticks):
             self.tick = k
             while pevents and pevents[0]["tick"] <= k:
                 ev = pevents.pop(0)
                 self.events.append(ev)
+                self._write_journal({"ev": ev})
                 log.info("tick %d: %s %d", k, ev["event"], ev["partition"])
             if sc.mode == "realtime":
                 lag = wall0 + k * sc.dt - time.perf_counter()
                 if lag > 0:
                     await asyncio.sleep(lag)
             meas = self.plant.measure(self.rng)
-            self.wrenches = {}
             publish, meas_keys = self.transport.publish, self._meas_keys
-            for i, (vx, vy) in enumerate(meas):
-                publish(meas_keys[i], encode(Measurement(k, i, vx, vy)))
+            out = [encode(Measurement(k, i, vx, vy)) for i, (vx, vy) in enumerate(meas)]
+            for i in range(self.n):
+                publish(meas_keys[i], out[i])
             # recorded once the measurements are out: the agents are busy with them meanwhile
             self.recorder.truth(self.plant.truth())
+            got = True
             if sc.mode == "lockstep":
+                self._meas_out = out
                 got = await self._wait_for(self._have_wrenches, sc.timing.wrench_timeout_s)
+                self._meas_out = None
                 if not got:
                     self.wrench_timeouts += 1
                     log.warning("tick %d: no wrench from %s", k, sorted(self.alive - self.wrenches.keys()))
@@ -252,13 +414,16 @@ class SimDaemon:
             else:
                 await asyncio.sleep(0)  # let arrived wrenches in
                 applied = list(self.latest)
+            self._journal_tick(k, applied, not got)
             self.recorder.samples(k, meas, applied)
             self.plant.apply_and_step(applied)
+            self.wrenches = {}
+            self.tick = k + 1  # inputs from now on are for the next tick
             if k % report_every == 0 or k == ticks - 1:
                 self._publish_control("progress", k + 1)
                 if self.progress is not None:
                     self.progress(k + 1, ticks)
-        wall = time.perf_counter() - wall0
+        wall = time.perf_counter() - t_begin
         self.tick = ticks
         self._publish_control("done", ticks)
         expected = set(self.alive)
