@@ -193,6 +193,16 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Draw report.png (true vs estimated quantities) and print a summary table.")
     p.add_argument("run_dir", type=Path, help="a run directory")
     p.add_argument("--out", type=Path, help="PNG path (default: RUN_DIR/report.png)")
+
+    p = sub.add_parser("diagnose", help="find the effect the nominal model lacks in a recording (samples.csv + run.toml)",
+                       description="Fit the nominal rigid-body model to a recording, test its residual (whiteness, "
+                                   "signatures), select missing effects from a candidate library, re-fit and report "
+                                   "before and after (docs/diagnose.md).")
+    p.add_argument("recording", type=Path, help="directory with run.toml (n, dt, edges) and samples.csv")
+    p.add_argument("--json", type=Path, metavar="FILE", help="write the diagnosis as JSON (schema in docs/diagnose.md)")
+    p.add_argument("--plot", action="store_true",
+                   help="draw RECORDING/diagnose.png: residual before/after and its autocorrelation with bounds")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     return parser
 
 
@@ -272,6 +282,23 @@ def cmd_report(args: argparse.Namespace) -> int:
     path, table = make_report(args.run_dir, args.out)
     print(table)
     print(f"report: {path}")
+    return 0
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from coload.diagnose import DiagnoseError, diagnose_dir, format_diagnosis, plot_diagnosis, stderr_progress
+
+    try:
+        result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress())
+    except DiagnoseError as exc:
+        print(f"coload diagnose: {exc}", file=sys.stderr)
+        return 2
+    print(format_diagnosis(result))
+    if args.json:
+        args.json.write_text(json.dumps(result.as_dict(), indent=2) + "\n", encoding="utf-8")
+        print(f"json: {args.json}")
+    if args.plot:
+        print(f"plot: {plot_diagnosis(result, args.recording / 'diagnose.png')}")
     return 0
 
 
@@ -433,7 +460,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
             "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
-            "arms": cmd_arms}
+            "arms": cmd_arms, "diagnose": cmd_diagnose}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

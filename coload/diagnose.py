@@ -791,5 +791,62 @@ def stderr_progress(prefix: str = "coload diagnose") -> Callable[[str], None]:
 
 __all__ = [
     "CANDIDATES", "DiagnoseError", "DiagnoseOptions", "Diagnosis", "ModelReport", "autocorrelation",
-    "block_average", "diagnose", "diagnose_dir", "ljung_box", "read_recording", "stderr_progress",
+    "block_average", "diagnose", "diagnose_dir", "format_diagnosis", "ljung_box", "plot_diagnosis",
+    "read_recording", "stderr_progress",
 ]  # fmt: skip
+
+
+# --- presentation ---------------------------------------------------------------------------------
+def format_diagnosis(r: Diagnosis) -> str:
+    """A short human-readable summary (the JSON has everything)."""
+    lines = []
+    for label, m in (("nominal", r.nominal), ("augmented", r.augmented)):
+        err = ""
+        if m.m_rel_err is not None:
+            err = f"  [vs truth: m {100 * m.m_rel_err:+.2f} %, J {100 * m.J_rel_err:+.2f} %]"
+        lines.append(f"{label:9s} effects {list(m.effects) or '-'}: m {m.m:.4g} +- {m.m_ci95:.2g} kg, "
+                     f"J {m.J:.4g} +- {m.J_ci95:.2g} kg m^2, residual {m.residual_rms:.4g} m/s, "
+                     f"whiteness p {m.whiteness_p:.3g}, held-out {m.heldout_rms:.4g} m/s{err}")  # fmt: skip
+    if r.effects:
+        for e in r.effects:
+            lines.append(f"effect    {e['name']}: {e['value']} +- {e['ci95']} {e['unit']}")
+    else:
+        lines.append("effect    none named")
+    lines.append(f"unexplained: {str(r.unexplained).lower()}")
+    lines += [f"warning   {w}" for w in r.warnings]
+    return "\n".join(lines)
+
+
+def plot_diagnosis(r: Diagnosis, path: str | Path) -> Path:
+    """diagnose.png: the residual's rigid-body modes before and after (time series, block-averaged) and
+    their autocorrelation with the 95 % bounds of a white residual."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = ("mean x (m/s)", "mean y (m/s)", "rotation (rad/s)")
+    fig, axes = plt.subplots(3, 2, figsize=(12, 8), gridspec_kw={"width_ratios": [3, 1]})
+    for j in range(3):
+        ax, axc = axes[j]
+        for modes, label, color in ((r.modes_nominal, "nominal", "tab:red"), (r.modes_augmented, "augmented", "tab:blue")):
+            t = np.arange(len(modes)) * r.block_s
+            ax.plot(t, modes[:, j], color=color, lw=0.8, label=label)
+            rho = autocorrelation(modes[:, j], r.lags)
+            axc.plot(np.arange(1, r.lags + 1) * r.block_s, rho, "o-", color=color, ms=3, lw=0.8)
+        nb = max(len(r.modes_nominal), 1)
+        axc.axhline(Z95 / math.sqrt(nb), color="k", ls="--", lw=0.8)
+        axc.axhline(-Z95 / math.sqrt(nb), color="k", ls="--", lw=0.8)
+        ax.set_ylabel(f"residual, {names[j]}")
+        axc.set_ylabel("autocorrelation")
+    axes[0, 0].legend(loc="upper right")
+    axes[-1, 0].set_xlabel(f"t (s), {r.block_s:g} s block means")
+    axes[-1, 1].set_xlabel("lag (s)")
+    named = ", ".join(e["name"] for e in r.effects) or "none"
+    fig.suptitle(f"residual before (nominal, p = {r.nominal.whiteness_p:.2g}) and after ({named}, "
+                 f"p = {r.augmented.whiteness_p:.2g}){'  UNEXPLAINED' if r.unexplained else ''}")  # fmt: skip
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
