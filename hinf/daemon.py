@@ -7,8 +7,10 @@ model and a ``DelayLine`` exactly as ``runtime.run_inproc`` does, and step the p
 Lockstep: the simulator is the clock. It publishes z^(k)(t) to every estimator, waits for every live
 estimator's u_k(t) (a timeout is counted and the last u_k held), records, then steps the plant. An
 estimator steps tick t once it has z^(k)(t) and its live in-neighbours' states sent at t - 1 (a
-timeout is counted; the neighbour's last data is held). Real time: the simulator steps at wall-clock
-rate and applies the latest u_k it has; an estimator steps as soon as z arrives, with what it has.
+timeout is counted; the neighbour's last data is held), and sends u_k(t + 1) at once (it depends on
+the prior estimate only), so the simulator usually has it before it publishes z(t + 1). Real time:
+the simulator steps at wall-clock rate and applies the newest u_k(t') with t' <= t (held if
+u_k(t) is missing, counted); an estimator steps as soon as z arrives, with what it has.
 
 Key expressions (``net.keys``): coload/{run}/hinf/{k}/meas|input|state|report, coload/{run}/hinf/control,
 liveliness coload/{run}/alive/hinf/{k} and coload/{run}/alive/hinfsim/0.
@@ -96,7 +98,8 @@ class HinfSimDaemon:
         self.input_timeouts = 0
         self.reports: dict[int, AgentReport] = {}
         self.tick = 0
-        self.inputs: dict[int, HinfInput] = {}  # lockstep: tick's inputs; realtime: newest per agent
+        self.by_tick: dict[int, dict[int, HinfInput]] = {}  # inputs of this tick and the next
+        self.stale_u = 0  # realtime: (tick, agent) pairs where u_k(t) was missing and the last one held
         self.last_u = [setup.input_law(k, np.zeros(setup.net.n[k]), setup.zeta0[k]) for k in range(self.N)]
         self.waiter = _Waiter()
         self._subs: list = []
@@ -136,22 +139,17 @@ class HinfSimDaemon:
         if (len(msg.u) != s.B[k].shape[1] or len(msg.xhat) != s.locs[k].sigma or len(msg.zeta) != s.nu):
             self.drops["bad_shape"] += 1
             return
-        if msg.tick > self.tick:
+        if msg.tick > self.tick + 1 or msg.tick >= self.setup.ticks:
             self.drops["future"] += 1
             return
-        if self.mode == "lockstep":
-            if msg.tick < self.tick:
-                self.drops["stale"] += 1
-                return
-            if k in self.inputs:
-                self.drops["duplicate"] += 1
-                return
-        else:
-            old = self.inputs.get(k)
-            if old is not None and msg.tick <= old.tick:
-                self.drops["stale"] += 1
-                return
-        self.inputs[k] = msg
+        if msg.tick < self.tick:
+            self.drops["stale"] += 1
+            return
+        slot = self.by_tick.setdefault(msg.tick, {})
+        if k in slot:
+            self.drops["duplicate"] += 1  # first one wins: a replay cannot overwrite the genuine input
+            return
+        slot[k] = msg
         self.rec.input(msg)
         self.waiter.poke()
 
@@ -205,21 +203,20 @@ class HinfSimDaemon:
                 if lag > 0:
                     await asyncio.sleep(lag)
             self.tick = k
-            if lockstep:
-                self.inputs = {}
+            self.by_tick.pop(k - 1, None)
+            now = self.by_tick.setdefault(k, {})
             zs = self.plant.measure(k)
             self.rec.truth(k, self.plant)
             for i, z in enumerate(zs):
                 self.transport.publish(self._meas_keys[i], encode(HinfMeas(k, i, z)))
             if lockstep:
-                if not await self.waiter.wait_for(lambda: self.alive <= self.inputs.keys(), run.timing.input_timeout_s):
+                if not await self.waiter.wait_for(lambda: self.alive <= now.keys(), run.timing.input_timeout_s):
                     self.input_timeouts += 1
-                    log.warning("tick %d: no input from %s", k, sorted(self.alive - self.inputs.keys()))
+                    log.warning("tick %d: no input from %s", k, sorted(self.alive - now.keys()))
             else:
-                await self.waiter.wait_for(
-                    lambda: all(m.tick == self.tick for m in self.inputs.values()) and len(self.inputs) == self.N,
-                    wall0 + (k + 1) * dt - time.perf_counter())
-            for i, m in self.inputs.items():
+                await self.waiter.wait_for(lambda: len(now) == self.N, wall0 + (k + 1) * dt - time.perf_counter())
+                self.stale_u += self.N - len(now)
+            for i, m in now.items():
                 self.last_u[i] = np.asarray(m.u)
             self.rec.applied(k, self.last_u)
             self.plant.step(self.last_u)
@@ -248,6 +245,7 @@ class HinfSimDaemon:
             timeouts += rep.timeouts
         return {"links": dict(sorted(links.items())), "drops": dict(sorted(drops.items())),
                 "timeouts": {"input": self.input_timeouts, "neighbour": timeouts}, "held": held,
+                "stale_u": self.stale_u,
                 "events": events, "agents_reported": sorted(self.reports), "wall_s": self.wall_s}
 
 
@@ -283,6 +281,7 @@ class HinfAgentDaemon:
         self._state_keys = {keys.hinf(run, j, "state"): j for j in self.nbrs}
         self.nz = setup.net.r * len(self.nbrs)
         self.ticks_stepped = 0
+        self.sent_input = -1  # tick of the last input message published
 
     def start(self) -> None:
         t, run, k = self.transport, self.run_name, self.id
@@ -430,11 +429,15 @@ class HinfAgentDaemon:
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
+        pub = self.transport.publish
+        if publish and self.sent_input < t:  # tick 0, or ticks skipped in real time
+            pub(self._k_input, encode(self.core.input_msg(t)))
         inp, st = self.core.step(t, z, self.line.pop_due(t))
         self.last_z = z
-        if publish:
-            self.transport.publish(self._k_input, encode(inp))  # first: the simulator waits for it
-        self.transport.publish(self._k_state, encode(st))
+        if publish and inp.tick < self.setup.ticks:
+            pub(self._k_input, encode(inp))  # first: the simulator waits for it
+            self.sent_input = inp.tick
+        pub(self._k_state, encode(st))
         self.next_tick = t + 1
         self.ticks_stepped += 1
 

@@ -143,7 +143,7 @@ def summarize(setup: Setup, trace: Trace, info: dict[str, Any]) -> dict[str, Any
                      "kappa": (setup.design.get("sync") or {}).get("kappa"),
                      "theta": (setup.design.get("sync") or {}).get("theta")})
     out["sync"] = sync
-    out["messages"] = {k: info[k] for k in ("links", "drops", "timeouts", "held") if k in info}
+    out["messages"] = {k: info[k] for k in ("links", "drops", "timeouts", "held", "stale_u") if k in info}
     out["inputs_missing"] = int((~trace.got).sum())
     for k in ("engine", "wall_s", "events", "agents_reported"):
         if k in info:

@@ -287,8 +287,11 @@ class PlantCore:
 class EstimatorCore:
     """Agent k: local estimator (4) with Remark 2's input term, internal model (10), control (11).
 
-    ``step(tick, z, inbox)`` returns the input message for the simulator (u_k(t), x^(k)(t),
-    zeta_k(t)) and the state message for the out-neighbours (values for t + 1).
+    u_k(t) depends only on the prior x^(k)(t) and zeta_k(t), so it is ready one tick early:
+    ``step(tick, z, inbox)`` returns the input message for the simulator *for tick + 1* (u_k, x^(k),
+    zeta_k at t + 1) and the state message for the out-neighbours (the same values, own block only);
+    :meth:`input_msg` gives the current one (tick 0). Sending u early lets a real-time plant apply the
+    u the estimators assume (Remark 2) instead of a stale one.
     """
 
     def __init__(self, setup: Setup, k: int) -> None:
@@ -328,11 +331,14 @@ class EstimatorCore:
             if cur is not None and msg.tick > cur[0]:
                 self.nb[msg.sender] = (msg.tick, np.asarray(msg.xhat), np.asarray(msg.u), np.asarray(msg.zeta))
 
+    def input_msg(self, tick: int) -> HinfInput:
+        """u_k, x^(k) and zeta_k of the current (prior) state, as the input message for ``tick``."""
+        return HinfInput(tick, self.k, tuple(self.u.tolist()), tuple(self.xhat.tolist()), tuple(self.zeta.tolist()))
+
     def step(self, tick: int, z: tuple[float, ...], inbox: list[HinfState]) -> tuple[HinfInput, HinfState]:
         self.absorb(inbox)
         k = self.k
         u_now = self.u
-        out_in = HinfInput(tick, k, tuple(u_now.tolist()), tuple(self.xhat.tolist()), tuple(self.zeta.tolist()))
         if any(self.nb[j][0] < tick - 1 for j in self.nbrs):
             self.held += 1
         x = self.Tx @ self.xhat + self.Tz @ np.asarray(z)
@@ -352,7 +358,7 @@ class EstimatorCore:
         self.u = self.setup.input_law(k, self.xhat[:self.nk], self.zeta)
         out_st = HinfState(tick, k, tuple(self.xhat[:self.nk].tolist()), tuple(self.u.tolist()),
                            tuple(self.zeta.tolist()))
-        return out_in, out_st
+        return self.input_msg(tick + 1), out_st
 
 
 # ----------------------------------------------------------------------------- recording
@@ -432,14 +438,15 @@ def run_inproc(setup: Setup, progress: Callable[[int, int], None] | None = None)
     lines: list[DelayLine] = [DelayLine() for _ in range(N)]
     rec = TraceWriter(setup)
     every = max(1, ticks // 100)
+    inputs = [c.input_msg(0) for c in cores]  # input(t) is made at the end of tick t - 1
     for t in range(ticks):
         zs = plant.measure(t)
         rec.truth(t, plant)
         us = []
         for k in range(N):
-            inp, st = cores[k].step(t, zs[k], lines[k].pop_due(t))
-            rec.input(inp)
-            us.append(np.asarray(inp.u))
+            rec.input(inputs[k])
+            us.append(np.asarray(inputs[k].u))
+            inputs[k], st = cores[k].step(t, zs[k], lines[k].pop_due(t))
             for r in setup.outs[k]:
                 link, s = links[r][k], stats[(k, r)]
                 delays = link.deliveries(t)
