@@ -35,7 +35,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from agents.speed_observer import ClosedForm, ELModel, Gains, ObserverState, SpeedObserver, Terms, two_link
+from agents.speed_observer import (
+    ClosedForm,
+    ELModel,
+    Gains,
+    ObserverState,
+    SpeedObserver,
+    Terms,
+    two_link,
+)
 
 Array = np.ndarray
 
@@ -362,4 +370,4 @@ def make_observer(model: ArmModel, k1: float, k2: float, k3: float, c_r: float, 
     return SpeedObserver(model.el_model(), gains, nodes=nodes, seed=seed)
 
 
-__all__ = ["ArmFrontEnd", "ArmObserver", "ArmModel", "MotionPlan", "Tracking", "make_observer", "two_link_closed_form"]
+__all__ = ["ArmFrontEnd", "ArmModel", "ArmObserver", "MotionPlan", "Tracking", "make_observer", "two_link_closed_form"]

@@ -151,7 +151,6 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
         if keep:
             rec.truth(plant.truth())  # type: ignore[union-attr]
         u = np.zeros((n, 2))
-        k1 = k + 1
         for i in range(n):
             res = agents[i].step(k, float(v[i, 0]), float(v[i, 1]), lines[i].pop_due(k))
             w = res.wrench

@@ -61,6 +61,31 @@ def default_bases(contacts: np.ndarray, offset: float) -> np.ndarray:
     return contacts + d / norm[:, None] * offset
 
 
+def add_arm(space: pymunk.Space, model: ArmModel, base: np.ndarray, q: np.ndarray,
+            load: pymunk.Body | None = None) -> tuple[pymunk.Body, pymunk.Body, pymunk.PivotJoint | None]:
+    """Add one arm at absolute angles q to ``space``: two links, base and elbow pivots, and a wrist
+    pivot to ``load`` at the tip when given. Returns (upper link, forearm, wrist joint or None)."""
+    i1, i2 = model.inertias
+    b = np.asarray(base, dtype=float)
+    u1 = np.array([math.cos(q[0]), math.sin(q[0])])
+    u2 = np.array([math.cos(q[1]), math.sin(q[1])])
+    link1 = pymunk.Body(model.m1, i1)
+    link1.position = tuple(b + 0.5 * model.l1 * u1)
+    link1.angle = float(q[0])
+    link2 = pymunk.Body(model.m2, i2)
+    elbow = b + model.l1 * u1
+    link2.position = tuple(elbow + 0.5 * model.l2 * u2)
+    link2.angle = float(q[1])
+    space.add(link1, link2)
+    joints = [pymunk.PivotJoint(space.static_body, link1, tuple(b)), pymunk.PivotJoint(link1, link2, tuple(elbow))]
+    if load is not None:
+        joints.append(pymunk.PivotJoint(link2, load, tuple(elbow + model.l2 * u2)))
+    for j in joints:
+        j.collide_bodies = False
+    space.add(*joints)
+    return link1, link2, joints[2] if load is not None else None
+
+
 class ArmPlant:
     """The load plant plus ``n`` two-link arms; :meth:`step` advances one tick under joint torques."""
 
@@ -84,7 +109,6 @@ class ArmPlant:
         lo, hi = model.reach
         space = plant.space
         space.iterations = spec.solver_iterations
-        (i1, i2) = model.inertias
         self.links: list[tuple[pymunk.Body, pymunk.Body]] = []
         self.wrists: list[pymunk.PivotJoint] = []
         for i in range(n):
@@ -96,30 +120,13 @@ class ArmPlant:
                     f"({lo + margin:.3f}, {hi - margin:.3f}) m of links {model.l1} + {model.l2} m"
                 )
             q = model.ik(contacts[i] - bases[i], spec.elbow)
-            b = bases[i]
-            u1 = np.array([math.cos(q[0]), math.sin(q[0])])
-            u2 = np.array([math.cos(q[1]), math.sin(q[1])])
-            link1 = pymunk.Body(model.m1, i1)
-            link1.position = tuple(b + 0.5 * model.l1 * u1)
-            link1.angle = float(q[0])
-            link2 = pymunk.Body(model.m2, i2)
-            elbow = b + model.l1 * u1
-            link2.position = tuple(elbow + 0.5 * model.l2 * u2)
-            link2.angle = float(q[1])
-            space.add(link1, link2)
-            joints = (
-                pymunk.PivotJoint(space.static_body, link1, tuple(b)),
-                pymunk.PivotJoint(link1, link2, tuple(elbow)),
-                pymunk.PivotJoint(link2, plant.body, tuple(contacts[i])),
-            )
-            for j in joints:
-                j.collide_bodies = False
-            space.add(*joints)
+            link1, link2, wrist = add_arm(space, model, bases[i], q, plant.body)
             self.links.append((link1, link2))
-            self.wrists.append(joints[2])
+            self.wrists.append(wrist)  # type: ignore[arg-type]
         self._m = np.array([model.m1, model.m2])
-        self._inertia = np.array([i1, i2])
+        self._inertia = np.array(model.inertias)
         self.forces = np.zeros((n, 2))  # force of each arm on the load, mean over the last tick (N)
+        self.last_wrist_impulse = np.zeros((n, 2))  # on the forearm, last substep (N s): checks against pymunk
 
     # -- state ------------------------------------------------------------------------------------
     def angles(self) -> np.ndarray:
@@ -166,7 +173,6 @@ class ArmPlant:
             after = self._link_states()
             dv = after[..., 0:2] - before[..., 0:2]
             dw = after[..., 2] - before[..., 2]
-            p = after[..., 3:5]
             ang = after[..., 5]
             e1 = np.stack([np.cos(ang[:, 0]), np.sin(ang[:, 0])], axis=1)  # upper link direction
             e2 = np.stack([np.cos(ang[:, 1]), np.sin(ang[:, 1])], axis=1)
@@ -185,8 +191,8 @@ class ArmPlant:
             A = np.stack([np.stack([-a_row[:, 1], a_row[:, 0]], axis=1), np.stack([-b_row[:, 1], b_row[:, 0]], axis=1)], axis=1)
             jw = np.linalg.solve(A, np.stack([rhs_a, rhs_b], axis=1)[..., None])[..., 0]
             impulse -= jw  # the load gets minus the wrist impulse on the forearm
+            self.last_wrist_impulse = jw
             before = after
-            del p
         self.forces = impulse / self.dt
         plant.tick += 1
         plant._refresh()  # the plant's per-tick snapshot of the load (its apply_and_step does the same)
@@ -196,4 +202,4 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
 
 
-__all__ = ["ArmPlant", "ArmSetupError", "arm_model", "contact_world", "default_bases"]
+__all__ = ["ArmPlant", "ArmSetupError", "add_arm", "arm_model", "contact_world", "default_bases"]
