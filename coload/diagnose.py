@@ -67,6 +67,7 @@ class DiagnoseOptions:
     block_s: float = 0.1  # block length (s) of the averaging in front of Ljung-Box
     ambiguous_bic: float = 10.0  # two substitutes closer than this in BIC cannot be told apart
     holdout: float = 0.25  # trailing share of the recording held out for the prediction error
+    max_effects: int = 2  # at most this many effects are added (the selection stops there)
     max_fits: int = 3  # candidates fitted per selection round: those with the strongest score tests
     max_iter: int = 30  # Levenberg-Marquardt iterations per fit
     candidates: tuple[str, ...] = tuple(CANDIDATES)
@@ -680,6 +681,8 @@ def diagnose(samples: np.ndarray, n: int, dt: float, *, options: DiagnoseOptions
         accepted.append(best)
         remaining.remove(best)
         current, cur_lay = fb_, fb_.lay
+        if len(accepted) >= opt.max_effects:
+            break
         scores = _scores(d, current, remaining) if remaining else {}
     white = _whiteness(d, current, opt)
     ambiguous_names = {c for pair in ambiguous for c in pair}
