@@ -100,6 +100,7 @@ class HinfSimDaemon:
         self.tick = 0
         self.by_tick: dict[int, dict[int, HinfInput]] = {}  # inputs of this tick and the next
         self.stale_u = 0  # realtime: (tick, agent) pairs where u_k(t) was missing and the last one held
+        self.late_inputs = 0  # inputs that arrived after their tick was stepped
         self.last_u = [setup.input_law(k, np.zeros(setup.net.n[k]), setup.zeta0[k]) for k in range(self.N)]
         self.waiter = _Waiter()
         self._subs: list = []
@@ -143,7 +144,10 @@ class HinfSimDaemon:
             self.drops["future"] += 1
             return
         if msg.tick < self.tick:
-            self.drops["stale"] += 1
+            # too late to be applied (real time): recorded if its row is still empty, never applied
+            self.late_inputs += 1
+            if not self.rec.trace.got[msg.tick, k]:
+                self.rec.input(msg)
             return
         slot = self.by_tick.setdefault(msg.tick, {})
         if k in slot:
@@ -245,7 +249,7 @@ class HinfSimDaemon:
             timeouts += rep.timeouts
         return {"links": dict(sorted(links.items())), "drops": dict(sorted(drops.items())),
                 "timeouts": {"input": self.input_timeouts, "neighbour": timeouts}, "held": held,
-                "stale_u": self.stale_u,
+                "stale_u": self.stale_u, "late_inputs": self.late_inputs,
                 "events": events, "agents_reported": sorted(self.reports), "wall_s": self.wall_s}
 
 

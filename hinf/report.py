@@ -86,7 +86,7 @@ def summarize(setup: Setup, trace: Trace, info: dict[str, Any]) -> dict[str, Any
     en = np.linalg.norm(e, axis=1)
     half = t >= t[-1] / 2
     # the alpha guarantee is about disturbance-free runs that start with an error
-    undisturbed = run.disturbance.kind == "none" and V[0] > 0
+    undisturbed = bool(run.disturbance.kind == "none" and V[0] > 0)
     decay = {
         "alpha": alpha,
         "applies": undisturbed,
@@ -143,7 +143,7 @@ def summarize(setup: Setup, trace: Trace, info: dict[str, Any]) -> dict[str, Any
                      "kappa": (setup.design.get("sync") or {}).get("kappa"),
                      "theta": (setup.design.get("sync") or {}).get("theta")})
     out["sync"] = sync
-    out["messages"] = {k: info[k] for k in ("links", "drops", "timeouts", "held", "stale_u") if k in info}
+    out["messages"] = {k: info[k] for k in ("links", "drops", "timeouts", "held", "stale_u", "late_inputs") if k in info}
     out["inputs_missing"] = int((~trace.got).sum())
     for k in ("engine", "wall_s", "events", "agents_reported"):
         if k in info:
