@@ -210,21 +210,16 @@ class AgentDaemon:
                 # cut off from the simulator and back: the run went on meanwhile, this is its tick
                 log.warning("agent %d: back after losing the simulator; rejoining at tick %d (missed %d..%d)",
                             self.id, m.tick, self.last_meas + 1, m.tick - 1)
-                self._jump = None
-                self.pending_meas.clear()
-                if self._timer is not None:
-                    self._timer.cancel()
-                    self._timer = None
-                self.next_tick = m.tick
             elif self.seen_start or self.ticks_stepped or self.pending_meas:
                 # the simulator never skips a tick, so either this agent was cut off (partition,
                 # restart) and the run went on without it, or the message is forged: hold it back
                 # and rejoin at its tick only if the real next measurement does not come
                 self._hold_jump(m)
                 return
-            # a (re)joiner that missed the start: join the run at the simulator's current tick
-            log.info("agent %d joins the run at tick %d", self.id, m.tick)
-            self.next_tick = m.tick
+            else:
+                # a (re)joiner that missed the start: join the run at the simulator's current tick
+                log.info("agent %d joins the run at tick %d", self.id, m.tick)
+            self._join_at(m.tick)
         self.last_meas = m.tick
         self._sim_lost = False
         if self._jump is not None and self._jump.tick <= m.tick:
@@ -259,14 +254,23 @@ class AgentDaemon:
         log.warning("agent %d: measurements %d..%d never came; rejoining at tick %d",
                     self.id, self.last_meas + 1, m.tick - 1, m.tick)
         self.drops["future"] -= 1
-        self.pending_meas.clear()
-        self.next_tick = m.tick
+        self._join_at(m.tick)
         self.last_meas = m.tick
         self.pending_meas[m.tick] = m
+        self._try_step()
+
+    def _join_at(self, k: int) -> None:
+        """Go on from tick k, the run having gone on without this agent: forget what was pending, and
+        wait only for the neighbours whose tick k - 1 state is here already (the others come back
+        into the wait with their next message; waiting for a state sent before this agent listened
+        would only cost a neighbour timeout)."""
+        self._jump = None
+        self.pending_meas.clear()
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        self._try_step()
+        self.next_tick = k
+        self.expect = {j for j in self.neighbours if self.last_from[j] >= k - 1}
 
     def _on_state(self, key: str, payload: bytes) -> None:
         sender = self._state_keys.get(key)

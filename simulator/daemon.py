@@ -50,9 +50,9 @@ JOURNAL = "sim.journal"
 _JOURNAL_VERSION = 1
 
 
-def _resolve(fut: asyncio.Future[None]) -> None:
+def _resolve(fut: asyncio.Future[bool], met: bool) -> None:
     if not fut.done():
-        fut.set_result(None)
+        fut.set_result(met)
 
 
 class SimDaemon:
@@ -81,6 +81,7 @@ class SimDaemon:
         self.events: list[dict[str, Any]] = []
         self.reports: dict[int, AgentReport] = {}
         self.last_estimate: list[int] = [-1] * self.n  # tick of the last estimate recorded per agent
+        self.last_wrench: list[int] = [-1] * self.n  # tick of the last wrench accepted per agent
         self._partition_events = partition_events(scenario)  # recorded as their tick comes
         self.tick = 0
         self.wrenches: dict[int, tuple[float, float, float]] = {}  # of self.tick; emptied after each step
@@ -157,8 +158,9 @@ class SimDaemon:
             self.latest[i] = (w.fx, w.fy, w.tau)
             return
         if w.tick != self.tick:
-            if w.tick == self.resumed_at - 1:
-                self.drops["resent"] += 1  # an agent re-sends its last wrench to the restarted simulator
+            if w.tick == self.last_wrench[i] or w.tick == self.resumed_at - 1:
+                # an agent that lost the simulator re-sends its last wrench when it is back
+                self.drops["resent"] += 1
             else:
                 self.drops["stale" if w.tick < self.tick else "future"] += 1
             return
@@ -166,6 +168,7 @@ class SimDaemon:
             self.drops["duplicate"] += 1  # first one wins: a replay cannot overwrite the genuine wrench
             return
         self.wrenches[i] = (w.fx, w.fy, w.tau)
+        self.last_wrench[i] = w.tick
         self._poke()
 
     def _have_wrenches(self) -> bool:
@@ -182,8 +185,8 @@ class SimDaemon:
         # an agent publishes an estimate once per recorded tick, after stepping it (so never for a
         # tick the simulator has not reached): anything else would write a forged row
         if est.tick <= self.last_estimate[i]:
-            # after a restart agents re-send their last estimate, which the journal may already hold
-            self.drops["resent" if est.tick == self.last_estimate[i] and self.resumed_at >= 0 else "stale"] += 1
+            # an agent that lost the simulator re-sends its last estimate, which may be here already
+            self.drops["resent" if est.tick == self.last_estimate[i] else "stale"] += 1
             return
         if est.tick > self.tick:
             self.drops["future"] += 1
@@ -217,26 +220,28 @@ class SimDaemon:
         if self._waiting is not None:
             cond, fut = self._waiting
             if not fut.done() and cond():
-                fut.set_result(None)
+                fut.set_result(True)
 
     async def _wait_for(self, cond: Callable[[], bool], timeout: float) -> bool:
         """Waits until ``cond()`` holds, re-checked on every input; False on timeout.
 
         One future per wait, resolved by the input that makes ``cond`` true; the timeout is a
-        ``call_later`` on the loop, cancelled when the future resolves first.
+        ``call_later`` on the loop, cancelled when the future resolves first. The answer is the
+        future's: an input that lands between its resolution and this coroutine's resumption (an
+        agent appearing, say) does not turn a met condition into a timeout.
         """
         if cond():
             return True
         loop = asyncio.get_running_loop()
         fut = loop.create_future()
         self._waiting = (cond, fut)
-        timer = loop.call_later(timeout, _resolve, fut)
+        timer = loop.call_later(timeout, _resolve, fut, False)
         try:
-            await fut
+            met = await fut
         finally:
             timer.cancel()
             self._waiting = None
-        return cond()
+        return met or cond()
 
     def _publish_control(self, kind: str, tick: int) -> None:
         self.transport.publish(keys.sim_control(self.run_name), encode(Control(kind, tick, self.scenario.ticks)))
