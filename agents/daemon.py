@@ -11,9 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import time
 from collections import Counter
-from collections.abc import Callable
 
 from coload.engine import deliver_tick
 from coload.world import build_agent
@@ -50,14 +48,7 @@ MAX_TICK_LEAD = 10_000
 
 
 class AgentDaemon:
-    def __init__(
-        self,
-        scenario: Scenario,
-        agent_id: int,
-        transport: Transport,
-        run: str,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
+    def __init__(self, scenario: Scenario, agent_id: int, transport: Transport, run: str) -> None:
         if not 0 <= agent_id < scenario.n:
             raise ValueError(f"--id {agent_id} is not an agent of this scenario (0..{scenario.n - 1})")
         self.scenario = scenario
@@ -93,8 +84,6 @@ class AgentDaemon:
         self._state_keys = {keys.state(run, j): j for j in self.neighbours}  # parsed once, not per sample
         self._record_every = scenario.record.every_ticks
         self.ticks_stepped = 0
-        self.clock = clock  # wall clock (s): only the real-time age check reads it
-        self._meas_wall: dict[int, float] = {}  # real time: when each pending measurement arrived
         self.max_age_ticks = scenario.timing.max_age_s / scenario.dt
         self.sim_alive = False
         self._sim_lost = False  # the simulator's token went away after the run started; cleared by a measurement
@@ -229,8 +218,6 @@ class AgentDaemon:
             self.pending_meas.clear()
             self.next_tick = m.tick
         self.pending_meas[m.tick] = m
-        if self.mode == "realtime":
-            self._meas_wall[m.tick] = self.clock()
         self._try_step()
 
     def _hold_jump(self, m: Measurement) -> None:
@@ -365,15 +352,12 @@ class AgentDaemon:
     def _fresh(self, k: int, inbox: list[StateMsg]) -> list[StateMsg]:
         """Real time: neighbour states older than ``timing.max_age_s`` are dropped (``stale_age``).
 
-        A state sent at tick j describes its sender at j; stepping tick k it is (k - j) ticks old on
-        the plant's clock, which in real time is the wall clock, plus however long measurement k
-        waited before this step (normally nothing: real-time agents step as it arrives).
+        A state sent at tick j describes its sender at j; stepping tick k it is (k - j) dt seconds
+        old. In real time the simulator paces ticks on the wall clock and an agent steps a tick as
+        its measurement arrives, so this is the state's wall-clock age; it is also the right age
+        when the simulator was stopped meanwhile (the plant stood still too).
         """
-        arrived = self._meas_wall.pop(k, None)
-        for t in [t for t in self._meas_wall if t < k]:
-            del self._meas_wall[t]
-        lag_ticks = max(0.0, self.clock() - arrived) / self.scenario.dt if arrived is not None else 0.0
-        limit = self.max_age_ticks - lag_ticks
+        limit = self.max_age_ticks
         fresh = [msg for msg in inbox if k - msg.tick <= limit]
         if len(fresh) != len(inbox):
             self.drops["stale_age"] += len(inbox) - len(fresh)

@@ -177,7 +177,7 @@ class TimingSpec(_Strict):
     max_age_s: float = Field(
         0.5, gt=0,
         description="realtime: an agent drops neighbour states older than this when it steps (ticks since they "
-                    "were sent x dt, plus the step's own lag), counted as stale_age in summary.json drops",
+                    "were sent x dt: wall-clock seconds in real time), counted as stale_age in summary.json drops",
     )
     sim_restart_wait_s: float = Field(
         30.0, gt=0,
