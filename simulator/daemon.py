@@ -24,6 +24,7 @@ import hashlib
 import json
 import logging
 import os
+import struct
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -99,6 +100,7 @@ class SimDaemon:
         # restart: the journal, what it said was alive, and the tick the run resumed at (-1: not resumed)
         self._journal = None
         self._journal_drops: dict[str, int] = {}
+        self._wfmt = f"<{3 * self.n}d"
         self._expected_alive: set[int] = set()
         self.resumed_at = -1
         self.scenario_hash = hashlib.sha256(dump_scenario(scenario).encode()).hexdigest()
@@ -256,12 +258,13 @@ class SimDaemon:
         applied (the OS keeps what was written)."""
         if self._journal is None:
             return
-        w = ",".join(f"[{fx!r},{fy!r},{tau!r}]" for fx, fy, tau in applied)
+        # the wrenches as little-endian doubles in hex: exact, and ~10x cheaper than float reprs
+        w = struct.pack(self._wfmt, *(x for wr in applied for x in wr)).hex()
         extra = ',"to":1' if timeout else ""
         if self.drops != self._journal_drops:
             self._journal_drops = dict(self.drops)
             extra += ',"drops":' + json.dumps(self._journal_drops, separators=(",", ":"))
-        self._journal.write(f'{{"k":{k},"w":[{w}]{extra}}}\n'.encode())
+        self._journal.write(f'{{"k":{k},"w":"{w}"{extra}}}\n'.encode())
 
     def _read_journal(self) -> list[dict[str, Any]] | None:
         """The records of a journal left by this run (same run name and scenario), else None."""
@@ -299,7 +302,8 @@ class SimDaemon:
                     raise RuntimeError(f"{JOURNAL}: tick {k} follows tick {self.tick - 1}")
                 meas = self.plant.measure(self.rng)
                 self.recorder.truth(self.plant.truth())
-                applied = [tuple(w) for w in rec["w"]]
+                flat = struct.unpack(self._wfmt, bytes.fromhex(rec["w"]))
+                applied = [flat[3 * i:3 * i + 3] for i in range(self.n)]
                 self.recorder.samples(k, meas, applied)
                 self.plant.apply_and_step(applied)
                 self.latest = list(applied)
