@@ -46,13 +46,15 @@ from dataclasses import fields
 from math import cos, sin
 from operator import attrgetter
 
+from agents import dynamic
 from agents.control import KinematicControl
 from agents.kinematic import PairEstimator
-from config.agent_params import ControlSpec, EstimatorSpec
+from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
 
 ESTIMATE_NAMES: tuple[str, ...] = (
-    "phase",  # 0 spinning up (no omega_hat yet), 1 omega regulated on omega_hat
+    "phase",  # stage: 0 spinning up (no omega_hat yet), 1 kinematic (omega regulated); 2.. the
+    # dynamical phase (agents.dynamic.STAGE_NAMES)
     "omega",  # omega_hat (rad/s), consensus-filtered
     "omega_local",  # this tick's local pooled eq. (9) value (rad/s; NaN when no sample)
     "zi_x",  # z_i = p_Ci - p_G estimate, world frame (m)
@@ -60,7 +62,19 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "pairs_ready",  # neighbours whose z_ij is estimated
     "dropped_unknown",  # messages from senders not in neighbours (count)
     "dropped_stale",  # duplicates / not newer than already used / from the future / malformed (count)
+    # dynamical phase (agents/dynamic.py; NaN while not estimated, or without it)
+    "J",  # moment of inertia about the CoM after the averaging consensus (kg m^2)
+    "m",  # mass after the averaging consensus (kg)
+    "zc_x",  # z_C = p_G - p_C, world frame (m)
+    "zc_y",
+    "vc_x",  # CoM velocity v_C, world frame (m/s)
+    "vc_y",
+    "J_local",  # this agent's own J estimate, before the averaging consensus (kg m^2)
+    "m_local",  # this agent's own m estimate, before the averaging consensus (kg)
+    "late_switches",  # stage switches this agent learnt of after the agreed tick (count)
 )
+_DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
+_NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)
 
 PHASE_SPINUP = 0
 PHASE_REGULATE = 1
@@ -111,8 +125,8 @@ _NAN = math.nan
 
 
 def _build_estimate(
-    tick: int, agent: int, regulate: bool, om: float, u: float, y: complex, ph: float,
-    ready: int, d_unknown: int, d_stale: int, pair: dict[int, tuple[float, float, float, float]],
+    tick: int, agent: int, stage: int, om: float, u: float, y: complex, ph: float,
+    ready: int, d_unknown: int, d_stale: int, pair: dict[int, tuple[float, ...]], dyn: dict[str, float],
 ) -> Estimate:
     """The :class:`Estimate` of one tick, from the values :meth:`AgentCore.step` snapshots.
 
@@ -124,7 +138,7 @@ def _build_estimate(
         tick,
         agent,
         {
-            "phase": 1.0 if regulate else 0.0,
+            "phase": float(stage),
             "omega": om,
             "omega_local": u,
             "zi_x": x.real,
@@ -132,6 +146,7 @@ def _build_estimate(
             "pairs_ready": ready + 0.0,
             "dropped_unknown": d_unknown + 0.0,
             "dropped_stale": d_stale + 0.0,
+            **dyn,
         },
         {j: (p[0], p[1]) for j, p in pair.items()},
     )
@@ -207,6 +222,7 @@ class AgentCore:
         "_adopt_ph",
         "_beta",
         "_ctl",
+        "_dyn",
         "_eps_om",
         "_eps_ph",
         "_eps_z",
@@ -241,6 +257,7 @@ class AgentCore:
         sigma_v: float,
         estimator: EstimatorSpec,
         control: ControlSpec,
+        dynamics: DynamicsSpec | None = None,
     ) -> None:
         if agent_id in neighbours:
             raise ValueError("an agent cannot be its own neighbour")
@@ -287,6 +304,9 @@ class AgentCore:
         self.dropped_unknown = 0
         self.dropped_stale = 0
         self._tick = -1
+        self._dyn = None
+        if dynamics is not None and dynamics.algorithm != "none":
+            self._dyn = dynamic.DynamicPhase(self.id, nb_ids, self.n, self.dt, sig, dynamics)
 
     @property
     def x(self) -> complex:
@@ -324,6 +344,7 @@ class AgentCore:
                 inbox = sorted(inbox, key=_by_tick)
         nbrs = self._nbrs
         me = self.id
+        dyn = self._dyn
         for msg in inbox:
             nb = nbrs.get(msg.sender)
             if nb is None:
@@ -343,10 +364,18 @@ class AgentCore:
                 yy = sh["yy"]
                 s_ok = sh["oi"] > 0.0
                 pz = msg.pair.get(me)
-                if pz is None:
-                    zx = zy = fx = fy = 0.0
+                if dyn is None:
+                    if pz is None:
+                        zx = zy = fx = fy = 0.0
+                    else:
+                        zx, zy, fx, fy = pz
                 else:
-                    zx, zy, fx, fy = pz
+                    if pz is None:
+                        zx = zy = fx = fy = 0.0
+                        fl = dynamic.NO_FLOWS
+                    else:
+                        zx, zy, fx, fy, *fl = pz
+                    dyn.receive(msg.sender, t, msg.phase, sh, fl)
                 vjx = msg.vx
                 vjy = msg.vy
                 chk = s_om + s_ph + yx + yy + zx + zy + fx + fy + vjx + vjy
@@ -480,17 +509,24 @@ class AgentCore:
         else:
             tau = spin
         i = me
+        shared = {"om": om_new, "oi": 1.0 if om_init else 0.0, "ph": ph, "yx": y.real, "yy": y.imag}
+        stage = PHASE_REGULATE if om_init else PHASE_SPINUP
+        if dyn is None:
+            dyn_est = _NO_DYN
+            pairs_est = pairs_msg
+        else:
+            fx, fy, tau = dyn.step(
+                tick, complex(vx, vy), u, u_den, om_new, ph, y * complex(cos(ph), sin(ph)), self.trusted, om_init,
+                (fx, fy, tau),
+            )
+            stage = dyn.stage
+            dyn.shared(shared)
+            pairs_est = pairs_msg
+            pairs_msg = {j: p + tuple(dyn.flows_to(j)) for j, p in pairs_msg.items()}
+            dyn_est = dyn.estimates()
         res = _new(StepResult)
-        res.state = _new_state(
-            tick,
-            i,
-            vx,
-            vy,
-            PHASE_REGULATE if om_init else PHASE_SPINUP,
-            {"om": om_new, "oi": 1.0 if om_init else 0.0, "ph": ph, "yx": y.real, "yy": y.imag},
-            pairs_msg,
-        )
+        res.state = _new_state(tick, i, vx, vy, stage, shared, pairs_msg)
         res.wrench = _new_wrench(tick, i, fx, fy, tau)
         res._estimate = None  # built on first access (StepResult.estimate)
-        res._snap = (tick, i, om_init, om_new, u, y, ph, ready, self.dropped_unknown, self.dropped_stale, pairs_msg)
+        res._snap = (tick, i, stage, om_new, u, y, ph, ready, self.dropped_unknown, self.dropped_stale, pairs_est, dyn_est)
         return res

@@ -20,4 +20,5 @@ def build_agent(scenario: Scenario, agent_id: int) -> AgentCore:
         sigma_v=scenario.noise.sigma_v if sigma is None else sigma,
         estimator=scenario.estimator,
         control=scenario.control,
+        dynamics=scenario.dynamics,
     )

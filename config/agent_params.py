@@ -8,6 +8,7 @@ config package importing the algorithms. Defaults are tuned for the reference sc
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -83,3 +84,64 @@ class ControlSpec(_Strict):
                     "200 ms link delay (omega_hat lags by the delay plus the consensus filter)",
     )
     torque_max: float = Field(5.0, ge=0, description="saturation of the regulation torque per agent (N m)")
+
+
+class DynamicsSpec(_Strict):
+    """The dynamical phase (paper 000 Sec. V-VI; see ``agents/dynamic.py`` and docs/dynamics.md)."""
+
+    algorithm: Literal["none", "sequential", "background"] = Field(
+        "none",
+        description="none: kinematic phase only; sequential: Algorithm 1 (stages m, z_C, v_C then J, then "
+                    "done); background: Algorithm 2 (observers with forgetting under Prop. 6 + a torque dither)",
+    )
+    kin_settle_s: float = Field(
+        10.0, ge=0, description="an agent is ready to leave the kinematic phase after all its z_ij have been "
+                                "estimated for this long (s)",
+    )
+    horizon_s: float = Field(
+        1.0, gt=0, description="agreement margin: the team switches stage this long after the last agent "
+                               "became ready (s); must exceed the flood time (diameter x (1 + link delay))",
+    )
+    m_excite_s: float = Field(40.0, gt=0, description="length of the mass/geometry excitation stage (s)")
+    m_force: float = Field(3.0, ge=0, description="Prop. 6 common force per agent during that stage (N)")
+    m_force_angle: float = Field(0.5, description="its direction, world frame, from +x (rad)")
+    m_switch_s: float = Field(5.0, gt=0, description="the common force flips sign every this long (s)")
+    j_excite_s: float = Field(20.0, gt=0, description="length of the J stage: f_i = k_z s(t) z_i^perp, tau_i = 0 (s)")
+    k_z: float = Field(1.0, gt=0, description="gain of the J-stage force f_i = k_z s(t) z_i^perp (N/m)")
+    j_cycles: int = Field(1, ge=1, description="up/down cycles of s(t) in the J stage (omega ramps up, then back)")
+    omega_sign: int = Field(1, description="+1: the first J-stage half-cycle speeds the spin up (sign of the spin)")
+    avg_tol: float = Field(
+        1e-4, gt=0, description="an averaging consensus has converged at an agent when its value and every "
+                                "neighbour's agree within this relative tolerance (-)",
+    )
+    avg_window_s: float = Field(0.5, ge=0, description="... and have done so for this long (s)")
+    brake: float = Field(
+        0.0, ge=0, description="Prop. 7 braking gain once done, f_i = -brake v_Ci (N s/m); 0 keeps the "
+                               "kinematic control running",
+    )
+    kf_angle_walk: float = Field(
+        0.02, ge=0, description="Kalman filter: angle random walk of q_i, i.e. omega_hat error (rad/sqrt(s))"
+    )
+    kf_v_walk: float = Field(
+        0.01, ge=0, description="Kalman filter: random walk of v_C, unmodelled forces (m/s/sqrt(s))"
+    )
+    mu_walk: float = Field(
+        1e-4, ge=0, description="background: random walk of 1/m, lets the mass estimate follow a changing "
+                                "load (1/kg/sqrt(s))",
+    )
+    iota_walk: float = Field(
+        2e-5, ge=0, description="background: random walk of 1/J, lets the inertia estimate follow a "
+                                "changing load (1/(kg m^2)/sqrt(s))",
+    )
+    u_var_scale: float = Field(
+        1.0, ge=0, description="Kalman filter: weight of the pooled eq. (9) rate as an omega measurement, as a "
+                               "factor on its variance; 0 leaves it out (-)",
+    )
+    omega_walk: float = Field(
+        0.05, ge=0, description="Kalman filter: random walk of omega beyond the torque model (rad/s/sqrt(s))"
+    )
+    dither_torque: float = Field(
+        2.0, ge=0, description="background: amplitude of the sinusoidal torque dither per agent that makes J "
+                               "observable beside z_C (N m)",
+    )
+    dither_period_s: float = Field(6.0, gt=0, description="background: period of that dither (s)")

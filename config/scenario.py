@@ -11,7 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from config.agent_params import ControlSpec, EstimatorSpec
+from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 
 Vec2 = tuple[float, float]
 
@@ -343,6 +343,7 @@ class Scenario(_Strict):
     initial: InitialSpec = InitialSpec()
     control: ControlSpec = ControlSpec()
     estimator: EstimatorSpec = EstimatorSpec()
+    dynamics: DynamicsSpec = DynamicsSpec()
     timing: TimingSpec = TimingSpec()
     record: RecordSpec = RecordSpec()
     plant: PlantSpec = PlantSpec()

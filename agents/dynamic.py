@@ -1,0 +1,571 @@
+"""The dynamical phase of paper 000 (Sec. V, Algorithm 1) and its background variant (Sec. VI, Algorithm 2).
+
+Pure, like the rest of the agent core: :class:`DynamicPhase` is driven by :class:`agents.agent.AgentCore`
+once per tick with the kinematic results of that tick (omega_hat, the body-frame angle phi, z_i, the
+pooled local omega measurement) and the neighbours' dynamic states, and returns the wrench of the tick.
+
+What each agent runs (symbols as in the paper; z_C = p_G - p_C, q_i = p_Ci - p_C = z_i + z_C):
+
+* **Contact-to-CoM Kalman filter** (our replacement for (18) + (20) + (21), see docs/dynamics.md). The
+  rigid body gives, for agent i's own measurement, v_Ci = v_C + omega q_i^perp, with
+  v_C(k+1) = v_C(k) + dt F(k)/m (F the total force, known from the force consensus) and
+  q_i(k+1) = R(omega dt) q_i(k). With omega = omega_hat this is *linear* in the state
+  (v_C, q_i, 1/m): an exact linear Kalman filter, no linearisation. It yields 1/m with its variance
+  (Result 10 without differentiating velocities), q_i (hence z_C = mean_i q_i by average consensus,
+  and a refined z_i = q_i - z_C: mm instead of cm), and v_C (Result 9). With a random walk on 1/m it
+  is the background mass observer of Algorithm 2 (the role of (26); no sign condition on the input).
+* **Rotation regression** (Result 5 / (11), and the role of (24)): omega(t) = omega_0 + (1/J) C(t),
+  C(t) = dt sum_{k<t} T(k), T the total torque about the CoM, T = n (z_C x fbar + mean_i(q_i x df_i +
+  tau_i)) (decomposition (12)-(14): df_i = f_i - fbar, so no consensus on rotating per-agent signals).
+  Fitted to the raw pooled eq. (9) measurement (unbiased; omega_hat's low-pass would bias it). In
+  Algorithm 1 it runs over the J stage only, where f_i = k_z s(t) z_i^perp and tau_i = 0 (Result 5);
+  in Algorithm 2 with exponential forgetting under any control law.
+* **Flow-updating average consensus** (:class:`FlowAverage`) for every network quantity: the mean force
+  fbar, the mean extra torque, z_C (in the agents' shared body frame), and the inverse-variance
+  weighted averages of the local m and J (numerator and weight channels). Flows keep the network sum
+  exact under loss and delay; common inputs (a common force) are tracked without lag.
+* **Stage agreement** (:class:`StageBarrier`): agents move through the stages together with no clock
+  but the tick count and no coordinator. Each agent floods a bitmask of the agents known to be ready
+  and the latest ready tick; once the mask is full the switch tick is that latest ready tick plus a
+  horizon, the same number at every agent (the mask and the max are exact once complete). A lost
+  message only delays the flood (states are re-sent every tick); an agent that learns of a switch late
+  switches at once (counted); an agent that finds a neighbour two stages ahead (it restarted) jumps there
+  and takes the network's estimates (its own weight is 0).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from math import cos, sin
+
+import numpy as np
+
+from config.agent_params import DynamicsSpec
+
+# Stages (the StateMsg ``phase`` field and the ``phase`` estimate)
+SPINUP = 0  # no omega_hat yet: common spin-up torque
+KINEMATIC = 1  # z_ij, omega, z_i (Sec. IV); omega regulated by torques
+M_EXCITE = 2  # Prop. 6 common force, stronger, switched: mass, q_i (hence z_C) by the Kalman filter
+M_AVERAGE = 3  # averaging consensus of m and z_C until converged
+J_EXCITE = 4  # f_i = k_z s(t) z_i^perp, tau_i = 0: J by the rotation regression (Result 5)
+J_AVERAGE = 5  # averaging consensus of J until converged
+DONE = 6  # every estimate final; Prop. 7 braking (optional)
+BACKGROUND = 7  # Algorithm 2: Prop. 6 + torque dither, background observers with forgetting
+
+STAGE_NAMES = ("spinup", "kinematic", "m_excite", "m_average", "j_excite", "j_average", "done", "background")
+
+# Flow-average channels
+# mean force = world-fixed part (FX, FY) + body-fixed part (BX, BY, in the psi frame) rotated to the
+# world: each part is then a slowly varying input (a force that turns with the load, like the J stage's,
+# would be a rotating agent-specific signal in the world frame, which no consensus tracks; pitfalls note)
+CH_FX, CH_FY, CH_BX, CH_BY, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(11)
+N_CH = 11
+NO_FLOWS = (0.0,) * N_CH  # a neighbour that sent no pair entry for us (it has not heard from us yet)
+
+_MASK_BITS = 50  # agents per float in the flooded ready mask (exact in a double)
+
+
+class FlowAverage:
+    """Flow-updating average consensus of ``N_CH`` real channels (one agent's side).
+
+    x_i = u_i - sum_j F_ij with F_ij = -F_ji + eps_ij (x_i - x_j) each tick, eps_ij the Metropolis
+    weight 1 / (1 + max(d_i, d_j)): the flows stay antisymmetric under any delay or loss, so the network
+    mean of x always equals the mean of the inputs u, and x converges to it.
+    """
+
+    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg", "seen")
+
+    def __init__(self, nbr_ids: Sequence[int]) -> None:
+        self.u = [0.0] * N_CH
+        self.x = [0.0] * N_CH
+        self.deg = len(nbr_ids)
+        self.flow = {j: [0.0] * N_CH for j in nbr_ids}  # F_ij
+        self.nx: dict[int, list[float]] = {}  # x_j, latest received
+        self.nf = {j: [0.0] * N_CH for j in nbr_ids}  # F_ji, latest received
+        self.ndeg = {j: 1 for j in nbr_ids}
+        self.seen: set[int] = set()
+
+    def receive(self, j: int, xj: list[float], fji: Sequence[float], degj: int) -> None:
+        self.nx[j] = xj
+        self.nf[j] = list(fji)
+        self.ndeg[j] = degj
+
+    def update(self) -> None:
+        x = self.x
+        deg = self.deg
+        tot = [0.0] * N_CH
+        for j, fl in self.flow.items():
+            xj = self.nx.get(j)
+            if xj is not None:
+                eps = 1.0 / (1.0 + max(deg, self.ndeg[j]))
+                fji = self.nf[j]
+                for c in range(N_CH):
+                    fl[c] = -fji[c] + eps * (x[c] - xj[c])
+            for c in range(N_CH):
+                tot[c] += fl[c]
+        u = self.u
+        self.x = [u[c] - tot[c] for c in range(N_CH)]
+
+    def flows_to(self, j: int) -> list[float]:
+        return self.flow[j]
+
+
+class StageBarrier:
+    """Agreement on the tick at which the whole team leaves the current stage (see module docstring)."""
+
+    __slots__ = ("me", "n", "full", "horizon", "mask", "tmax", "switch", "chunks")
+
+    def __init__(self, me: int, n: int, horizon_ticks: int) -> None:
+        self.me = me
+        self.n = n
+        self.full = (1 << n) - 1
+        self.chunks = (n + _MASK_BITS - 1) // _MASK_BITS
+        self.horizon = horizon_ticks
+        self.reset()
+
+    def reset(self) -> None:
+        self.mask = 0
+        self.tmax = -1
+        self.switch = -1
+
+    def set_ready(self, tick: int) -> None:
+        if not (self.mask >> self.me) & 1:
+            self.mask |= 1 << self.me
+            self.tmax = max(self.tmax, tick)
+            self._check()
+
+    def merge(self, mask: int, tmax: int, switch: int) -> None:
+        if switch >= 0 and self.switch < 0:
+            self.switch = switch
+        if mask & ~self.mask:
+            self.mask |= mask & self.full
+            self.tmax = max(self.tmax, tmax)
+            self._check()
+
+    def _check(self) -> None:
+        if self.switch < 0 and self.mask == self.full:
+            self.switch = self.tmax + self.horizon
+
+    def encode(self, out: dict[str, float]) -> None:
+        m = self.mask
+        for c in range(self.chunks):
+            out[f"B{c}"] = float((m >> (c * _MASK_BITS)) & ((1 << _MASK_BITS) - 1))
+        out["Bt"] = float(self.tmax)
+        out["Bs"] = float(self.switch)
+
+    def decode(self, sh: dict[str, float]) -> tuple[int, int, int]:
+        m = 0
+        for c in range(self.chunks):
+            v = sh[f"B{c}"]
+            if not (0.0 <= v < 2.0**_MASK_BITS) or v != int(v):
+                raise ValueError("bad mask chunk")
+            m |= int(v) << (c * _MASK_BITS)
+        return m, int(sh["Bt"]), int(sh["Bs"])
+
+
+class RigidEKF:
+    """Extended Kalman filter on s = (v_Cx, v_Cy, q_x, q_y, mu = 1/m, omega, iota = 1/J), world frame.
+
+    Model (the plant's own discrete step, semi-implicit Euler): v_C(k+1) = v_C + dt mu F(k),
+    q(k+1) = R(omega dt) q, omega(k+1) = omega + dt iota T(k); F, T the total force and torque about the
+    CoM, from the consensus. Measurements: the own contact velocity v_Ci = v_C + omega q^perp and the pooled
+    eq. (9) rate u = omega (variance 2 sigma^2 / sum_j |z_ij|^2). Estimating omega here, with the torque
+    model, removes the lag of the kinematic omega_hat filter (which rotated q and the J-stage forces
+    away from the body while omega ramped).
+    """
+
+    __slots__ = ("s", "P", "Qd", "r", "ready", "_I")
+
+    def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
+        self.s = np.zeros(7)
+        self.P = np.eye(7)
+        self.r = max(sigma_v, 1e-3) ** 2
+        self.ready = False
+        walk_mu = spec.mu_walk if background else 0.0
+        walk_iota = spec.iota_walk if background else 0.0
+        # per-second process noise intensities; q's angle walk is scaled by |q|^2 at each step
+        self.Qd = (spec.kf_v_walk**2, spec.kf_angle_walk**2, walk_mu**2, spec.omega_walk**2, walk_iota**2)
+        self._I = np.eye(7)
+
+    def start(self, v: complex, q0: complex, omega: float) -> None:
+        vc = v - omega * 1j * q0
+        self.s = np.array([vc.real, vc.imag, q0.real, q0.imag, 0.0, omega, 0.0])
+        self.P = np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 1e-2])
+        self.ready = True
+
+    def update(self, v: complex, u: float, u_var: float) -> None:
+        s, P = self.s, self.P
+        qx, qy, om = s[2], s[3], s[5]
+        if u == u and u_var > 0.0:
+            H = np.array([
+                [1.0, 0.0, 0.0, -om, 0.0, -qy, 0.0],
+                [0.0, 1.0, om, 0.0, 0.0, qx, 0.0],
+                [0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            ])
+            pred = np.array([s[0] - om * qy, s[1] + om * qx, om])
+            z = np.array([v.real, v.imag, u])
+            R = np.diag([self.r, self.r, u_var])
+        else:
+            H = np.array([
+                [1.0, 0.0, 0.0, -om, 0.0, -qy, 0.0],
+                [0.0, 1.0, om, 0.0, 0.0, qx, 0.0],
+            ])
+            pred = np.array([s[0] - om * qy, s[1] + om * qx])
+            z = np.array([v.real, v.imag])
+            R = np.diag([self.r, self.r])
+        PHt = P @ H.T
+        S = H @ PHt + R
+        K = np.linalg.solve(S, PHt.T).T
+        self.s = s + K @ (z - pred)
+        P = P - K @ PHt.T
+        self.P = 0.5 * (P + P.T)
+
+    def predict(self, force: complex, torque: float, dt: float) -> None:
+        s = self.s
+        qx, qy, mu, om, iota = s[2], s[3], s[4], s[5], s[6]
+        c, sn = cos(om * dt), sin(om * dt)
+        nq = np.array([
+            s[0] + dt * mu * force.real,
+            s[1] + dt * mu * force.imag,
+            c * qx - sn * qy,
+            sn * qx + c * qy,
+            mu,
+            om + dt * iota * torque,
+            iota,
+        ])
+        A = self._I.copy()
+        A[0, 4] = dt * force.real
+        A[1, 4] = dt * force.imag
+        A[2, 2] = c
+        A[2, 3] = -sn
+        A[3, 2] = sn
+        A[3, 3] = c
+        A[2, 5] = dt * (-sn * qx - c * qy)
+        A[3, 5] = dt * (c * qx - sn * qy)
+        A[5, 6] = dt * torque
+        P = A @ self.P @ A.T
+        qv, qa, qm, qo, qi = self.Qd
+        P[0, 0] += qv * dt
+        P[1, 1] += qv * dt
+        qq = qa * dt * (qx * qx + qy * qy)
+        P[2, 2] += qq
+        P[3, 3] += qq
+        P[4, 4] += qm * dt
+        P[5, 5] += qo * dt
+        P[6, 6] += qi * dt
+        self.s = nq
+        self.P = P
+
+    @property
+    def q(self) -> complex:
+        return complex(self.s[2], self.s[3])
+
+    @property
+    def vc(self) -> complex:
+        return complex(self.s[0], self.s[1])
+
+    @property
+    def mu(self) -> float:
+        return float(self.s[4])
+
+    @property
+    def mu_var(self) -> float:
+        return float(self.P[4, 4])
+
+    @property
+    def omega(self) -> float:
+        return float(self.s[5])
+
+    @property
+    def iota(self) -> float:
+        return float(self.s[6])
+
+    @property
+    def iota_var(self) -> float:
+        return float(self.P[6, 6])
+
+
+class DynamicPhase:
+    """One agent's dynamical phase (see module docstring). Driven by AgentCore.step."""
+
+    def __init__(self, agent_id: int, nbr_ids: Sequence[int], n: int, dt: float, sigma_v: float,
+                 spec: DynamicsSpec) -> None:
+        self.id = agent_id
+        self.n = n
+        self.dt = dt
+        self.spec = spec
+        self.background = spec.algorithm == "background"
+        self.avg = FlowAverage(nbr_ids)
+        ticks = lambda s: max(1, int(round(s / dt)))  # noqa: E731
+        self.barrier = StageBarrier(agent_id, n, ticks(spec.horizon_s))
+        self.kf = RigidEKF(sigma_v, spec, self.background)
+        self.sigma_v = sigma_v
+        self.stage = SPINUP
+        self.stage_tick = 0
+        self.late_switches = 0
+        self.kin_since = -1
+        self.settle = ticks(spec.kin_settle_s)
+        self.m_ticks = ticks(spec.m_excite_s)
+        self.m_switch = ticks(spec.m_switch_s)
+        self.j_ticks = ticks(spec.j_excite_s)
+        self.avg_window = ticks(spec.avg_window_s)
+        self.dither_ticks = ticks(spec.dither_period_s)
+        self.conv_since = -1
+        self.m_local = math.nan
+        self.m_var = math.nan
+        self.j_local = math.nan
+        self.j_var = math.nan
+        self.nbr_stage: dict[int, int] = {}
+        self.nbr_stage_tick: dict[int, int] = {}
+        self.nbr_psi: dict[int, tuple[float, int]] = {}  # (psi_j predicted for t + 1, t)
+        # psi: the body-frame angle of the consensus on body-fixed vectors (z_C). Integral of the
+        # filter's omega, which follows omega ramps without lag (the kinematic phi = integral of
+        # omega_hat fell ~1.6 rad behind during the J stage), kept common by phase consensus.
+        self.psi = math.nan
+        self.nbr_barrier: dict[int, tuple[int, int, int]] = {}
+        self.frozen_m = False
+        self.frozen_j = False
+
+    # ------------------------------------------------------------------ messages
+    def receive(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float]) -> None:
+        """A neighbour's state of tick ``t``; raises (KeyError, ValueError, TypeError) if malformed."""
+        xj = [float(sh[f"c{c}"]) for c in range(N_CH)]
+        psi = float(sh["ps"])
+        if psi - psi != 0.0:
+            raise ValueError("non-finite")
+        degj = int(sh["dg"])
+        if degj < 1 or len(flows) != N_CH:
+            raise ValueError("bad dynamic state")
+        bar = self.barrier.decode(sh)
+        for v in xj:
+            if v - v != 0.0:
+                raise ValueError("non-finite")
+        self.avg.receive(j, xj, [float(f) for f in flows], degj)
+        self.nbr_stage[j] = int(msg_phase)
+        self.nbr_stage_tick[j] = int(sh["Sk"])
+        self.nbr_barrier[j] = bar
+        if msg_phase >= KINEMATIC:  # its filter (and psi) runs from the kinematic stage on
+            self.nbr_psi[j] = (psi, t)
+
+    # ------------------------------------------------------------------ helpers
+    def _enter(self, stage: int, tick: int) -> None:
+        self.stage = stage
+        self.stage_tick = tick
+        self.barrier.reset()
+        self.conv_since = -1
+
+    def _advance(self, tick: int) -> None:
+        """Stage agreement: neighbours ahead, barrier merges, own readiness, due switches."""
+        st = self.stage
+        # a neighbour two or more stages ahead (we restarted / joined late): jump there
+        if not self.background and st >= KINEMATIC:
+            ahead, j_ahead = max(((s, j) for j, s in self.nbr_stage.items()), default=(-1, -1))
+            if st + 1 < ahead <= DONE:
+                self._enter(ahead, self.nbr_stage_tick[j_ahead])
+                self.late_switches += 1
+                return
+        for j, s in self.nbr_stage.items():
+            if s == st:
+                mask, tmax, sw = self.nbr_barrier[j]
+                self.barrier.merge(mask, tmax, sw)
+            elif s == st + 1 and st in (KINEMATIC, M_AVERAGE, J_AVERAGE):
+                # the neighbour has switched already: its stage start is the agreed tick
+                self.barrier.merge(0, -1, self.nbr_stage_tick[j])
+        sw = self.barrier.switch
+        if sw >= 0 and tick >= sw and st in (KINEMATIC, M_AVERAGE, J_AVERAGE):
+            if tick > sw:
+                self.late_switches += 1
+            nxt = {KINEMATIC: BACKGROUND if self.background else M_EXCITE, M_AVERAGE: J_EXCITE,
+                   J_AVERAGE: DONE}[st]
+            self._enter(nxt, tick)
+        elif st == M_EXCITE and tick >= self.stage_tick + self.m_ticks:
+            self._enter(M_AVERAGE, tick)
+        elif st == J_EXCITE and tick >= self.stage_tick + self.j_ticks:
+            self._enter(J_AVERAGE, tick)
+
+    def _converged(self, num: int, wch: int, tick: int) -> bool:
+        """Local convergence of a weighted average: own value and every neighbour's within tolerance."""
+        x = self.avg.x
+        if x[wch] <= 0.0:
+            return False
+        mine = x[num] / x[wch]
+        tol = self.spec.avg_tol * abs(mine)
+        ok = True
+        for xj in self.avg.nx.values():
+            if xj[wch] <= 0.0 or abs(xj[num] / xj[wch] - mine) > tol:
+                ok = False
+                break
+        if not ok:
+            self.conv_since = -1
+            return False
+        if self.conv_since < 0:
+            self.conv_since = tick
+        return tick - self.conv_since >= self.avg_window
+
+    # ------------------------------------------------------------------ the tick
+    def step(
+        self, tick: int, v: complex, u: float, u_den: float, omega_hat: float, phi: float, zi: complex,
+        trusted: bool, om_init: bool, wrench: tuple[float, float, float],
+    ) -> tuple[float, float, float]:
+        """Advance one tick; returns the wrench to apply (``wrench`` is the kinematic-phase law's)."""
+        dt = self.dt
+        n = self.n
+        spec = self.spec
+        kf = self.kf
+        if self.stage == SPINUP and om_init:
+            self._enter(KINEMATIC, tick)
+        if self.stage >= KINEMATIC:
+            if not kf.ready:
+                kf.start(v, zi, omega_hat)
+                self.psi = phi
+            if self.stage == KINEMATIC:
+                if trusted:
+                    if self.kin_since < 0:
+                        self.kin_since = tick
+                    if tick - self.kin_since >= self.settle:
+                        self.barrier.set_ready(tick)
+                else:
+                    self.kin_since = -1
+            self._advance(tick)
+        stage = self.stage
+        x = self.avg.x
+        if kf.ready:
+            # phase consensus: psi_i += sum_j eps_ij (psi_j - psi_i), neighbours' values predicted to now
+            psi = self.psi
+            acc = 0.0
+            om = kf.omega
+            deg = self.avg.deg
+            for j, (pj, tj) in self.nbr_psi.items():
+                eps = 1.0 / (1.0 + max(deg, self.avg.ndeg[j]))
+                acc += eps * (pj + om * dt * (tick - 1 - tj) - psi)
+            self.psi = psi = psi + acc
+        else:
+            psi = phi
+        rot = complex(cos(psi), sin(psi))
+
+        # --- estimator update with this tick's data ----------------------------------------------
+        if kf.ready:
+            kf.update(v, u, spec.u_var_scale * 2.0 * self.sigma_v**2 / u_den if u_den > 0.0 and spec.u_var_scale > 0 else 0.0)
+            q = kf.q
+        else:
+            q = zi
+        zc = complex(x[CH_ZX], x[CH_ZY]) * rot  # z_C, world (the consensus runs in the shared body frame)
+
+        # --- control -------------------------------------------------------------------------------
+        fx, fy, tau = wrench
+        body = False  # the force turns with the load (else it is fixed in the world)
+        if stage == M_EXCITE:
+            k = tick - self.stage_tick
+            sgn = -1.0 if (k // self.m_switch) & 1 else 1.0
+            fx = sgn * spec.m_force * cos(spec.m_force_angle)
+            fy = sgn * spec.m_force * sin(spec.m_force_angle)
+        elif stage == J_EXCITE:
+            k = tick - self.stage_tick
+            half = max(1, self.j_ticks // (2 * spec.j_cycles))
+            sgn = 1.0 if (k // half) % 2 == 0 else -1.0
+            if spec.omega_sign < 0:
+                sgn = -sgn
+            # Result 5: f_i = k_z z_i^perp with the refined z_i = q_i - z_C, so sum_i f_i = 0 and
+            # z_C drops out of the rotation; tau_i = 0
+            f = spec.k_z * sgn * 1j * (q - zc)
+            fx, fy, tau = f.real, f.imag, 0.0
+            body = True
+        elif stage == DONE and spec.brake > 0.0:
+            fx, fy, tau = -spec.brake * v.real, -spec.brake * v.imag, 0.0
+        elif stage == BACKGROUND:
+            k = tick - self.stage_tick
+            tau += spec.dither_torque * sin(2.0 * math.pi * k / self.dither_ticks)
+
+        # --- consensus inputs for this tick ---------------------------------------------------------
+        au = self.avg.u
+        fbar = complex(x[CH_FX], x[CH_FY]) + complex(x[CH_BX], x[CH_BY]) * rot
+        if body:
+            fb = complex(fx, fy) * rot.conjugate()
+            au[CH_FX] = au[CH_FY] = 0.0
+            au[CH_BX] = fb.real
+            au[CH_BY] = fb.imag
+        else:
+            au[CH_FX] = fx
+            au[CH_FY] = fy
+            au[CH_BX] = au[CH_BY] = 0.0
+        df = complex(fx, fy) - fbar
+        au[CH_DT] = (q.real * df.imag - q.imag * df.real) + tau  # q_i x (f_i - fbar) + tau_i
+        if kf.ready:
+            qp = q * rot.conjugate()  # q_i in the shared body frame; their mean is z_C
+            au[CH_ZX] = qp.real
+            au[CH_ZY] = qp.imag
+        take_m = stage == BACKGROUND or (stage == M_AVERAGE and not self.frozen_m)
+        take_j = stage == BACKGROUND or (stage == J_AVERAGE and not self.frozen_j)
+        if kf.ready and take_m:
+            mu, var = kf.mu, kf.mu_var
+            if mu > 0.0 and var > 0.0:
+                self.m_local = 1.0 / mu
+                self.m_var = var / mu**4
+                w = 1.0 / self.m_var
+                au[CH_MN] = w * self.m_local
+                au[CH_MW] = w
+                self.frozen_m = stage == M_AVERAGE
+        if kf.ready and take_j:
+            iota, var = kf.iota, kf.iota_var
+            if iota > 0.0 and var > 0.0:
+                self.j_local = 1.0 / iota
+                self.j_var = var / iota**4
+                w = 1.0 / self.j_var
+                au[CH_JN] = w * self.j_local
+                au[CH_JW] = w
+                self.frozen_j = stage == J_AVERAGE
+        self.avg.update()
+        x = self.avg.x
+
+        # readiness of the averaging stages
+        if stage == M_AVERAGE and self._converged(CH_MN, CH_MW, tick):
+            self.barrier.set_ready(tick)
+        elif stage == J_AVERAGE and self._converged(CH_JN, CH_JW, tick):
+            self.barrier.set_ready(tick)
+
+        # --- prediction to tick + 1 with the total force and torque (decomposition (12)-(14)) ---------
+        if kf.ready:
+            fbar = complex(x[CH_FX], x[CH_FY]) + complex(x[CH_BX], x[CH_BY]) * rot
+            zc = complex(x[CH_ZX], x[CH_ZY]) * rot
+            torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + x[CH_DT])
+            self.psi += dt * kf.omega  # the body turns by the pre-update omega (semi-implicit Euler)
+            kf.predict(n * fbar, torque, dt)
+        return fx, fy, tau
+
+    # ------------------------------------------------------------------ outputs
+    def shared(self, out: dict[str, float]) -> None:
+        x = self.avg.x
+        for c in range(N_CH):
+            out[f"c{c}"] = x[c]
+        out["dg"] = float(self.avg.deg)
+        out["Sk"] = float(self.stage_tick)
+        out["ps"] = self.psi if self.psi == self.psi else 0.0
+        self.barrier.encode(out)
+
+    def flows_to(self, j: int) -> list[float]:
+        return self.avg.flow[j]
+
+    def estimates(self) -> dict[str, float]:
+        x = self.avg.x
+        nan = math.nan
+        st = self.stage
+        m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
+        J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
+        have_geo = st >= M_AVERAGE
+        if have_geo:
+            zc = complex(x[CH_ZX], x[CH_ZY]) * complex(cos(self.psi), sin(self.psi))
+            vc = self.kf.vc
+        else:
+            zc = vc = complex(nan, nan)
+        return {
+            "J": J,
+            "m": m,
+            "zc_x": zc.real,
+            "zc_y": zc.imag,
+            "vc_x": vc.real,
+            "vc_y": vc.imag,
+            "J_local": self.j_local,
+            "m_local": self.m_local,
+            "late_switches": float(self.late_switches),
+        }
