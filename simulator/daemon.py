@@ -322,8 +322,8 @@ class SimDaemon:
         self._journal_drops = dict(self.drops)
         self._expected_alive = alive
         self.resumed_at = self.tick
-        while self._partition_events and self._partition_events[0]["tick"] < self.tick:
-            self._partition_events.pop(0)  # already in self.events (journaled as they came)
+        # those recorded before it died are in self.events already (journaled as they came)
+        self._partition_events = [e for e in self._partition_events if e not in self.events]
 
     def _open_journal(self, records: list[dict[str, Any]] | None) -> None:
         path = self.run_dir / JOURNAL
