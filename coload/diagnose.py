@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -396,8 +397,8 @@ def _modes(d: _Data, fit: _Fit) -> np.ndarray:
 def block_average(x: np.ndarray, block: int) -> np.ndarray:
     """Means over consecutive blocks of ``block`` rows (NaN-aware); a trailing partial block is dropped."""
     nb = x.shape[0] // block
-    with np.errstate(invalid="ignore"), np.testing.suppress_warnings() as sup:
-        sup.filter(RuntimeWarning)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-NaN block (no agent measured) stays NaN
         return np.nanmean(x[: nb * block].reshape(nb, block, *x.shape[1:]), axis=1)
 
 

@@ -133,8 +133,12 @@ def test_bad_input_names_file_line_and_column(tmp_path, header, rows, match):
     rec = write(tmp_path, rows, **({"header": header} if header else {}))
     with pytest.raises(DiagnoseError, match=match):
         read_recording(rec)
+
+
+def test_cli_reports_bad_input_with_exit_code_2(tmp_path):
+    rec = write(tmp_path, ["0.0,0,0,0,0,0,0", "0.0,1,0,abc,0,0,0"])
     proc = subprocess.run(coload_cmd("diagnose", str(rec), "--quiet"), capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 2 and "samples.csv:" in proc.stderr
+    assert proc.returncode == 2 and "samples.csv:3: column 'vy'" in proc.stderr
 
 
 def test_missing_run_toml_key_is_named(tmp_path):
