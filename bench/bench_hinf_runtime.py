@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hinf import load_spec, parse_spec, run_design
 from hinf import design as D
+from hinf import load_spec, parse_spec, run_design
 from hinf import runtime as R
 from hinf.daemon import run_daemons_in_memory
 from hinf.spec import random_ring_spec

@@ -13,7 +13,7 @@ import numpy as np
 
 from .spec import HinfSpec, SpecError, load_spec, parse_spec
 
-__all__ = ["HinfSpec", "SpecError", "load_spec", "parse_spec", "design_cli", "run_design", "run_cli"]
+__all__ = ["HinfSpec", "SpecError", "design_cli", "load_spec", "parse_spec", "run_cli", "run_design"]
 
 
 def run_design(spec: HinfSpec, sync: bool = True, verify: bool = True) -> dict:

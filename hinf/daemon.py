@@ -37,7 +37,15 @@ from net.messages import AgentReport, Control
 from net.schema import DecodeError, decode, encode
 from net.transport import Transport
 
-from .runtime import EstimatorCore, PlantCore, Setup, Trace, TraceWriter, deliver_tick, in_links
+from .runtime import (
+    EstimatorCore,
+    PlantCore,
+    Setup,
+    Trace,
+    TraceWriter,
+    deliver_tick,
+    in_links,
+)
 
 log = logging.getLogger("coload.hinf")
 
@@ -214,11 +222,11 @@ class HinfSimDaemon:
             for i, z in enumerate(zs):
                 self.transport.publish(self._meas_keys[i], encode(HinfMeas(k, i, z)))
             if lockstep:
-                if not await self.waiter.wait_for(lambda: self.alive <= now.keys(), run.timing.input_timeout_s):
+                if not await self.waiter.wait_for(lambda now=now: self.alive <= now.keys(), run.timing.input_timeout_s):
                     self.input_timeouts += 1
                     log.warning("tick %d: no input from %s", k, sorted(self.alive - now.keys()))
             else:
-                await self.waiter.wait_for(lambda: len(now) == self.N, wall0 + (k + 1) * dt - time.perf_counter())
+                await self.waiter.wait_for(lambda now=now: len(now) == self.N, wall0 + (k + 1) * dt - time.perf_counter())
                 self.stale_u += self.N - len(now)
             for i, m in now.items():
                 self.last_u[i] = np.asarray(m.u)

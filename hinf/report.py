@@ -16,7 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from .runtime import Disturbance, Setup, Trace, build_setup, continuous_norm, discrete_error_network, discrete_norm, errors
+from .runtime import (
+    Disturbance,
+    Setup,
+    Trace,
+    build_setup,
+    continuous_norm,
+    discrete_error_network,
+    discrete_norm,
+    errors,
+)
 from .spec import HinfSpec, parse_spec
 
 COLOURS = ["black", "red", "blue", "green"]  # agents 1-4 as in the paper's Fig. 2

@@ -27,13 +27,14 @@ Sampled-data implementation (tick dt), and why this one:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
 
-from net.hinf_messages import HinfInput, HinfMeas, HinfState
+from net.hinf_messages import HinfInput, HinfState
 from net.link import DelayLine, LinkModel, LinkStats
 
 from . import design as D
@@ -377,7 +378,7 @@ class Trace:
     got: np.ndarray  # ticks x N, bool: the simulator had k's input for this tick
 
     @staticmethod
-    def empty(setup: Setup) -> "Trace":
+    def empty(setup: Setup) -> Trace:
         T, net = setup.ticks, setup.net
         dist_n = (int(sum(b.shape[1] for b in net.Bt)), int(sum(net.r * len(net.nbrs(k)) for k in range(net.N))))
         return Trace(np.zeros((T, sum(net.n))), np.full((T, sum(lc.sigma for lc in setup.locs)), np.nan),

@@ -14,7 +14,14 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from config.scenario import LinkSpec
 
@@ -55,7 +62,7 @@ class AgentSpec(BaseModel):
     R: Matrix | None = Field(None, description="R_k: n_k x n_k regulation-error weight of (13)/(14); default I")
 
     @model_validator(mode="after")
-    def _shapes(self) -> "AgentSpec":
+    def _shapes(self) -> AgentSpec:
         a = _mat(self.A, "A")
         n = a.shape[0]
         if a.shape != (n, n):
@@ -95,7 +102,7 @@ class SyncSpec(BaseModel):
     lam: float = Field(gt=0, description="lambda: control weight in (14); H_k = -B_k^T X_k / lambda^2")
 
     @model_validator(mode="after")
-    def _shapes(self) -> "SyncSpec":
+    def _shapes(self) -> SyncSpec:
         s = _mat(self.S, "S")
         if s.shape[0] != s.shape[1]:
             raise ValueError(f"S must be square, got {s.shape}")
@@ -155,19 +162,19 @@ class RunSection(BaseModel):
 
     @property
     def ticks(self) -> int:
-        return int(round(self.duration / self.dt))
+        return round(self.duration / self.dt)
 
 
 class HinfSpec(BaseModel):
     """Whole design problem: agents, directed graph, and the design constants of (6)."""
 
     model_config = ConfigDict(extra="forbid")
-    name: str = "hinf"
+    name: str = Field("hinf", description="label of the design and of its runs")
     omega: float = Field(gt=0, description="omega: weight of the measurement noise eta in z_kj")
     alpha: float = Field(0.0, ge=0, description="alpha: guaranteed decay rate, V' <= -alpha V without disturbance")
-    agents: list[AgentSpec] = Field(min_length=1)
+    agents: list[AgentSpec] = Field(min_length=1, description="the agents of (1), in the order that numbers them 0..N-1")
     edges: list[tuple[str, str]] = Field(description="[j, k]: agent k measures z_kj = y_j - y_k and hears from j")
-    sync: SyncSpec | None = None
+    sync: SyncSpec | None = Field(None, description="Theorem 3 synchronization design; omit for estimation only")
     run: RunSection = Field(RunSection(), description="simulation of the designed network (coload hinf run)")
 
     @field_validator("agents")
@@ -180,7 +187,7 @@ class HinfSpec(BaseModel):
         return v
 
     @model_validator(mode="after")
-    def _graph(self) -> "HinfSpec":
+    def _graph(self) -> HinfSpec:
         rs = {np.asarray(a.C).shape[0] for a in self.agents}
         if len(rs) != 1:
             raise ValueError(f"agents: all C_k must have the same number of rows r, got {sorted(rs)}")

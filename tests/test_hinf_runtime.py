@@ -18,7 +18,12 @@ from config.scenario import LinkSpec, LossSpec, PartitionSpec
 from hinf import SpecError, load_spec, run_design
 from hinf import design as D
 from hinf import runtime as R
-from hinf.daemon import HinfAgentDaemon, HinfSimDaemon, run_daemons_in_memory, run_processes
+from hinf.daemon import (
+    HinfAgentDaemon,
+    HinfSimDaemon,
+    run_daemons_in_memory,
+    run_processes,
+)
 from hinf.report import finish_run, load_run_dir, load_trace, prepare_run_dir, summarize
 from net import keys
 from net.hinf_messages import HinfInput, HinfMeas, HinfState
