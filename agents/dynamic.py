@@ -69,9 +69,11 @@ _MASK_BITS = 50  # agents per float in the flooded ready mask (exact in a double
 class FlowAverage:
     """Flow-updating average consensus of ``N_CH`` real channels (one agent's side).
 
-    x_i = u_i - sum_j F_ij with F_ij = -F_ji + eps_ij (x_i - x_j) each tick, eps_ij the Metropolis
-    weight 1 / (1 + max(d_i, d_j)): the flows stay antisymmetric under any delay or loss, so the network
-    mean of x always equals the mean of the inputs u, and x converges to it.
+    x_i = u_i - sum_j F_ij with F_ij = (F_ij - F_ji)/2 + eps_ij (x_i - x_j) each tick (F_ji the latest
+    received), eps_ij the Metropolis weight 1 / (1 + max(d_i, d_j)). While messages flow the flows are
+    antisymmetric, so the network mean of x equals the mean of the inputs u at every tick (common input
+    changes pass through at once); a lost message makes a pair asymmetric until its next exchange, after
+    which the mean is exact again, and x converges to it.
     """
 
     __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg", "seen")
@@ -101,7 +103,10 @@ class FlowAverage:
                 eps = 1.0 / (1.0 + max(deg, self.ndeg[j]))
                 fji = self.nf[j]
                 for c in range(N_CH):
-                    fl[c] = -fji[c] + eps * (x[c] - xj[c])
+                    # (F_ij - F_ji)/2 rather than -F_ji: both ends update at once from each other's
+                    # previous flows, and with -F_ji an asymmetry (from one lost message) would flip
+                    # sign every tick for ever; the mean of the two kills it at the next exchange
+                    fl[c] = 0.5 * (fl[c] - fji[c]) + eps * (x[c] - xj[c])
             for c in range(N_CH):
                 tot[c] += fl[c]
         u = self.u
@@ -195,30 +200,46 @@ class RigidEKF:
         self.ready = True
 
     def update(self, v: complex, u: float, u_var: float) -> None:
+        """Measurement update; H is sparse, so P H^T is three column combinations of P."""
         s, P = self.s, self.P
         qx, qy, om = s[2], s[3], s[5]
+        r = self.r
+        c0 = P[:, 0] - om * P[:, 3] - qy * P[:, 5]  # P H^T, column for v_x
+        c1 = P[:, 1] + om * P[:, 2] + qx * P[:, 5]  # ... v_y
+        e0 = v.real - (s[0] - om * qy)
+        e1 = v.imag - (s[1] + om * qx)
+        s00 = c0[0] - om * c0[3] - qy * c0[5] + r
+        s01 = c1[0] - om * c1[3] - qy * c1[5]
+        s11 = c1[1] + om * c1[2] + qx * c1[5] + r
         if u == u and u_var > 0.0:
-            H = np.array([
-                [1.0, 0.0, 0.0, -om, 0.0, -qy, 0.0],
-                [0.0, 1.0, om, 0.0, 0.0, qx, 0.0],
-                [0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
-            ])
-            pred = np.array([s[0] - om * qy, s[1] + om * qx, om])
-            z = np.array([v.real, v.imag, u])
-            R = np.diag([self.r, self.r, u_var])
+            c2 = P[:, 5]  # ... u
+            e2 = u - om
+            s02 = c2[0] - om * c2[3] - qy * c2[5]
+            s12 = c2[1] + om * c2[2] + qx * c2[5]
+            s22 = c2[5] + u_var
+            # explicit inverse of the symmetric 3x3 innovation covariance
+            a00 = s11 * s22 - s12 * s12
+            a01 = s02 * s12 - s01 * s22
+            a02 = s01 * s12 - s02 * s11
+            a11 = s00 * s22 - s02 * s02
+            a12 = s01 * s02 - s00 * s12
+            a22 = s00 * s11 - s01 * s01
+            det = s00 * a00 + s01 * a01 + s02 * a02
+            if det <= 0.0:
+                return
+            C = np.column_stack((c0, c1, c2))
+            Sinv = np.array(((a00, a01, a02), (a01, a11, a12), (a02, a12, a22))) / det
+            K = C @ Sinv
+            self.s = s + K @ np.array((e0, e1, e2))
         else:
-            H = np.array([
-                [1.0, 0.0, 0.0, -om, 0.0, -qy, 0.0],
-                [0.0, 1.0, om, 0.0, 0.0, qx, 0.0],
-            ])
-            pred = np.array([s[0] - om * qy, s[1] + om * qx])
-            z = np.array([v.real, v.imag])
-            R = np.diag([self.r, self.r])
-        PHt = P @ H.T
-        S = H @ PHt + R
-        K = np.linalg.solve(S, PHt.T).T
-        self.s = s + K @ (z - pred)
-        P = P - K @ PHt.T
+            det = s00 * s11 - s01 * s01
+            if det <= 0.0:
+                return
+            C = np.column_stack((c0, c1))
+            Sinv = np.array(((s11, -s01), (-s01, s00))) / det
+            K = C @ Sinv
+            self.s = s + K @ np.array((e0, e1))
+        P = P - K @ C.T
         self.P = 0.5 * (P + P.T)
 
     def predict(self, force: complex, torque: float, dt: float) -> None:
@@ -455,7 +476,7 @@ class DynamicPhase:
         # --- control -------------------------------------------------------------------------------
         fx, fy, tau = wrench
         body = False  # the force turns with the load (else it is fixed in the world)
-        if stage == M_EXCITE:
+        if stage == M_EXCITE or stage == BACKGROUND:
             k = tick - self.stage_tick
             sgn = -1.0 if (k // self.m_switch) & 1 else 1.0
             fx = sgn * spec.m_force * cos(spec.m_force_angle)
@@ -473,8 +494,7 @@ class DynamicPhase:
             body = True
         elif stage == DONE and spec.brake > 0.0:
             fx, fy, tau = -spec.brake * v.real, -spec.brake * v.imag, 0.0
-        elif stage == BACKGROUND:
-            k = tick - self.stage_tick
+        if stage == BACKGROUND:  # Prop. 6 (above) + the regulation torque + a dither for J
             tau += spec.dither_torque * sin(2.0 * math.pi * k / self.dither_ticks)
 
         # --- consensus inputs for this tick ---------------------------------------------------------

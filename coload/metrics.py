@@ -346,6 +346,12 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
         share, _ = last_finite(s.eerd_agent)
         out["eerd_ratio_per_agent"] = [_ratio(_num(share[i]), _num(s.eerd_agent_ref[0, i])) for i in range(n)]
 
+    if est.has("phase"):
+        # Algorithm 1 done (stage 6 in agents.dynamic) at every agent: the first recorded time
+        # from which all agents report it; None if the run ended before
+        done = np.all(est.columns["phase"] == 6.0, axis=1)
+        out["finished_s"] = float(s.est_t[int(np.argmax(done))]) if done.any() else None
+
     tcol = truth.columns
     ti = s.truth_est_idx
     # J_local/m_local: each agent's own least-squares estimate before the averaging consensus

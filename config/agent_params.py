@@ -130,7 +130,7 @@ class DynamicsSpec(_Strict):
                                 "load (1/kg/sqrt(s))",
     )
     iota_walk: float = Field(
-        2e-5, ge=0, description="background: random walk of 1/J, lets the inertia estimate follow a "
+        3e-4, ge=0, description="background: random walk of 1/J, lets the inertia estimate follow a "
                                 "changing load (1/(kg m^2)/sqrt(s))",
     )
     u_var_scale: float = Field(

@@ -1,0 +1,221 @@
+"""The dynamical phase (agents/dynamic.py): consensus, stage agreement, and the closed loop against truth.
+
+The closed-loop checks run the whole of Algorithm 1 / 2 on the in-process engine against the plant's
+truth; tolerances are the issue's targets with the spread measured over seeds (docs/dynamics.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import random
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents import dynamic as D
+from coload.engine import run_inproc
+from config.agent_params import DynamicsSpec
+from config.loader import load_scenario
+from conftest import ROOT as REPO
+
+FIG4 = REPO / "config" / "scenarios" / "paper-fig4.toml"
+FIG9 = REPO / "config" / "scenarios" / "paper-fig9.toml"
+
+
+def _connected_graph(n: int, extra: list[tuple[int, int]], rng: random.Random) -> list[list[int]]:
+    """A random spanning tree plus the given extra edges."""
+    nbrs: list[set[int]] = [set() for _ in range(n)]
+    for i in range(1, n):
+        j = rng.randrange(i)
+        nbrs[i].add(j)
+        nbrs[j].add(i)
+    for a, b in extra:
+        a, b = a % n, b % n
+        if a != b:
+            nbrs[a].add(b)
+            nbrs[b].add(a)
+    return [sorted(s) for s in nbrs]
+
+
+def _run_flow(nbrs, inputs, ticks, loss, rng, loss_until):
+    """Synchronous rounds with a one-tick exchange; each directed message lost with prob ``loss``."""
+    n = len(nbrs)
+    avgs = [D.FlowAverage(nbrs[i]) for i in range(n)]
+    msgs: list[tuple[list[float], dict[int, list[float]]] | None] = [None] * n
+    means = []
+    for k in range(ticks):
+        for i in range(n):
+            for j in nbrs[i]:
+                if msgs[j] is not None and not (k < loss_until and rng.random() < loss):
+                    xj, fl = msgs[j]
+                    avgs[i].receive(j, xj, fl[i], len(nbrs[j]))
+            avgs[i].u[0] = inputs(k, i)
+            avgs[i].update()
+        msgs = [(list(a.x), {j: list(a.flow[j]) for j in nbrs[i]}) for i, a in enumerate(avgs)]
+        means.append((sum(a.x[0] for a in avgs) / n, sum(a.u[0] for a in avgs) / n))
+    return avgs, means
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(2, 12),
+    extra=st.lists(st.tuples(st.integers(0, 11), st.integers(0, 11)), max_size=10),
+    seed=st.integers(0, 2**16),
+)
+def test_flow_average_keeps_the_mean_and_converges(n, extra, seed):
+    rng = random.Random(seed)
+    nbrs = _connected_graph(n, extra, rng)
+    vals = [rng.uniform(-10, 10) for _ in range(n)]
+    avgs, means = _run_flow(nbrs, lambda k, i: vals[i] + (3.0 if k >= 40 else 0.0), 40 * n + 400, 0.0, rng, 0)
+    for mx, mu in means:  # lossless: the network mean is exact at every tick, also across the input step
+        assert mx == pytest.approx(mu, abs=1e-9)
+    target = sum(vals) / n + 3.0
+    for a in avgs:
+        assert a.x[0] == pytest.approx(target, abs=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(3, 10), seed=st.integers(0, 2**16), loss=st.floats(0.05, 0.5))
+def test_flow_average_recovers_the_exact_mean_after_losses(n, seed, loss):
+    """Lost messages disturb the mean only until the next exchange on that edge, never for good."""
+    rng = random.Random(seed)
+    nbrs = _connected_graph(n, [], rng)
+    vals = [rng.uniform(-5, 5) for _ in range(n)]
+    avgs, means = _run_flow(nbrs, lambda k, i: vals[i], 300 + 60 * n * n, loss, rng, 200)
+    target = sum(vals) / n
+    mx, mu = means[-1]
+    assert mx == pytest.approx(mu, abs=1e-9)
+    for a in avgs:
+        assert a.x[0] == pytest.approx(target, abs=1e-6)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(2, 70),
+    seed=st.integers(0, 2**16),
+    loss=st.floats(0.0, 0.6),
+)
+def test_stage_barrier_agrees_on_one_switch_tick(n, seed, loss):
+    """Every agent computes the same switch tick = last ready tick + horizon (also n > 50: two mask
+    floats); with lossy flooding some learn it late, none computes a different one."""
+    rng = random.Random(seed)
+    nbrs = _connected_graph(n, [(rng.randrange(n), rng.randrange(n)) for _ in range(n // 3)], rng)
+    horizon = 100
+    bars = [D.StageBarrier(i, n, horizon) for i in range(n)]
+    ready = [rng.randrange(0, 50) for _ in range(n)]
+    learnt = [-1] * n
+    wire: list[dict[str, float]] = [{} for _ in range(n)]
+    for k in range(60 + 40 * n):
+        for i in range(n):
+            for j in nbrs[i]:
+                if wire[j] and rng.random() >= loss:
+                    bars[i].merge(*bars[i].decode(wire[j]))
+            if k >= ready[i]:
+                bars[i].set_ready(k)
+            if bars[i].switch >= 0 and learnt[i] < 0:
+                learnt[i] = k
+        for i in range(n):
+            wire[i] = {}
+            bars[i].encode(wire[i])
+    expect = max(ready) + horizon
+    assert [b.switch for b in bars] == [expect] * n
+    assert all(0 <= t for t in learnt)
+    if loss == 0.0 and n <= 40:
+        # diameter <= n - 1 ticks of flooding: everybody knows well before the switch
+        assert max(learnt) <= max(ready) + n
+
+
+def test_stage_barrier_rejects_a_malformed_mask():
+    b = D.StageBarrier(0, 3, 10)
+    for bad in ({"B0": -1.0, "Bt": 0.0, "Bs": -1.0}, {"B0": 0.5, "Bt": 0.0, "Bs": -1.0}, {"Bt": 0.0, "Bs": -1.0}):
+        with pytest.raises((ValueError, KeyError)):
+            b.decode(bad)
+
+
+def test_rigid_ekf_recovers_mass_and_inertia_of_a_noise_free_body():
+    """The filter's model is the plant's discrete step: on exact data it converges to the truth."""
+    dt, m, J = 0.01, 50.0, 86.89
+    q = complex(1.2, -0.7)
+    vc = 0.3 + 0.1j
+    om = 1.5
+    kf = D.RigidEKF(0.01, DynamicsSpec(kf_angle_walk=0.0, kf_v_walk=0.0, omega_walk=0.0), False)
+    kf.start(vc + om * 1j * q + 0.05, q + 0.2, om + 0.1)
+    for k in range(6000):
+        force = 20.0 * complex(math.cos(0.5), math.sin(0.5)) * (1 if (k // 300) % 2 == 0 else -1)
+        torque = 10.0 * math.sin(2 * math.pi * k / 500)
+        v = vc + om * 1j * q
+        kf.update(v, om, 1e-4)
+        kf.predict(force, torque, dt)
+        q *= complex(math.cos(om * dt), math.sin(om * dt))
+        vc += dt * force / m
+        om += dt * torque / J
+    assert 1.0 / kf.mu == pytest.approx(m, rel=1e-4)
+    assert 1.0 / kf.iota == pytest.approx(J, rel=1e-4)
+    assert abs(kf.q - q) < 1e-4
+
+
+def _estimates(run_dir):
+    import csv
+
+    with open(run_dir / "estimates.csv") as f:
+        rows = list(csv.DictReader(f))
+    return rows
+
+
+@pytest.mark.slow
+def test_algorithm_1_on_the_reference_scenario(tmp_path):
+    """paper-fig4 (n = 10 line, sigma 0.3): all six quantities, stages switched together, done < 200 s."""
+    sc = load_scenario(FIG4, ["duration=95", "seed=3"])
+    summary = run_inproc(sc, tmp_path)
+    err = summary["errors"]
+    assert err["J_rel"] <= 0.014  # the paper's single-run error; our median over seeds is ~0.5 %
+    assert err["m_rel"] <= 0.005
+    assert err["zC_rms"] <= 0.06
+    assert err["vC_rms"] <= 0.1
+    assert err["finished_s"] is not None and err["finished_s"] <= 95.0
+    rows = _estimates(tmp_path)
+    by_t: dict[str, set[str]] = {}
+    for r in rows:
+        by_t.setdefault(r["t"], set()).add(r["phase"])
+    # lockstep, no faults: the agreed switch ticks are the same for everyone, so at every recorded
+    # time every agent is in the same stage (the spin-up -> kinematic entry is local, excluded)
+    mixed = [t for t, ph in by_t.items() if len(ph) > 1 and float(t) > 7.0]
+    assert mixed == []
+    last = [r for r in rows if r["t"] == rows[-1]["t"]]
+    assert {r["phase"] for r in last} == {str(float(D.DONE))}
+    for r in last:
+        for key in ("J", "m", "zc_x", "zc_y", "vc_x", "vc_y", "zi_x", "omega"):
+            assert math.isfinite(float(r[key])), key
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    assert on_disk["errors"]["J_rel"] == err["J_rel"]
+
+
+@pytest.mark.slow
+def test_algorithm_1_agrees_on_stages_under_loss(tmp_path):
+    """20 % Bernoulli loss on every link: the team still finishes, every agent holds J and m."""
+    sc = load_scenario(FIG4, ["duration=100", "seed=2", 'link.loss.model="bernoulli"', "link.loss.p=0.2"])
+    summary = run_inproc(sc, tmp_path)
+    err = summary["errors"]
+    assert err["finished_s"] is not None
+    assert err["J_rel"] <= 0.03
+    assert err["m_rel"] <= 0.01
+
+
+@pytest.mark.slow
+def test_algorithm_2_follows_a_load_change(tmp_path):
+    """paper-fig9: m and J step down 20 % at t = 100 s; the background estimates follow within 5 %."""
+    sc = load_scenario(FIG9, ["duration=170"])
+    run_inproc(sc, tmp_path)
+    rows = _estimates(tmp_path)
+    t = np.array([float(r["t"]) for r in rows])
+    J = np.array([float(r["J"]) for r in rows])
+    m = np.array([float(r["m"]) for r in rows])
+    before = (t > 85) & (t < 100)
+    after = t > 155
+    assert np.nanmedian(np.abs(m[before] / 50.0 - 1)) < 0.05
+    assert np.nanmedian(np.abs(J[before] / 86.89 - 1)) < 0.05
+    assert np.nanmedian(np.abs(m[after] / 40.0 - 1)) < 0.05
+    assert np.nanmedian(np.abs(J[after] / 69.5 - 1)) < 0.05
