@@ -469,6 +469,11 @@ class AgentCore:
             om_new += self._beta * (u - om)
         else:
             u = _NAN
+        if dyn is not None and om_init:
+            # feed-forward of the dynamical filter's angular acceleration (1/J_hat times the modelled
+            # torque): without it omega_hat lags a ramp by omega_dot * omega_tau, and phi, z_ij and
+            # z_i fall behind the body while omega ramps (the J stage: EEC rose to ~1 m^2)
+            om_new += dyn.alpha * dt
         if nlist:
             self.y = y = -sflow  # y_i = -sum_j F_ij
         if adopt:

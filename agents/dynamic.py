@@ -339,6 +339,7 @@ class DynamicPhase:
         self.j_var = math.nan
         self.nbr_stage: dict[int, int] = {}
         self.nbr_stage_tick: dict[int, int] = {}
+        self.alpha = 0.0  # modelled angular acceleration for the next tick (rad/s^2)
         self.nbr_psi: dict[int, tuple[float, int]] = {}  # (psi_j predicted for t + 1, t)
         # psi: the body-frame angle of the consensus on body-fixed vectors (z_C). Integral of the
         # filter's omega, which follows omega ramps without lag (the kinematic phi = integral of
@@ -551,6 +552,9 @@ class DynamicPhase:
             torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + x[CH_DT])
             self.psi += dt * kf.omega  # the body turns by the pre-update omega (semi-implicit Euler)
             kf.predict(n * fbar, torque, dt)
+            iota = kf.iota
+            if iota > 0.0 and kf.iota_var < (0.1 * iota) ** 2:  # only once 1/J is known to 10 %
+                self.alpha = iota * torque
         return fx, fy, tau
 
     # ------------------------------------------------------------------ outputs

@@ -1,0 +1,69 @@
+"""Issue-3 targets of the dynamical phase, measured over seeds on the in-process engine.
+
+    python bench/dynamics_targets.py [--seeds 10] [--jobs 2] [--scenarios paper-fig4 paper-fig5]
+
+Prints, per scenario, the median and 90th percentile over seeds of the final relative errors of J and
+m (after the averaging consensus, and each agent's own before it), z_C and v_C errors and the time at
+which every agent has finished Algorithm 1 (``finished_s``). An in-process lockstep run equals the Zenoh
+run bit for bit (tests/test_engines.py), so these are also the Zenoh numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from coload.engine import run_inproc  # noqa: E402
+from config.loader import load_scenario  # noqa: E402
+
+KEYS = ("J_rel", "m_rel", "J_local_rel", "m_local_rel", "zC_rms", "vC_rms", "finished_s")
+
+
+def one(args: tuple[str, int, list[str]]) -> tuple[str, int, dict]:
+    name, seed, sets = args
+    sc = load_scenario(ROOT / "config" / "scenarios" / f"{name}.toml", [f"seed={seed}", *sets])
+    return name, seed, _errors(sc)
+
+
+def _errors(sc) -> dict:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        return run_inproc(sc, Path(d))["errors"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--seed0", type=int, default=1)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--scenarios", nargs="+", default=["paper-fig4", "paper-fig5"])
+    ap.add_argument("--set", action="append", default=[], help="scenario override key=value (repeatable)")
+    a = ap.parse_args()
+    work = [(s, a.seed0 + k, a.set) for s in a.scenarios for k in range(a.seeds)]
+    res: dict[str, list[dict]] = {s: [] for s in a.scenarios}
+    with ProcessPoolExecutor(a.jobs) as ex:
+        for name, seed, err in ex.map(one, work):
+            res[name].append(err)
+            vals = " ".join(f"{k}={err.get(k)!s:.8}" for k in KEYS)
+            print(f"{name} seed {seed}: {vals}", flush=True)
+    print()
+    print(f"{'scenario':12s} {'quantity':12s} {'median':>10s} {'p90':>10s} {'max':>10s}")
+    for name, errs in res.items():
+        for k in KEYS:
+            v = np.array([e.get(k) if e.get(k) is not None else np.nan for e in errs], dtype=float)
+            scale = 100.0 if k.endswith("_rel") else 1.0
+            unit = "%" if k.endswith("_rel") else ("s" if k.endswith("_s") else "")
+            print(f"{name:12s} {k:12s} {scale * np.nanmedian(v):10.3f} {scale * np.nanpercentile(v, 90):10.3f} "
+                  f"{scale * np.nanmax(v):10.3f} {unit}  (n={np.isfinite(v).sum()})")
+
+
+if __name__ == "__main__":
+    main()
