@@ -23,9 +23,11 @@ J this is exactly the uniform lamina's J of the scaled outline (``simulator.plan
 with its parallel-axis term for the CoM offset); for paper-fig4 it keeps the paper's
 J = 86.89 kg m^2 at n = 10 (the lamina formula would give 93.33 there), so the n = 10 cell is
 paper-fig4 itself. The agents' per-agent torques (spin-up,
-regulation gain, saturation) are scaled by (n / n_base)^2 so that the team's angular acceleration,
-hence omega(t) and the kinematic signal |omega| |z_ij|, is the same for every n: the sum of n
-torques over a J growing as n^3. Forces need no scaling: n forces over m = 5 n.
+regulation gain, saturation, the dynamical phase's torque dither) are scaled by (n / n_base)^2 so
+that the team's angular acceleration, hence omega(t) and the kinematic signal |omega| |z_ij|, is the
+same for every n: the sum of n torques over a J growing as n^3. Forces need no scaling: n forces
+over m = 5 n, and the J stage's f_i = k_z z_i^perp makes a team torque that grows as J does. The
+background observers' random walks of 1/m and 1/J scale with 1/m and 1/J (same relative walk).
 """
 
 from __future__ import annotations
@@ -139,6 +141,18 @@ def campaign_scenario(
     ctl = data["control"]
     for key in ("spin_torque", "k_omega", "torque_max"):
         ctl[key] = getattr(base.control, key) * s * s
+    dyn = data.get("dynamics")
+    if dyn is not None:
+        # the dynamical phase: its per-agent torque dither as the torques above; the background
+        # observers' random walks of 1/m and 1/J in proportion to 1/m and 1/J (the same relative walk).
+        # Its forces need nothing: n forces push m = 5n, and f_i = k_z z_i^perp gives a team torque
+        # growing as n s^2 = n^3, as J does.
+        if "dither_torque" in dyn:
+            dyn["dither_torque"] *= s * s
+        if "mu_walk" in dyn:
+            dyn["mu_walk"] *= base.load.mass / load["mass"]
+        if "iota_walk" in dyn:
+            dyn["iota_walk"] *= load_inertia(base) / load["inertia"]
     data["graph"] = {"topology": "line"}
     data["noise"]["sigma_v"] = float(sigma)
     data["n"] = n
