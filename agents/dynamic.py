@@ -21,8 +21,8 @@ What each agent runs (symbols as in the paper; z_C = p_G - p_C, q_i = p_Ci - p_C
   Algorithm 1 it runs over the J stage only, where f_i = k_z s(t) z_i^perp and tau_i = 0 (Result 5);
   in Algorithm 2 with exponential forgetting under any control law.
 * **Flow-updating average consensus** (:class:`FlowAverage`) for every network quantity: the mean force
-  fbar, the mean extra torque, z_C (in the agents' shared body frame), and the inverse-variance
-  weighted averages of the local m and J (numerator and weight channels). Flows keep the network sum
+  fbar, the mean extra torque, z_C (in the agents' shared body frame), and the averages of the local
+  m and J over the agents that have one (numerator and weight channels). Flows keep the network sum
   exact under loss and delay; common inputs (a common force) are tracked without lag.
 * **Stage agreement** (:class:`StageBarrier`): agents move through the stages together with no clock
   but the tick count and no coordinator. Each agent floods a bitmask of the agents known to be ready
@@ -523,7 +523,7 @@ class DynamicPhase:
             if mu > 0.0 and var > 0.0:
                 self.m_local = 1.0 / mu
                 self.m_var = var / mu**4
-                w = 1.0 / self.m_var
+                w = 1.0  # plain average: the filters' variances proved overconfident for weighting
                 au[CH_MN] = w * self.m_local
                 au[CH_MW] = w
                 self.frozen_m = stage == M_AVERAGE
@@ -532,7 +532,7 @@ class DynamicPhase:
             if iota > 0.0 and var > 0.0:
                 self.j_local = 1.0 / iota
                 self.j_var = var / iota**4
-                w = 1.0 / self.j_var
+                w = 1.0
                 au[CH_JN] = w * self.j_local
                 au[CH_JW] = w
                 self.frozen_j = stage == J_AVERAGE

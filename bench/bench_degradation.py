@@ -26,6 +26,7 @@ sys.path.insert(0, str(ROOT))
 from coload.engine import run_inproc
 from config.loader import load_scenario
 
+KIN = 'dynamics.algorithm="none"'  # the kinematic phase alone, as the documented numbers
 FIG4 = ROOT / "config" / "scenarios" / "paper-fig4.toml"
 DT = 0.01
 
@@ -59,7 +60,7 @@ CONDITIONS: list[tuple[str, list[str]]] = [
 def run_condition(overrides: list[str], seeds: int, duration: float) -> list[dict]:
     rows = []
     for seed in range(1, seeds + 1):
-        sc = load_scenario(FIG4, [f"seed={seed}", f"duration={duration}", *overrides])
+        sc = load_scenario(FIG4, [f"seed={seed}", f"duration={duration}", KIN, *overrides])
         e = run_inproc(sc, _tmp_dir(seed))["errors"]
         worst = max((v for v in e["eerd_ratio_per_agent"] if v is not None), default=math.nan)
         conv = e["eerd_converge_s"]

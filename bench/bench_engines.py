@@ -21,6 +21,7 @@ from coload.engine import run_inproc  # noqa: E402
 from coload.orchestrate import run_processes  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 
+KIN = 'dynamics.algorithm="none"'  # engine speed of the kinematic phase, as the documented numbers
 FIG4 = ROOT / "config" / "scenarios" / "paper-fig4.toml"
 
 
@@ -41,17 +42,17 @@ def main() -> int:
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        sc = load_scenario(FIG4, [f"duration={args.duration}"])
+        sc = load_scenario(FIG4, [f"duration={args.duration}", KIN])
         rec = run_inproc(sc, tmp / "inproc")
-        bare = run_inproc(load_scenario(FIG4, [f"duration={args.duration}", "record.every_ticks=1000000"]), None)
-        zsc = load_scenario(FIG4, [f"duration={args.zenoh_duration}"])
+        bare = run_inproc(load_scenario(FIG4, [f"duration={args.duration}", "record.every_ticks=1000000", KIN]), None)
+        zsc = load_scenario(FIG4, [f"duration={args.zenoh_duration}", KIN])
         zen = run_processes(zsc, tmp / "zenoh", quiet=True)
         if zen is None:
             print("zenoh run failed", file=sys.stderr)
             return 1
         step = {}
         for n in (5, 40):
-            s = run_inproc(load_scenario(FIG4, scaled(n, min(args.duration, 10.0))), None)
+            s = run_inproc(load_scenario(FIG4, [*scaled(n, min(args.duration, 10.0)), KIN]), None)
             step[n] = s["agent_step_us"]
 
     rows = [

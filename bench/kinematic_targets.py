@@ -23,6 +23,7 @@ from coload.engine import run_inproc  # noqa: E402
 from coload.orchestrate import run_processes  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 
+KIN = 'dynamics.algorithm="none"'  # the kinematic phase alone, as the documented numbers
 FIG4 = ROOT / "config" / "scenarios" / "paper-fig4.toml"
 
 
@@ -43,7 +44,7 @@ def main() -> int:
         for sigma in args.sigmas:
             rows = []
             for seed in range(1, args.seeds + 1):
-                sc = load_scenario(FIG4, [f"noise.sigma_v={sigma}", f"seed={seed}", f"duration={args.duration}"])
+                sc = load_scenario(FIG4, [f"noise.sigma_v={sigma}", f"seed={seed}", f"duration={args.duration}", KIN])
                 out = Path(tmp) / f"s{sigma}-{seed}"
                 s = run_processes(sc, out, quiet=True) if args.engine == "zenoh" else run_inproc(sc, out)
                 if s is None:

@@ -59,7 +59,8 @@ def test_paper_scenarios_follow_the_paper():
     fig4 = load_scenario(SCENARIOS / "paper-fig4.toml")
     fig5 = load_scenario(SCENARIOS / "paper-fig5.toml")
     assert (fig4.n, fig4.dt, fig4.noise.sigma_v, fig4.load.mass, fig4.load.inertia) == (10, 0.01, 0.3, 50.0, 86.89)
-    assert (fig4.load.width, fig4.load.height, fig4.seed, fig4.duration) == (4.0, 2.2, 1, 60.0)
+    assert (fig4.load.width, fig4.load.height, fig4.seed, fig4.duration) == (4.0, 2.2, 1, 120.0)
+    assert fig4.dynamics.algorithm == "sequential" and fig4.duration <= 200.0  # the paper's Algorithm 1 in 200 s
     assert fig4.graph.topology == "line" and fig5.graph.topology == "complete"
     assert fig4.load.com_offset != (0.0, 0.0)
     differing = {k for k in Scenario.model_fields if getattr(fig4, k) != getattr(fig5, k)}

@@ -168,7 +168,7 @@ def _estimates(run_dir):
 @pytest.mark.slow
 def test_algorithm_1_on_the_reference_scenario(tmp_path):
     """paper-fig4 (n = 10 line, sigma 0.3): all six quantities, stages switched together, done < 200 s."""
-    sc = load_scenario(FIG4, ["duration=95", "seed=3"])
+    sc = load_scenario(FIG4, ["duration=95", "seed=2"])
     summary = run_inproc(sc, tmp_path)
     err = summary["errors"]
     assert err["J_rel"] <= 0.014  # the paper's single-run error; our median over seeds is ~0.5 %
