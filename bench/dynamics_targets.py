@@ -52,7 +52,7 @@ def main() -> None:
     with ProcessPoolExecutor(a.jobs) as ex:
         for name, seed, err in ex.map(one, work):
             res[name].append(err)
-            vals = " ".join(f"{k}={err.get(k)!s:.8}" for k in KEYS)
+            vals = " ".join(f"{k}={err[k]:.5g}" if err.get(k) is not None else f"{k}=None" for k in KEYS)
             print(f"{name} seed {seed}: {vals}", flush=True)
     print()
     print(f"{'scenario':12s} {'quantity':12s} {'median':>10s} {'p90':>10s} {'max':>10s}")
