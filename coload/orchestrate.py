@@ -126,14 +126,66 @@ def _read_line(stream: IO[bytes], timeout: float) -> str | None:
         sel.close()
 
 
+def start_router(children: _Children, py: list[str], endpoint: str, run_dir: Path, cmd: str) -> bool:
+    """Starts the embedded router and waits (30 s) for its ``ready`` line; False, said on stderr, if not."""
+    router = children.start("router", [*py, "router", "--listen", endpoint], pipe_stdout=True)
+    line = _read_line(router.stdout, 30.0)
+    if not line or not line.startswith("ready"):
+        print(f"{cmd}: the router did not come up (see {run_dir / 'logs' / 'router.log'})", file=sys.stderr)
+        return False
+    return True
+
+
+def watch_simulator(
+    children: _Children, sim: subprocess.Popen, endpoint: str, control_key: str, ticks: int, budget: float,
+    bar: ProgressBar, run_dir: Path, cmd: str,
+) -> bool:
+    """Shows progress from the simulator's control messages until it exits.
+
+    False (said on stderr) if the simulator crashed or the run exceeded ``budget`` seconds; a crashed
+    member other than the simulator is reported and the run goes on without it.
+    """
+    import zenoh
+
+    from net.messages import Control
+    from net.schema import DecodeError, decode
+    from net.zenoh_transport import zenoh_config
+
+    progressed = threading.Event()
+    state = {"tick": 0}
+
+    def on_control(sample: Any) -> None:  # Zenoh thread: record and signal, nothing more
+        try:
+            msg = decode(sample.payload.to_bytes(), Control)
+        except DecodeError:
+            return
+        state["tick"] = msg.tick
+        progressed.set()
+
+    conf = zenoh_config(mode="client", connect=[endpoint], listen=[])
+    with zenoh.open(conf) as session:
+        session.declare_subscriber(control_key, on_control)
+        deadline = time.monotonic() + budget
+        while sim.poll() is None:
+            if progressed.wait(0.5):
+                progressed.clear()
+                bar(state["tick"], ticks)
+            bad = children.crashed()
+            if bad:
+                print(f"{cmd}: {', '.join(bad)} exited with an error (logs in {run_dir / 'logs'})", file=sys.stderr)
+                if "sim" in bad:
+                    return False
+            if time.monotonic() > deadline:
+                print(f"{cmd}: the run exceeded its time budget; stopping", file=sys.stderr)
+                return False
+    bar(ticks, ticks)
+    return True
+
+
 def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0) -> dict[str, Any] | None:
     """The real thing: an embedded Zenoh router, the simulator and n agent daemons, each its own process."""
     from net import keys
-    from net.messages import Control
-    from net.schema import DecodeError, decode
-    from net.zenoh_transport import free_tcp_port, zenoh_config
-
-    import zenoh
+    from net.zenoh_transport import free_tcp_port
 
     run_dir = Path(run_dir)
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
@@ -145,47 +197,17 @@ def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbos
     children = _Children(run_dir / "logs")
     bar = ProgressBar(f"{scenario.name} (zenoh, {scenario.n} agents)", quiet)
     try:
-        router = children.start("router", [*py, "router", "--listen", endpoint], pipe_stdout=True)
-        line = _read_line(router.stdout, 30.0)
-        if not line or not line.startswith("ready"):
-            print(f"coload run: the router did not come up (see {run_dir / 'logs' / 'router.log'})", file=sys.stderr)
+        if not start_router(children, py, endpoint, run_dir, "coload run"):
             return None
         common = [str(toml), "--connect", endpoint, "--run", run]
         sim = children.start("sim", [*py, "sim", *common, "--out", str(run_dir)])
         for i in range(scenario.n):
             children.start(f"agent-{i}", [*py, "agent", "--id", str(i), *common])
-
-        progressed = threading.Event()
-        state = {"tick": 0}
-
-        def on_control(sample: Any) -> None:  # Zenoh thread: record and signal, nothing more
-            try:
-                msg = decode(sample.payload.to_bytes(), Control)
-            except DecodeError:
-                return
-            state["tick"] = msg.tick
-            progressed.set()
-
-        conf = zenoh_config(mode="client", connect=[endpoint], listen=[])
-        with zenoh.open(conf) as session:
-            session.declare_subscriber(keys.sim_control(run), on_control)
-            # generous: start-up of n + 2 interpreters plus the run itself
-            budget = 120.0 + scenario.timing.startup_timeout_s + 50.0 * scenario.duration
-            deadline = time.monotonic() + budget
-            while sim.poll() is None:
-                if progressed.wait(0.5):
-                    progressed.clear()
-                    bar(state["tick"], scenario.ticks)
-                bad = children.crashed()
-                if bad:
-                    print(f"coload run: {', '.join(bad)} exited with an error (logs in {run_dir / 'logs'})",
-                          file=sys.stderr)
-                    if "sim" in bad:
-                        return None
-                if time.monotonic() > deadline:
-                    print("coload run: the run exceeded its time budget; stopping", file=sys.stderr)
-                    return None
-        bar(scenario.ticks, scenario.ticks)
+        # generous: start-up of n + 2 interpreters plus the run itself
+        budget = 120.0 + scenario.timing.startup_timeout_s + 50.0 * scenario.duration
+        if not watch_simulator(children, sim, endpoint, keys.sim_control(run), scenario.ticks, budget, bar,
+                               run_dir, "coload run"):
+            return None
         if sim.returncode != 0:
             print(f"coload run: the simulator failed (see {run_dir / 'logs' / 'sim.log'})", file=sys.stderr)
             return None

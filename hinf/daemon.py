@@ -21,7 +21,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import sys
-import threading
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -484,10 +483,14 @@ def run_processes(setup: Setup, run_dir: Path, quiet: bool = False, verbose: int
     ``run_dir`` must already hold spec.json and design.json (``hinf.report.prepare_run_dir``); the
     simulator writes the rest. Returns True if the simulator finished.
     """
-    import zenoh
-
-    from coload.orchestrate import ProgressBar, _Children, _read_line, run_name_for
-    from net.zenoh_transport import free_tcp_port, zenoh_config
+    from coload.orchestrate import (
+        ProgressBar,
+        _Children,
+        run_name_for,
+        start_router,
+        watch_simulator,
+    )
+    from net.zenoh_transport import free_tcp_port
 
     run_dir = Path(run_dir)
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
@@ -497,47 +500,17 @@ def run_processes(setup: Setup, run_dir: Path, quiet: bool = False, verbose: int
     children = _Children(run_dir / "logs")
     bar = ProgressBar(f"{setup.spec.name} (zenoh, {setup.N} estimators)", quiet)
     try:
-        router = children.start("router", [*py, "router", "--listen", endpoint], pipe_stdout=True)
-        line = _read_line(router.stdout, 30.0)
-        if not line or not line.startswith("ready"):
-            print(f"coload hinf run: the router did not come up (see {run_dir / 'logs' / 'router.log'})",
-                  file=sys.stderr)
+        if not start_router(children, py, endpoint, run_dir, "coload hinf run"):
             return False
         common = [str(run_dir), "--connect", endpoint, "--run", run]
         sim = children.start("sim", [*py, "hinf", "sim", *common])
         for k in range(setup.N):
             children.start(f"estimator-{k}", [*py, "hinf", "agent", "--id", str(k), *common])
-        progressed = threading.Event()
-        state = {"tick": 0}
-
-        def on_control(sample: Any) -> None:  # Zenoh thread: record and signal only
-            try:
-                msg = decode(sample.payload.to_bytes(), Control)
-            except DecodeError:
-                return
-            state["tick"] = msg.tick
-            progressed.set()
-
-        conf = zenoh_config(mode="client", connect=[endpoint], listen=[])
         run_spec = setup.spec.run
         budget = 120.0 + run_spec.timing.startup_timeout_s + 50.0 * run_spec.duration
-        with zenoh.open(conf) as session:
-            session.declare_subscriber(keys.hinf_control(run), on_control)
-            deadline = time.monotonic() + budget
-            while sim.poll() is None:
-                if progressed.wait(0.5):
-                    progressed.clear()
-                    bar(state["tick"], setup.ticks)
-                bad = children.crashed()
-                if bad:
-                    print(f"coload hinf run: {', '.join(bad)} exited with an error (logs in {run_dir / 'logs'})",
-                          file=sys.stderr)
-                    if "sim" in bad:
-                        return False
-                if time.monotonic() > deadline:
-                    print("coload hinf run: the run exceeded its time budget; stopping", file=sys.stderr)
-                    return False
-        bar(setup.ticks, setup.ticks)
+        if not watch_simulator(children, sim, endpoint, keys.hinf_control(run), setup.ticks, budget, bar,
+                               run_dir, "coload hinf run"):
+            return False
         children.stop([n for n in children.procs if n.startswith("estimator-")], let_finish=10.0)
         return sim.returncode == 0
     finally:
