@@ -126,12 +126,13 @@ _NAN = math.nan
 
 def _build_estimate(
     tick: int, agent: int, stage: int, om: float, u: float, y: complex, ph: float,
-    ready: int, d_unknown: int, d_stale: int, pair: dict[int, tuple[float, ...]], dyn: dict[str, float],
+    ready: int, d_unknown: int, d_stale: int, pair: dict[int, tuple[float, ...]], dyn: tuple | None,
 ) -> Estimate:
     """The :class:`Estimate` of one tick, from the values :meth:`AgentCore.step` snapshots.
 
     ``pair`` is the tick's outgoing ``StateMsg.pair`` (z_ij_x, z_ij_y, F_ij_x, F_ij_y): it already
-    holds every z_ij estimate, in neighbour order.
+    holds every z_ij estimate, in neighbour order; ``dyn`` the dynamical phase's snapshot
+    (``DynamicPhase.snapshot``), None without it.
     """
     x = y * complex(cos(ph), sin(ph))  # z_i in the world frame
     return _new_estimate(
@@ -146,7 +147,7 @@ def _build_estimate(
             "pairs_ready": ready + 0.0,
             "dropped_unknown": d_unknown + 0.0,
             "dropped_stale": d_stale + 0.0,
-            **dyn,
+            **(_NO_DYN if dyn is None else dynamic.estimates(dyn)),
         },
         {j: (p[0], p[1]) for j, p in pair.items()},
     )
@@ -516,22 +517,20 @@ class AgentCore:
         i = me
         shared = {"om": om_new, "oi": 1.0 if om_init else 0.0, "ph": ph, "yx": y.real, "yy": y.imag}
         stage = PHASE_REGULATE if om_init else PHASE_SPINUP
-        if dyn is None:
-            dyn_est = _NO_DYN
-            pairs_est = pairs_msg
-        else:
+        pairs_est = pairs_msg
+        dyn_snap = None
+        if dyn is not None:
             fx, fy, tau = dyn.step(
                 tick, complex(vx, vy), u, u_den, om_new, ph, y * complex(cos(ph), sin(ph)), self.trusted, om_init,
                 (fx, fy, tau),
             )
             stage = dyn.stage
             dyn.shared(shared)
-            pairs_est = pairs_msg
             pairs_msg = {j: p + tuple(dyn.flows_to(j)) for j, p in pairs_msg.items()}
-            dyn_est = dyn.estimates()
+            dyn_snap = dyn.snapshot()
         res = _new(StepResult)
         res.state = _new_state(tick, i, vx, vy, stage, shared, pairs_msg)
         res.wrench = _new_wrench(tick, i, fx, fy, tau)
         res._estimate = None  # built on first access (StepResult.estimate)
-        res._snap = (tick, i, stage, om_new, u, y, ph, ready, self.dropped_unknown, self.dropped_stale, pairs_est, dyn_est)
+        res._snap = (tick, i, stage, om_new, u, y, ph, ready, self.dropped_unknown, self.dropped_stale, pairs_est, dyn_snap)
         return res

@@ -76,7 +76,7 @@ class FlowAverage:
     which the mean is exact again, and x converges to it.
     """
 
-    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg", "seen")
+    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg")
 
     def __init__(self, nbr_ids: Sequence[int]) -> None:
         self.u = [0.0] * N_CH
@@ -86,7 +86,6 @@ class FlowAverage:
         self.nx: dict[int, list[float]] = {}  # x_j, latest received
         self.nf = {j: [0.0] * N_CH for j in nbr_ids}  # F_ji, latest received
         self.ndeg = {j: 1 for j in nbr_ids}
-        self.seen: set[int] = set()
 
     def receive(self, j: int, xj: list[float], fji: Sequence[float], degj: int) -> None:
         self.nx[j] = xj
@@ -110,10 +109,7 @@ class FlowAverage:
             for c in range(N_CH):
                 tot[c] += fl[c]
         u = self.u
-        self.x = [u[c] - tot[c] for c in range(N_CH)]
-
-    def flows_to(self, j: int) -> list[float]:
-        return self.flow[j]
+        self.x = [u[c] - tot[c] for c in range(N_CH)]  # a new list: snapshots of x stay valid
 
 
 class StageBarrier:
@@ -334,9 +330,7 @@ class DynamicPhase:
         self.dither_ticks = ticks(spec.dither_period_s)
         self.conv_since = -1
         self.m_local = math.nan
-        self.m_var = math.nan
         self.j_local = math.nan
-        self.j_var = math.nan
         self.nbr_stage: dict[int, int] = {}
         self.nbr_stage_tick: dict[int, int] = {}
         self.alpha = 0.0  # modelled angular acceleration for the next tick (rad/s^2)
@@ -405,6 +399,17 @@ class DynamicPhase:
             self._enter(M_AVERAGE, tick)
         elif st == J_EXCITE and tick >= self.stage_tick + self.j_ticks:
             self._enter(J_AVERAGE, tick)
+
+    def _offer(self, inv: float, var: float, num: int, wch: int) -> float | None:
+        """Hands the local estimate 1/inv (the filter's 1/m or 1/J) to its average channels; None if the
+        filter has no usable value yet. Weight 1 (a plain average over the agents that have one): the
+        filters' variances proved overconfident as inverse-variance weights."""
+        if not (inv > 0.0 and var > 0.0):
+            return None
+        au = self.avg.u
+        au[num] = 1.0 / inv
+        au[wch] = 1.0
+        return au[num]
 
     def _converged(self, num: int, wch: int, tick: int) -> bool:
         """Local convergence of a weighted average: own value and every neighbour's within tolerance."""
@@ -519,22 +524,14 @@ class DynamicPhase:
         take_m = stage == BACKGROUND or (stage == M_AVERAGE and not self.frozen_m)
         take_j = stage == BACKGROUND or (stage == J_AVERAGE and not self.frozen_j)
         if kf.ready and take_m:
-            mu, var = kf.mu, kf.mu_var
-            if mu > 0.0 and var > 0.0:
-                self.m_local = 1.0 / mu
-                self.m_var = var / mu**4
-                w = 1.0  # plain average: the filters' variances proved overconfident for weighting
-                au[CH_MN] = w * self.m_local
-                au[CH_MW] = w
+            m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW)
+            if m_local is not None:
+                self.m_local = m_local
                 self.frozen_m = stage == M_AVERAGE
         if kf.ready and take_j:
-            iota, var = kf.iota, kf.iota_var
-            if iota > 0.0 and var > 0.0:
-                self.j_local = 1.0 / iota
-                self.j_var = var / iota**4
-                w = 1.0
-                au[CH_JN] = w * self.j_local
-                au[CH_JW] = w
+            j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW)
+            if j_local is not None:
+                self.j_local = j_local
                 self.frozen_j = stage == J_AVERAGE
         self.avg.update()
         x = self.avg.x
@@ -570,26 +567,32 @@ class DynamicPhase:
     def flows_to(self, j: int) -> list[float]:
         return self.avg.flow[j]
 
-    def estimates(self) -> dict[str, float]:
-        x = self.avg.x
-        nan = math.nan
-        st = self.stage
-        m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
-        J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
-        have_geo = st >= M_AVERAGE
-        if have_geo:
-            zc = complex(x[CH_ZX], x[CH_ZY]) * complex(cos(self.psi), sin(self.psi))
-            vc = self.kf.vc
-        else:
-            zc = vc = complex(nan, nan)
-        return {
-            "J": J,
-            "m": m,
-            "zc_x": zc.real,
-            "zc_y": zc.imag,
-            "vc_x": vc.real,
-            "vc_y": vc.imag,
-            "J_local": self.j_local,
-            "m_local": self.m_local,
-            "late_switches": float(self.late_switches),
-        }
+    def snapshot(self) -> tuple:
+        """What :func:`estimates` needs, taken every tick and turned into the estimate only on the ticks
+        that are recorded or published (the consensus state ``avg.x`` and the filter state ``kf.s`` are
+        replaced each tick, never changed in place, so holding them is enough)."""
+        return (self.avg.x, self.psi, self.kf.s, self.stage, self.j_local, self.m_local, self.late_switches)
+
+
+def estimates(snap: tuple) -> dict[str, float]:
+    """The dynamical phase's estimate values (``agents.agent.ESTIMATE_NAMES``) from a :meth:`DynamicPhase.snapshot`."""
+    x, psi, s, stage, j_local, m_local, late = snap
+    nan = math.nan
+    m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
+    J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
+    if stage >= M_AVERAGE:
+        zc = complex(x[CH_ZX], x[CH_ZY]) * complex(cos(psi), sin(psi))
+        vc = complex(s[0], s[1])
+    else:
+        zc = vc = complex(nan, nan)
+    return {
+        "J": J,
+        "m": m,
+        "zc_x": zc.real,
+        "zc_y": zc.imag,
+        "vc_x": vc.real,
+        "vc_y": vc.imag,
+        "J_local": j_local,
+        "m_local": m_local,
+        "late_switches": float(late),
+    }
