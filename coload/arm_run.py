@@ -16,7 +16,7 @@ error, the kinematic estimates of paper 000 (z_ij via EERD, z_i, omega) and, fro
 samples.csv, the centralized batch fit's m and J (the agents' own dynamical phase is not in AgentCore yet).
 
 Messages between agents go through the link model of ``net/link.py`` exactly as in
-``coload.engine.run_inproc`` (general path: DelayLine per receiver).
+``coload.engine.run_inproc`` (its ``LinkNetwork``: a DelayLine per receiver).
 """
 
 from __future__ import annotations
@@ -32,11 +32,11 @@ import numpy as np
 
 from agents.agent import ESTIMATE_NAMES
 from agents.arm import ArmFrontEnd, MotionPlan, Tracking, make_observer
-from coload.engine import deliver_tick
+from coload.engine import LinkNetwork
 from coload.recorder import Recorder
 from coload.world import build_agent
 from config.scenario import Scenario
-from net.link import DelayLine, LinkStats, build_in_links, partition_events
+from net.link import partition_events
 from simulator.arms import ArmPlant
 from simulator.plant import sensor_rng
 
@@ -119,13 +119,7 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
                                   x0_hat=ob.initial_error if observer is not None else (0.0, 0.0),
                                   r0=ob.r0, substeps=ob.substeps))
 
-    neighbours = scenario.neighbours()
-    links: list[dict[int, Any]] = [{} for _ in range(n)]
-    for receiver in range(n):
-        for sender, model in build_in_links(scenario, receiver, "lockstep").items():
-            links[sender][receiver] = model
-    stats = {(s, r): LinkStats() for s in range(n) for r in links[s]}
-    lines = [DelayLine() for _ in range(n)]
+    net = LinkNetwork(scenario, "lockstep")
     rec = Recorder(run_dir, scenario, ESTIMATE_NAMES) if run_dir is not None else None
     arms_rows: list[str] = []
 
@@ -152,18 +146,9 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
             rec.truth(plant.truth())  # type: ignore[union-attr]
         u = np.zeros((n, 2))
         for i in range(n):
-            res = agents[i].step(k, float(v[i, 0]), float(v[i, 1]), lines[i].pop_due(k))
+            res = agents[i].step(k, float(v[i, 0]), float(v[i, 1]), net.pops[i](k))
             w = res.wrench
-            for j in neighbours[i]:
-                link = links[i][j]
-                st = stats[(i, j)]
-                delays = link.deliveries(k)
-                if not delays:
-                    st.count_lost(link, k)
-                    continue
-                st.duplicated += len(delays) - 1
-                for copy, d in enumerate(delays):
-                    lines[j].push(deliver_tick(k, d, dt, "lockstep"), i, k, copy, res.state)
+            net.send(i, k, res.state)
             u[i], _ = fronts[i].command(k, q_meas[i], v[i], (w.fx, w.fy))
             p = ap.bases[i] + ap.model.tip(q_meas[i])
             track[k, i] = float(np.hypot(*(plan.reference(k * dt, fronts[i].p0)[0] - p)))
@@ -185,9 +170,6 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
         if progress is not None and (k % report_every == 0 or k == ticks - 1):
             progress(k + 1, ticks)
     wall = time.perf_counter() - wall0
-    for st in stats.values():
-        st.sent += ticks
-        st.delivered += ticks - st.dropped - st.partitioned + st.duplicated
     t = np.arange(ticks) * dt
     arms_summary: dict[str, Any] = {
         "sensing": sensing,
@@ -205,7 +187,7 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
         "seed": scenario.seed,
         "n": n,
         "scenario": scenario.name,
-        "links": {f"{s}->{r}": st.as_dict() for (s, r), st in sorted(stats.items())},
+        "links": net.close(ticks),
         "drops": {},
         "timeouts": {"wrench": 0, "neighbour": 0},
         "events": partition_events(scenario),

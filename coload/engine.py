@@ -33,6 +33,62 @@ def deliver_tick(tick: int, delay: float, dt: float, mode: str) -> int:
     return tick + 1 + int(delay // dt)
 
 
+class LinkNetwork:
+    """Every directed link of a scenario with its receiver's ``DelayLine`` and its counters.
+
+    Shared by the in-process engines (paper 000's and the arm agents'), so that a message crosses a
+    link the same way in each: ``send`` draws the link's fate and buffers the copies, ``inbox`` releases
+    what is due, ``close`` settles the counters and gives the summary's ``links`` block.
+    """
+
+    def __init__(self, scenario: Scenario, mode: str) -> None:
+        n = scenario.n
+        self.dt = scenario.dt
+        self.mode = mode
+        neighbours = scenario.neighbours()
+        # links[sender][receiver]: the model at the receiving end of sender -> receiver
+        self.links: list[dict[int, Any]] = [{} for _ in range(n)]
+        for receiver in range(n):
+            for sender, model in build_in_links(scenario, receiver, mode).items():
+                self.links[sender][receiver] = model
+        self.stats = {(s, r): LinkStats() for s in range(n) for r in self.links[s]}
+        self.lines = [DelayLine() for _ in range(n)]
+        # Hot-loop tables, built once (a tick's loop is ~1/3 slower without them):
+        # out[i] = [(receiver, link model, its line's push, its stats)] in neighbour order, so a tick
+        # does no dict lookups; counters that only move on faults are updated on the rare branches.
+        self.out = [
+            [(j, self.links[i][j], self.lines[j].push, self.stats[(i, j)]) for j in neighbours[i]]
+            for i in range(n)
+        ]
+        self.pops = [line.pop_due for line in self.lines]
+
+    def send(self, sender: int, k: int, state: Any) -> None:
+        """``sender``'s message of tick ``k`` through each of its out-links."""
+        dt, mode = self.dt, self.mode
+        lockstep = mode == "lockstep"
+        k1 = k + 1
+        for _j, link, push, st in self.out[sender]:
+            delays = link.deliveries(k)
+            if len(delays) == 1:
+                # deliver_tick(k, d, dt, mode), inlined
+                push(k1 + int(delays[0]) if lockstep else k1 + int(delays[0] // dt), sender, k, 0, state)
+                continue
+            if not delays:
+                st.count_lost(link, k)
+                continue
+            st.duplicated += len(delays) - 1
+            for copy, d in enumerate(delays):
+                push(deliver_tick(k, d, dt, mode), sender, k, copy, state)
+
+    def close(self, ticks: int) -> dict[str, dict[str, int]]:
+        """Settles the counters of a run of ``ticks`` ticks; the summary's ``links`` block."""
+        for st in self.stats.values():
+            # one message per link per tick; each one delivered once unless dropped, partitioned or duplicated
+            st.sent += ticks
+            st.delivered += ticks - st.dropped - st.partitioned + st.duplicated
+        return {f"{s}->{r}": st.as_dict() for (s, r), st in sorted(self.stats.items())}
+
+
 def run_inproc(
     scenario: Scenario,
     run_dir: Path | None,
@@ -49,23 +105,11 @@ def run_inproc(
     rng = sensor_rng(scenario.seed)
     agents = [build_agent(scenario, i) for i in range(n)]
     neighbours = scenario.neighbours()
-    # links[sender][receiver]: the model at the receiving end of sender -> receiver
-    links: list[dict[int, Any]] = [{} for _ in range(n)]
-    for receiver in range(n):
-        for sender, model in build_in_links(scenario, receiver, mode).items():
-            links[sender][receiver] = model
-    stats = {(s, r): LinkStats() for s in range(n) for r in links[s]}
-    lines = [DelayLine() for _ in range(n)]
+    net = LinkNetwork(scenario, mode)
+    links = net.links
     rec = Recorder(run_dir, scenario, ESTIMATE_NAMES) if run_dir is not None else None
-
-    # Hot-loop tables, built once (the loop below is ~1/3 of a tick's cost without them):
-    # out[i] = [(receiver, link model, its line's push, its stats)] in neighbour order, so a tick
-    # does no dict lookups; counters that only move on faults are updated on the rare branches.
-    out = [
-        [(j, links[i][j], lines[j].push, stats[(i, j)]) for j in neighbours[i]]
-        for i in range(n)
-    ]
-    pops = [line.pop_due for line in lines]
+    pops = net.pops
+    send = net.send
     lockstep = mode == "lockstep"
     keeps = rec.keeps if rec is not None else None
     # Fast path: lockstep with fault-free links (the common case). Every message then arrives
@@ -119,18 +163,7 @@ def run_inproc(
                 for r in nbr_rings[i]:
                     r[due].append(state)
             else:
-                for j, link, push, st in out[i]:
-                    delays = link.deliveries(k)
-                    if len(delays) == 1:
-                        # deliver_tick(k, d, dt, mode), inlined
-                        push(k1 + int(delays[0]) if lockstep else k1 + int(delays[0] // dt), i, k, 0, state)
-                        continue
-                    if not delays:
-                        st.count_lost(link, k)
-                        continue
-                    st.duplicated += len(delays) - 1
-                    for copy, d in enumerate(delays):
-                        push(deliver_tick(k, d, dt, mode), i, k, copy, state)
+                send(i, k, state)
             if keep:
                 rec.estimate(res.estimate)  # type: ignore[union-attr]
         if rec is not None:
@@ -139,10 +172,6 @@ def run_inproc(
         if progress is not None and (k % report_every == 0 or k == ticks - 1):
             progress(k + 1, ticks)
     wall = time.perf_counter() - wall0
-    for st in stats.values():
-        # one message per link per tick; each one delivered once unless dropped, partitioned or duplicated
-        st.sent += ticks
-        st.delivered += ticks - st.dropped - st.partitioned + st.duplicated
 
     summary: dict[str, Any] = {
         "engine": "inproc",
@@ -153,7 +182,7 @@ def run_inproc(
         "seed": scenario.seed,
         "n": n,
         "scenario": scenario.name,
-        "links": {f"{s}->{r}": st.as_dict() for (s, r), st in sorted(stats.items())},
+        "links": net.close(ticks),
         "drops": {},
         "timeouts": {"wrench": 0, "neighbour": 0},
         "events": partition_events(scenario),
