@@ -19,7 +19,7 @@ from config.scenario import Scenario
 from net import keys
 from net.link import DelayLine, LinkStats, build_in_links
 from net.messages import AgentReport, Control, Measurement, StateMsg
-from net.schema import DecodeError, decode, encode
+from net.schema import decode_counted, encode
 from net.transport import Transport
 
 log = logging.getLogger("coload.agent")
@@ -127,13 +127,7 @@ class AgentDaemon:
 
     # ---- inputs ----------------------------------------------------------------------------
     def _decode(self, payload: bytes, kind: type, link: int | None = None):
-        try:
-            return decode(payload, kind)
-        except DecodeError as exc:
-            self.drops[exc.reason] += 1
-            if link is not None:
-                self.stats[link].malformed += 1
-            return None
+        return decode_counted(payload, kind, self.drops, None if link is None else self.stats[link])
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)

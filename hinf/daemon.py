@@ -33,7 +33,7 @@ from net import keys
 from net.hinf_messages import HinfInput, HinfMeas, HinfState
 from net.link import DelayLine, LinkStats
 from net.messages import AgentReport, Control
-from net.schema import DecodeError, decode, encode
+from net.schema import decode_counted, encode
 from net.transport import Transport
 
 from .runtime import (
@@ -122,11 +122,7 @@ class HinfSimDaemon:
         return k
 
     def _decode(self, payload: bytes, kind: type):
-        try:
-            return decode(payload, kind)
-        except DecodeError as exc:
-            self.drops[exc.reason] += 1
-            return None
+        return decode_counted(payload, kind, self.drops)
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)
@@ -323,13 +319,7 @@ class HinfAgentDaemon:
                            self.ticks_stepped)
 
     def _decode(self, payload: bytes, kind: type, link: int | None = None):
-        try:
-            return decode(payload, kind)
-        except DecodeError as exc:
-            self.drops[exc.reason] += 1
-            if link is not None:
-                self.stats[link].malformed += 1
-            return None
+        return decode_counted(payload, kind, self.drops, None if link is None else self.stats[link])
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)

@@ -23,6 +23,7 @@ Reason tokens (:data:`REASONS`):
 from __future__ import annotations
 
 import math
+from collections.abc import MutableMapping
 from typing import Annotated, Any, Final, Literal, TypeVar, Union
 
 import msgpack
@@ -364,6 +365,18 @@ def decode(payload: bytes, expected: type[Msg]) -> Msg:
         detail = f"{e.error_count()} error(s); first at {first['loc']}: {first['msg']}"
         raise DecodeError(_reason(e), detail) from None
     return expected(**m.__dict__)
+
+
+def decode_counted(payload: bytes, expected: type[Msg], drops: MutableMapping[str, int], link: Any = None) -> Msg | None:
+    """:func:`decode` for a daemon: a rejected payload is counted in ``drops`` under its reason (and as
+    ``malformed`` on ``link``, the sender's ``LinkStats``, when given) and comes back as None."""
+    try:
+        return decode(payload, expected)
+    except DecodeError as exc:
+        drops[exc.reason] += 1
+        if link is not None:
+            link.malformed += 1
+        return None
 
 
 def is_finite_message(msg: Message) -> bool:

@@ -23,7 +23,6 @@ import base64
 import hashlib
 import json
 import logging
-import os
 import struct
 import time
 from collections import Counter
@@ -38,7 +37,7 @@ from config.scenario import Scenario
 from net import keys
 from net.link import partition_events
 from net.messages import AgentReport, Control, Estimate, Measurement, Wrench
-from net.schema import DecodeError, decode, encode
+from net.schema import decode, decode_counted, encode
 from net.transport import Transport
 from simulator.plant import Plant, sensor_rng
 
@@ -107,11 +106,7 @@ class SimDaemon:
 
     # ---- inputs ----------------------------------------------------------------------------
     def _decode(self, payload: bytes, kind: type):
-        try:
-            return decode(payload, kind)
-        except DecodeError as exc:
-            self.drops[exc.reason] += 1
-            return None
+        return decode_counted(payload, kind, self.drops)
 
     def _agent_of(self, key: str) -> int | None:
         i = self._agent_ids.get(key)
