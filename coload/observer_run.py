@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from scipy.integrate import solve_ivp
 
 from agents.speed_observer import Gains, SpeedObserver, plant_rhs, two_link
-from config.loader import parse_overrides
+from config.loader import deep_merge, parse_overrides
 
 
 class _Strict(BaseModel):
@@ -90,22 +90,13 @@ class ObserverScenarioError(Exception):
     """A scenario that cannot be used; the message names the source and the dotted field."""
 
 
-def _deep_merge(base: dict, extra: dict) -> dict:
-    for k, v in extra.items():
-        if isinstance(v, dict) and isinstance(base.get(k), dict):
-            _deep_merge(base[k], v)
-        else:
-            base[k] = v
-    return base
-
-
 def load_observer_scenario(path: Path, overrides: list[str] = ()) -> ObserverScenario:
     """Read the TOML, apply ``key=value`` overrides (TOML values), validate; errors name the field."""
     try:
         data = tomllib.loads(Path(path).read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ObserverScenarioError(f"{path}: {exc}") from exc
-    data = _deep_merge(data, parse_overrides(overrides))
+    data = deep_merge(data, parse_overrides(overrides))
     try:
         return ObserverScenario.model_validate(data)
     except ValidationError as exc:

@@ -99,6 +99,16 @@ def parse_overrides(overrides: Iterable[str]) -> dict:
     return out
 
 
+def deep_merge(base: dict, extra: dict) -> dict:
+    """Merge the nested dict ``extra`` (e.g. from :func:`parse_overrides`) into ``base`` in place."""
+    for k, v in extra.items():
+        if isinstance(v, dict) and isinstance(base.get(k), dict):
+            deep_merge(base[k], v)
+        else:
+            base[k] = v
+    return base
+
+
 # --------------------------------------------------------------------------------------------------
 # Locating keys in TOML text
 

@@ -277,15 +277,6 @@ def parse_spec(data: dict[str, Any], source: str = "<spec>") -> HinfSpec:
         raise SpecError("\n".join(lines)) from None
 
 
-def _deep_merge(base: dict, extra: dict) -> dict:
-    for k, v in extra.items():
-        if isinstance(v, dict) and isinstance(base.get(k), dict):
-            _deep_merge(base[k], v)
-        else:
-            base[k] = v
-    return base
-
-
 def load_spec(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> HinfSpec:
     """Read a .toml or .json spec file; ``overrides`` are ``dotted.key=TOML value`` strings (e.g.
     ``run.duration=10``) applied before validation."""
@@ -304,10 +295,10 @@ def load_spec(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> 
     if not isinstance(data, dict):
         raise SpecError(f"{path}: top level must be a table/object")
     if overrides:
-        from config.loader import parse_overrides
+        from config.loader import deep_merge, parse_overrides
 
         try:
-            _deep_merge(data, parse_overrides(overrides))
+            deep_merge(data, parse_overrides(overrides))
         except ValueError as exc:
             raise SpecError(f"{path}: --set: {exc}") from None
     return parse_spec(data, str(path))
