@@ -50,6 +50,29 @@ def coload_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "coload", *args]
 
 
+CONTROL_MONITOR = """
+import sys, zenoh
+sys.path.insert(0, {root!r})
+from net import keys
+from net.messages import Control
+from net.schema import decode
+from net.zenoh_transport import zenoh_config
+def on(sample):
+    m = decode(sample.payload.to_bytes(), Control)
+    print(m.kind, m.tick, flush=True)
+with zenoh.open(zenoh_config(mode="client", connect=[{endpoint!r}])) as s:
+    s.declare_subscriber(keys.sim_control({run!r}), on)
+    print("ready", flush=True)
+    sys.stdin.read()
+"""
+
+
+def control_monitor_cmd(endpoint: str, run: str) -> list[str]:
+    """A client that prints the simulator's control notices (``kind tick``), one per line, after ``ready``;
+    it runs until its stdin closes."""
+    return [sys.executable, "-c", CONTROL_MONITOR.format(root=str(ROOT), endpoint=endpoint, run=run)]
+
+
 class Processes:
     """Real OS processes of one test, each logging to ``log_dir/NAME.log``; all killed at teardown."""
 

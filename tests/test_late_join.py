@@ -13,8 +13,7 @@ import pytest
 
 from config.loader import load_scenario
 from net.zenoh_transport import free_tcp_port
-from tests.conftest import ROOT, SCENARIOS, coload_cmd
-from tests.test_sim_restart import coload_cmd_monitor
+from tests.conftest import ROOT, SCENARIOS, coload_cmd, control_monitor_cmd
 
 pytestmark = pytest.mark.zenoh
 
@@ -32,7 +31,7 @@ def test_late_joiner_over_zenoh(tmp_path, processes):
     run = "latejoin"
     router = processes.start("router", coload_cmd("router", "--listen", endpoint), stdout=subprocess.PIPE, cwd=ROOT)
     assert router.stdout.readline().decode().startswith("ready")
-    monitor = processes.start("monitor", coload_cmd_monitor(endpoint, run), stdout=subprocess.PIPE,
+    monitor = processes.start("monitor", control_monitor_cmd(endpoint, run), stdout=subprocess.PIPE,
                               stdin=subprocess.PIPE, cwd=ROOT)
     assert monitor.stdout.readline().decode().startswith("ready")
     common = [str(scenario), *[a for s in SETS for a in ("--set", s)], "--connect", endpoint, "--run", run]

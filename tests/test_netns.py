@@ -13,7 +13,7 @@ import pytest
 from coload.engine import run_inproc
 from config.loader import load_scenario
 from netns import Hosts, netns_available
-from tests.conftest import ROOT, SCENARIOS, max_table_difference
+from tests.conftest import ROOT, SCENARIOS, control_monitor_cmd, max_table_difference
 
 REASON = netns_available()
 pytestmark = [pytest.mark.zenoh, pytest.mark.skipif(REASON is not None, reason=REASON or "")]
@@ -67,21 +67,6 @@ def test_run_across_test_hosts_equals_inproc(tmp_path):
         assert max_table_difference(tmp_path / "run", tmp_path / "inproc", name, nkeys) <= 1e-9, name
 
 
-MONITOR = """
-import sys, zenoh
-sys.path.insert(0, {root!r})
-from net import keys
-from net.messages import Control
-from net.schema import decode
-from net.zenoh_transport import zenoh_config
-def on(sample):
-    m = decode(sample.payload.to_bytes(), Control)
-    print(m.kind, m.tick, flush=True)
-with zenoh.open(zenoh_config(mode="client", connect=[{endpoint!r}])) as s:
-    s.declare_subscriber(keys.sim_control({run!r}), on)
-    print("ready", flush=True)
-    sys.stdin.read()
-"""
 
 
 def test_real_partition_is_survived_and_healed(tmp_path):
@@ -122,8 +107,8 @@ def test_real_partition_is_survived_and_healed(tmp_path):
             router = start("router", hosts.hub, _coload("router", *zen, *sum((["--listen", e] for e in listen), [])),
                            stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
             assert router.stdout.readline().decode().startswith("ready")
-            monitor = start("monitor", hosts.hub, [sys.executable, "-c", MONITOR.format(
-                root=str(ROOT), endpoint=local, run="part")], stdout=subprocess.PIPE, stdin=subprocess.PIPE)
+            monitor = start("monitor", hosts.hub, control_monitor_cmd(local, "part"), stdout=subprocess.PIPE,
+                            stdin=subprocess.PIPE)
             assert monitor.stdout.readline().decode().startswith("ready")
             agents = []
             for i in range(5):

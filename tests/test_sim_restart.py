@@ -22,7 +22,7 @@ from net.messages import Control
 from net.schema import decode
 from net.zenoh_transport import free_tcp_port
 from simulator.daemon import JOURNAL, SimDaemon
-from tests.conftest import ROOT, SCENARIOS, coload_cmd, max_table_difference
+from tests.conftest import ROOT, SCENARIOS, coload_cmd, control_monitor_cmd, max_table_difference
 
 SETS = ["duration=5.0", "record.every_ticks=5", "timing.wrench_timeout_s=5.0", "timing.neighbour_timeout_s=5.0"]
 
@@ -112,7 +112,7 @@ def test_simulator_killed_and_restarted_over_zenoh(tmp_path, processes):
     run = "simrestart"
     router = processes.start("router", coload_cmd("router", "--listen", endpoint), stdout=subprocess.PIPE, cwd=ROOT)
     assert router.stdout.readline().decode().startswith("ready")
-    monitor = processes.start("monitor", coload_cmd_monitor(endpoint, run), stdout=subprocess.PIPE,
+    monitor = processes.start("monitor", control_monitor_cmd(endpoint, run), stdout=subprocess.PIPE,
                               stdin=subprocess.PIPE, cwd=ROOT)
     assert monitor.stdout.readline().decode().startswith("ready")
     common = [str(scenario), *sets, "--connect", endpoint, "--run", run]
@@ -138,24 +138,3 @@ def test_simulator_killed_and_restarted_over_zenoh(tmp_path, processes):
     _assert_same_as_inproc(tmp_path, tmp_path / "run", load_scenario(scenario, SETS))
 
 
-MONITOR = """
-import sys, zenoh
-from net import keys
-from net.messages import Control
-from net.schema import decode
-from net.zenoh_transport import zenoh_config
-def on(sample):
-    m = decode(sample.payload.to_bytes(), Control)
-    print(m.kind, m.tick, flush=True)
-with zenoh.open(zenoh_config(mode="client", connect=[{endpoint!r}])) as s:
-    s.declare_subscriber(keys.sim_control({run!r}), on)
-    print("ready", flush=True)
-    sys.stdin.read()
-"""
-
-
-def coload_cmd_monitor(endpoint: str, run: str) -> list[str]:
-    """A client that prints the simulator's control notices (``kind tick``), one per line."""
-    import sys
-
-    return [sys.executable, "-c", MONITOR.format(endpoint=endpoint, run=run)]
