@@ -61,6 +61,7 @@ STAGE_NAMES = ("spinup", "kinematic", "m_excite", "m_average", "j_excite", "j_av
 # would be a rotating agent-specific signal in the world frame, which no consensus tracks; pitfalls note)
 CH_FX, CH_FY, CH_BX, CH_BY, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(11)
 N_CH = 11
+_CH_KEYS = tuple(f"c{c}" for c in range(N_CH))  # their names in StateMsg.shared (built once, not per message)
 NO_FLOWS = (0.0,) * N_CH  # a neighbour that sent no pair entry for us (it has not heard from us yet)
 
 _MASK_BITS = 50  # agents per float in the flooded ready mask (exact in a double)
@@ -115,13 +116,13 @@ class FlowAverage:
 class StageBarrier:
     """Agreement on the tick at which the whole team leaves the current stage (see module docstring)."""
 
-    __slots__ = ("me", "n", "full", "horizon", "mask", "tmax", "switch", "chunks")
+    __slots__ = ("me", "n", "full", "horizon", "mask", "tmax", "switch", "mask_keys")
 
     def __init__(self, me: int, n: int, horizon_ticks: int) -> None:
         self.me = me
         self.n = n
         self.full = (1 << n) - 1
-        self.chunks = (n + _MASK_BITS - 1) // _MASK_BITS
+        self.mask_keys = tuple(f"B{c}" for c in range((n + _MASK_BITS - 1) // _MASK_BITS))
         self.horizon = horizon_ticks
         self.reset()
 
@@ -150,15 +151,15 @@ class StageBarrier:
 
     def encode(self, out: dict[str, float]) -> None:
         m = self.mask
-        for c in range(self.chunks):
-            out[f"B{c}"] = float((m >> (c * _MASK_BITS)) & ((1 << _MASK_BITS) - 1))
+        for c, key in enumerate(self.mask_keys):
+            out[key] = float((m >> (c * _MASK_BITS)) & ((1 << _MASK_BITS) - 1))
         out["Bt"] = float(self.tmax)
         out["Bs"] = float(self.switch)
 
     def decode(self, sh: dict[str, float]) -> tuple[int, int, int]:
         m = 0
-        for c in range(self.chunks):
-            v = sh[f"B{c}"]
+        for c, key in enumerate(self.mask_keys):
+            v = sh[key]
             if not (0.0 <= v < 2.0**_MASK_BITS) or v != int(v):
                 raise ValueError("bad mask chunk")
             m |= int(v) << (c * _MASK_BITS)
@@ -346,7 +347,7 @@ class DynamicPhase:
     # ------------------------------------------------------------------ messages
     def receive(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float]) -> None:
         """A neighbour's state of tick ``t``; raises (KeyError, ValueError, TypeError) if malformed."""
-        xj = [float(sh[f"c{c}"]) for c in range(N_CH)]
+        xj = [float(sh[key]) for key in _CH_KEYS]
         psi = float(sh["ps"])
         if psi - psi != 0.0:
             raise ValueError("non-finite")
@@ -556,9 +557,7 @@ class DynamicPhase:
 
     # ------------------------------------------------------------------ outputs
     def shared(self, out: dict[str, float]) -> None:
-        x = self.avg.x
-        for c in range(N_CH):
-            out[f"c{c}"] = x[c]
+        out.update(zip(_CH_KEYS, self.avg.x))
         out["dg"] = float(self.avg.deg)
         out["Sk"] = float(self.stage_tick)
         out["ps"] = self.psi if self.psi == self.psi else 0.0
