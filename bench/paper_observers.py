@@ -34,8 +34,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from agents import paper_observers as P  # noqa: E402
-from plant_drive import Recording, drive, j_stage, push_and_spin  # noqa: E402
+from plant_drive import Recording, drive, j_stage, push_and_spin
+
+from agents import paper_observers as P
 
 LOAD_CHANGE = "plant.load_changes=[{t=50.0, mass=40.0, inertia=69.5, com_offset=[0.2, -0.1]}]"
 J_STAGE_S, M_STAGE_S = 20.0, 40.0

@@ -17,15 +17,15 @@ import numpy as np
 import pytest
 from hypothesis import given, note, settings
 from hypothesis import strategies as st
+from plant_drive import Recording, drive, j_stage, push_and_spin, team_averages
 
 from agents import paper_observers as P
-from plant_drive import Recording, drive, j_stage, push_and_spin, team_averages
 
 LOAD_CHANGE = "plant.load_changes=[{t=40.0, mass=40.0, inertia=69.5, com_offset=[0.2, -0.1]}]"
 # Gains for paper-fig4's scale (|n f_mean| = 50 N, |eta_tilde| ~ 10-20 N m): sqrt(gamma)|u| ~ k_e.
-G18 = dict(ke=5.0, gamma=20.0)
-G24 = dict(ke=2.0, gamma_z=2e-3, gamma_j=2e-2)
-G26 = dict(k1=2.0, k2=1e-3)
+G18 = {"ke": 5.0, "gamma": 20.0}
+G24 = {"ke": 2.0, "gamma_z": 2e-3, "gamma_j": 2e-2}
+G26 = {"k1": 2.0, "k2": 1e-3}
 
 
 def _rows(rec: Recording, k: int) -> tuple[list[P.Vec2], list[float], list[P.Vec2]]:
