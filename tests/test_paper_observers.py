@@ -256,7 +256,9 @@ def test_mass_observer_26_converges_for_any_sign_pattern(mass, m0_ratio, angle, 
     for y, u in zip(ys, us):
         s = P.mass26_step(s, y, u, dt, k1=2.0, k2=1e-3)
     e = abs(s.z2 - 1 / mass)
-    assert math.isfinite(e) and e <= e0 * 1.0001  # never worse than the start
+    # z1 starts on y (e1 = 0), so V = |e1|^2/2 + e2^2/(2 k2) non-increasing bounds |e2| by its start
+    # (1e-4 slack: the Euler step adds O(dt^2) to V_dot)
+    assert math.isfinite(e) and e <= e0 * 1.0001
     if decay > 12.0:  # e^-12 = 6e-6: leave a factor 100 for the transients at the sign changes
         assert e < 1e-3 * e0
     note(f"decay {decay:.1f}, final/initial error {e / e0:.1e}")
