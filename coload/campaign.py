@@ -84,6 +84,18 @@ ERROR_COLUMNS = (
 ``zi_rel`` is derived here: zi_rms over the RMS |z_i| of the geometry (the paper's normalisation
 across team sizes). Other numeric keys a run's errors block has are appended, sorted."""
 
+CENTRAL_COLUMNS = ("central_J_rel", "central_m_rel", "central_J_in_ci95", "central_m_in_ci95",
+                   "dist_over_central_J", "dist_over_central_m", "central_fit_s")
+"""The batch-fit yardstick (summary.json ``centralized`` and ``distributed_over_centralized``, see
+docs/batch-fit.md); empty unless the runs fit it (``coload campaign --batch-fit``, off by default: the
+fit costs about as much CPU as the run)."""
+CENTRAL_SOURCES = {
+    "central_J_rel": ("centralized", "J_rel"), "central_m_rel": ("centralized", "m_rel"),
+    "central_J_in_ci95": ("centralized", "J_in_ci95"), "central_m_in_ci95": ("centralized", "m_in_ci95"),
+    "dist_over_central_J": ("distributed_over_centralized", "J"),
+    "dist_over_central_m": ("distributed_over_centralized", "m"), "central_fit_s": ("centralized", "fit_s"),
+}  # fmt: skip
+
 TAIL_COLUMNS = ("finished_s", "wall_s", "agent_step_us")
 """summary.json top-level: when the agents agreed they were done (if the scenario stops early),
 the engine loop's wall time (s) and the mean cost of one agent step (us)."""
@@ -292,6 +304,11 @@ def row_of(run: PlannedRun, summary: dict[str, Any]) -> dict[str, Any]:
             row[key] = v
     if row.get("zi_rms") is not None and g["z_rms"]:
         row["zi_rel"] = row["zi_rms"] / g["z_rms"]
+    for col, (block, key) in CENTRAL_SOURCES.items():
+        value = (summary.get(block) or {}).get(key)
+        v = float(value) if isinstance(value, bool) else _scalar(value)  # in_ci95: 1 / 0
+        if v is not None:
+            row[col] = v
     for key in TAIL_COLUMNS:
         v = _scalar(summary.get(key))
         if v is not None:
@@ -301,9 +318,9 @@ def row_of(run: PlannedRun, summary: dict[str, Any]) -> dict[str, Any]:
 
 def columns_of(rows: Iterable[dict[str, Any]]) -> list[str]:
     """Fixed columns first, then any other error keys the runs have (sorted), then the tail."""
-    fixed = (*ID_COLUMNS, *ERROR_COLUMNS, *TAIL_COLUMNS)
+    fixed = (*ID_COLUMNS, *ERROR_COLUMNS, *CENTRAL_COLUMNS, *TAIL_COLUMNS)
     extra = sorted({k for r in rows for k in r} - set(fixed))
-    return [*ID_COLUMNS, *ERROR_COLUMNS, *extra, *TAIL_COLUMNS]
+    return [*ID_COLUMNS, *ERROR_COLUMNS, *CENTRAL_COLUMNS, *extra, *TAIL_COLUMNS]
 
 
 def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
@@ -534,6 +551,7 @@ def cell_table(rows: Sequence[dict[str, Any]]) -> str:
     """Median [90th percentile] per (n, sigma) of the plotted errors the runs have (markdown)."""
     cols = [c for c, _ in FIG7_PANELS if any(r.get(c) is not None for r in rows)]
     cols += [c for lo, _, _ in FIG8_PANELS for c in (lo,) if any(r.get(c) is not None for r in rows)]
+    cols += [c for c in ("dist_over_central_J", "dist_over_central_m") if any(r.get(c) is not None for r in rows)]
     head = "| n | sigma | runs | " + " | ".join(f"{c} median [p90]" for c in cols) + " |"
     lines = [head, "|" + "---|" * (3 + len(cols))]
     for n in sorted({r["n"] for r in rows}):

@@ -64,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "processes; inproc: everything in this process with the in-memory link model")
     p.add_argument("--out", type=Path, help="run directory (default: runs/NAME-seedS-DATE)")
     p.add_argument("--no-report", action="store_true", help="do not draw report.png at the end")
+    p.add_argument("--no-batch-fit", action="store_true",
+                   help="skip the centralized batch fit of samples.csv at the end (summary.json then has no "
+                        "'centralized' and 'distributed_over_centralized' blocks; saves ~1/3 to 1x the run's CPU)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("sim", help="run the simulator daemon (the plant and the recorder)",
@@ -186,6 +189,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-data", action="store_true",
                    help="keep every run's CSV tables (default: only run.toml and summary.json; a run is "
                         "reproduced exactly by `coload run OUT/runs/NAME/run.toml --engine inproc`)")
+    p.add_argument("--batch-fit", action="store_true",
+                   help="fit the centralized batch estimator in every run (columns central_*, dist_over_central_*; "
+                        "about doubles each run's CPU, see docs/campaign.md)")
     p.add_argument("--plan", action="store_true", help="print the geometry table and the number of runs, run nothing")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -193,6 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Draw report.png (true vs estimated quantities) and print a summary table.")
     p.add_argument("run_dir", type=Path, help="a run directory")
     p.add_argument("--out", type=Path, help="PNG path (default: RUN_DIR/report.png)")
+    p.add_argument("--diagnose", action="store_true",
+                   help="first run coload diagnose on the run's samples.csv and write RUN_DIR/diagnosis.json; with a "
+                        "diagnosis.json the report also draws RUN_DIR/residual.png (residual before/after, "
+                        "autocorrelation with bounds)")
 
     p = sub.add_parser("diagnose", help="find the effect the nominal model lacks in a recording (samples.csv + run.toml)",
                        description="Fit the nominal rigid-body model to a recording, test its residual (whiteness, "
@@ -282,6 +292,18 @@ def cmd_report(args: argparse.Namespace) -> int:
     path, table = make_report(args.run_dir, args.out)
     print(table)
     print(f"report: {path}")
+    from coload.diagnose import DiagnoseError, stderr_progress
+    from coload.report import residual_figure, write_diagnosis
+
+    try:
+        if args.diagnose:
+            print(f"diagnosis: {write_diagnosis(args.run_dir, stderr_progress('coload report --diagnose'))}")
+        residual = residual_figure(args.run_dir)
+    except (DiagnoseError, ValueError) as exc:
+        print(f"coload report: {exc}", file=sys.stderr)
+        return 2
+    if residual is not None:
+        print(f"residual: {residual}")
     return 0
 
 
@@ -366,6 +388,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     from coload.orchestrate import ProgressBar
 
     overrides = list(args.overrides) + ([f"duration={args.duration}"] if args.duration is not None else [])
+    overrides += ["record.batch_fit=true"] if args.batch_fit else []
     base = load_scenario(args.scenario or cp.DEFAULT_BASE, overrides)
     try:
         ns = cp.parse_list(args.ns, int, "--n")
@@ -440,6 +463,8 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from coload.orchestrate import default_run_dir, run_inproc_cli, run_processes
 
+    # the batch-fit yardstick (record.batch_fit) is on for every `coload run` unless --no-batch-fit
+    args.overrides = ["record.batch_fit=true", *args.overrides, *(["record.batch_fit=false"] if args.no_batch_fit else [])]
     scenario = _scenario(args)
     run_dir = args.out or default_run_dir(scenario)
     if args.engine == "inproc":
@@ -454,6 +479,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         path, table = make_report(run_dir)
         print(table)
         print(f"report: {path}")
+    else:
+        from coload.report import centralized_lines
+
+        for line in centralized_lines(summary):
+            print(line)
     print(f"run directory: {run_dir}")
     return 0
 

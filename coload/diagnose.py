@@ -578,7 +578,7 @@ class Diagnosis:
             "nominal": self.nominal.as_dict(), "augmented": self.augmented.as_dict(), "effects": self.effects,
             "unexplained": self.unexplained, "warnings": self.warnings, "candidates": self.candidates,
             "signatures": self.signatures, "ambiguous": self.ambiguous, "noise_sigma": self.noise_sigma,
-            "truth": self.truth, "wall_s": self.wall_s,
+            "truth": self.truth, "wall_s": self.wall_s, "residual": residual_panels(self),
         }  # fmt: skip
 
 
@@ -795,8 +795,8 @@ def stderr_progress(prefix: str = "coload diagnose") -> Callable[[str], None]:
 
 __all__ = [
     "CANDIDATES", "DiagnoseError", "DiagnoseOptions", "Diagnosis", "ModelReport", "autocorrelation",
-    "block_average", "diagnose", "diagnose_dir", "format_diagnosis", "ljung_box", "plot_diagnosis",
-    "read_recording", "stderr_progress",
+    "block_average", "diagnose", "diagnose_dir", "draw_residuals", "format_diagnosis", "ljung_box",
+    "plot_diagnosis", "read_recording", "residual_panels", "stderr_progress",
 ]  # fmt: skip
 
 
@@ -821,35 +821,76 @@ def format_diagnosis(r: Diagnosis) -> str:
     return "\n".join(lines)
 
 
+MODE_NAMES = ("mean x (m/s)", "mean y (m/s)", "rotation (rad/s)")
+"""The residual's rigid-body modes (:func:`_modes`): the agents' mean residual, x and y, and its rotation."""
+
+
+def _jlist(x: np.ndarray) -> list:
+    """Nested lists for JSON, NaN as None (strict JSON has no NaN)."""
+    return [_jlist(v) for v in x] if np.ndim(x) > 1 else [float(v) if math.isfinite(v) else None for v in x]
+
+
+def residual_panels(r: Diagnosis) -> dict[str, Any]:
+    """The residual figure's data, JSON-ready (the ``residual`` key of ``coload diagnose --json``): per
+    model (nominal = before, augmented = after) the block-averaged rigid-body modes of the residual, their
+    autocorrelations r_1..r_lags, and per mode the 95 % bound +-1.96/sqrt(N) of a white residual's
+    autocorrelation, N the number of blocks with data. :func:`draw_residuals` draws it."""
+    out: dict[str, Any] = {"block_s": r.block_s, "lags": r.lags, "modes": list(MODE_NAMES)}
+    for key, modes, rep in (("nominal", r.modes_nominal, r.nominal), ("augmented", r.modes_augmented, r.augmented)):
+        out[key] = {
+            "effects": list(rep.effects), "whiteness_p": rep.whiteness_p, "series": _jlist(modes),
+            "acf": [_jlist(autocorrelation(modes[:, j], r.lags)) for j in range(modes.shape[1])],
+        }  # fmt: skip
+    counts = [int(np.count_nonzero(~np.isnan(r.modes_nominal[:, j]))) for j in range(r.modes_nominal.shape[1])]
+    out["bound"] = [Z95 / math.sqrt(max(nb, 1)) for nb in counts]
+    out["unexplained"] = r.unexplained
+    return out
+
+
+def draw_residuals(fig: Any, panels: dict[str, Any], title: str = "") -> None:
+    """Draws :func:`residual_panels` (or the ``residual`` key of a diagnosis JSON) into ``fig``: one row per
+    mode, the residual's block means before and after on the left, their autocorrelation with the white-
+    noise bounds on the right. Axes are labelled ``residual:<j>`` and ``acf:<j>`` (j = mode index)."""
+    names = panels["modes"]
+    axes = fig.subplots(len(names), 2, gridspec_kw={"width_ratios": [3, 1]}, squeeze=False)
+    block_s, lags = float(panels["block_s"]), int(panels["lags"])
+    lag_t = np.arange(1, lags + 1) * block_s
+    for j, name in enumerate(names):
+        ax, axc = axes[j]
+        ax.set_label(f"residual:{j}")
+        axc.set_label(f"acf:{j}")
+        for key, color in (("nominal", "tab:red"), ("augmented", "tab:blue")):
+            m = panels[key]
+            series = np.array([np.nan if v is None else v for v in (row[j] for row in m["series"])], dtype=float)
+            label = f"{'before' if key == 'nominal' else 'after'}: {', '.join(m['effects']) or 'nominal'}"
+            ax.plot(np.arange(len(series)) * block_s, series, color=color, lw=0.8, label=label)
+            acf = np.array([np.nan if v is None else v for v in m["acf"][j]], dtype=float)
+            axc.plot(lag_t, acf, "o-", color=color, ms=3, lw=0.8)
+        b = panels["bound"][j]
+        axc.axhline(b, color="k", ls="--", lw=0.8)
+        axc.axhline(-b, color="k", ls="--", lw=0.8)
+        ax.set_ylabel(f"residual, {name}", fontsize=8)
+        axc.set_ylabel("autocorrelation", fontsize=8)
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel(f"t (s), {block_s:g} s block means")
+    axes[-1, 1].set_xlabel("lag (s); dashed: +-1.96/sqrt(N)")
+    nom, aug = panels["nominal"], panels["augmented"]
+    fig.suptitle(title or (
+        f"residual before (nominal, Ljung-Box p = {nom['whiteness_p']:.2g}) and after "
+        f"({', '.join(aug['effects']) or 'none'}, p = {aug['whiteness_p']:.2g})"
+        f"{'  UNEXPLAINED' if panels.get('unexplained') else ''}"))  # fmt: skip
+
+
 def plot_diagnosis(r: Diagnosis, path: str | Path) -> Path:
     """diagnose.png: the residual's rigid-body modes before and after (time series, block-averaged) and
-    their autocorrelation with the 95 % bounds of a white residual."""
+    their autocorrelation with the 95 % bounds of a white residual (:func:`draw_residuals`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = ("mean x (m/s)", "mean y (m/s)", "rotation (rad/s)")
-    fig, axes = plt.subplots(3, 2, figsize=(12, 8), gridspec_kw={"width_ratios": [3, 1]})
-    for j in range(3):
-        ax, axc = axes[j]
-        for modes, label, color in ((r.modes_nominal, "nominal", "tab:red"), (r.modes_augmented, "augmented", "tab:blue")):
-            t = np.arange(len(modes)) * r.block_s
-            ax.plot(t, modes[:, j], color=color, lw=0.8, label=label)
-            rho = autocorrelation(modes[:, j], r.lags)
-            axc.plot(np.arange(1, r.lags + 1) * r.block_s, rho, "o-", color=color, ms=3, lw=0.8)
-        nb = max(len(r.modes_nominal), 1)
-        axc.axhline(Z95 / math.sqrt(nb), color="k", ls="--", lw=0.8)
-        axc.axhline(-Z95 / math.sqrt(nb), color="k", ls="--", lw=0.8)
-        ax.set_ylabel(f"residual, {names[j]}")
-        axc.set_ylabel("autocorrelation")
-    axes[0, 0].legend(loc="upper right")
-    axes[-1, 0].set_xlabel(f"t (s), {r.block_s:g} s block means")
-    axes[-1, 1].set_xlabel("lag (s)")
-    named = ", ".join(e["name"] for e in r.effects) or "none"
-    fig.suptitle(f"residual before (nominal, p = {r.nominal.whiteness_p:.2g}) and after ({named}, "
-                 f"p = {r.augmented.whiteness_p:.2g}){'  UNEXPLAINED' if r.unexplained else ''}")  # fmt: skip
-    fig.tight_layout()
+    fig = plt.figure(figsize=(12, 8), layout="constrained")
+    draw_residuals(fig, residual_panels(r))
     path = Path(path)
     fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -114,13 +114,33 @@ class Recorder:
             table.close()
         from coload.metrics import final_errors
 
+        run = None
         try:
-            summary["errors"] = final_errors(fmt.read_run(self.run_dir))
+            run = fmt.read_run(self.run_dir)
+            summary["errors"] = final_errors(run)
         except (ValueError, OSError) as exc:  # a run too short to score still leaves its data
             summary["errors"] = {}
             summary.setdefault("warnings", []).append(f"errors not computed: {exc}")
+        if self.scenario.record.batch_fit:
+            summary.update(_centralized(run))
         write_summary(self.run_dir, summary)
         return summary
+
+
+def _centralized(run: fmt.RunData | None) -> dict[str, Any]:
+    """The batch-fit yardstick blocks (coload.batch_fit.centralized_blocks); whatever goes wrong, the run
+    still gets its summary, with null blocks and the reason."""
+    from coload.batch_fit import CENTRAL_KEYS, centralized_blocks
+
+    try:
+        if run is None:
+            raise ValueError("the run directory could not be read")
+        return centralized_blocks(run)
+    except Exception as exc:  # noqa: BLE001  the yardstick must never cost the run its summary
+        reason = f"batch fit not run: {type(exc).__name__}: {exc}"
+        return {"centralized": {**dict.fromkeys(CENTRAL_KEYS), "flags": [], "reason": reason},
+                "distributed_over_centralized": {"J": None, "m": None, "J_dist_rel": None, "m_dist_rel": None,
+                                                 "reason": reason}}  # fmt: skip
 
 
 def write_summary(run_dir: Path, summary: dict[str, Any]) -> None:

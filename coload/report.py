@@ -330,7 +330,100 @@ def summary_table(run: RunData, errors: dict[str, Any]) -> str:
     ]
     if extra:
         lines.append("; ".join(extra))
+    lines += centralized_lines(run.summary)
     return "\n".join(lines)
+
+
+def centralized_lines(summary: dict[str, Any] | None) -> list[str]:
+    """The batch-fit yardstick of summary.json (``centralized``, ``distributed_over_centralized``) as text;
+    nothing when the run was made without it (``--no-batch-fit``)."""
+    c = (summary or {}).get("centralized")
+    r = (summary or {}).get("distributed_over_centralized") or {}
+    if not isinstance(c, dict):
+        return []
+
+    def est(name: str, unit: str) -> str:
+        if c.get(name) is None:
+            return f"{name} -"
+        rel = c.get(f"{name}_rel")
+        return (f"{name} {c[name]:.5g} +- {_fmt(c.get(f'{name}_ci95'), '.2g')} {unit}"
+                + ("" if rel is None else f" ({rel:+.3%})"))  # fmt: skip
+
+    span = "" if c.get("t0") is None else f", {c['t0']:g}-{c['t1']:g} s, fit {_fmt(c.get('fit_s'), '.1f')} s"
+    lines = [f"centralized (batch fit of all samples{span}): {est('m', 'kg')}, {est('J', 'kg m^2')}"]
+    parts = []
+    for name in ("J", "m"):
+        dist, cen = r.get(f"{name}_dist_rel"), c.get(f"{name}_rel")
+        if dist is not None and cen is not None:
+            parts.append(f"{name} {dist:.3%} / {abs(cen):.3%} = {_fmt(r.get(name), '.3g')}")
+        else:
+            parts.append(f"{name} -")
+    lines.append("distributed / centralized error (median over agents): " + ", ".join(parts))
+    reason = r.get("reason") or c.get("reason")
+    if reason:
+        lines.append(f"  ({reason})")
+    return lines
+
+
+DIAGNOSIS_JSON = "diagnosis.json"
+"""A run directory's diagnosis (``coload diagnose RUN_DIR --json RUN_DIR/diagnosis.json`` or
+``coload report RUN_DIR --diagnose``); when present, the report adds :data:`RESIDUAL_PNG`."""
+RESIDUAL_PNG = "residual.png"
+
+
+def write_diagnosis(run_dir: str | Path, progress: Callable[[str], None] | None = None) -> Path:
+    """Diagnoses the run's recording (coload.diagnose) and writes ``RUN_DIR/diagnosis.json``."""
+    import json
+
+    from coload.diagnose import diagnose_dir
+
+    result = diagnose_dir(run_dir, progress=progress)
+    path = Path(run_dir) / DIAGNOSIS_JSON
+    path.write_text(json.dumps(result.as_dict(), indent=1) + "\n", encoding="utf-8")
+    return path
+
+
+def residual_panels_of(run_dir: str | Path) -> dict[str, Any] | None:
+    """The ``residual`` data of ``RUN_DIR/diagnosis.json`` (coload.diagnose.residual_panels); None when the
+    run carries no diagnosis; ValueError when its diagnosis.json lacks the residual data."""
+    import json
+
+    src = Path(run_dir) / DIAGNOSIS_JSON
+    if not src.exists():
+        return None
+    try:
+        panels = json.loads(src.read_text(encoding="utf-8"))["residual"]
+        if not isinstance(panels, dict):
+            raise TypeError("'residual' is not an object")
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{src}: no residual data ({type(exc).__name__}: {exc}); re-run coload diagnose "
+                         f"--json or coload report --diagnose") from None  # fmt: skip
+    return panels
+
+
+def build_residual_figure(panels: dict[str, Any]) -> Figure:
+    """The residual figure (coload.diagnose.draw_residuals) of :func:`residual_panels_of`, unsaved."""
+    from coload.diagnose import draw_residuals
+
+    fig = plt.figure(figsize=(12, 8), layout="constrained")
+    draw_residuals(fig, panels)
+    return fig
+
+
+def residual_figure(run_dir: str | Path, out_png: str | Path | None = None) -> Path | None:
+    """``RUN_DIR/residual.png`` from ``RUN_DIR/diagnosis.json``: the residual before (nominal model) and
+    after (with the accepted effects), time series and autocorrelation with the +-1.96/sqrt(N) bounds.
+    None when the run carries no diagnosis."""
+    panels = residual_panels_of(run_dir)
+    if panels is None:
+        return None
+    out = Path(out_png) if out_png is not None else Path(run_dir) / RESIDUAL_PNG
+    fig = build_residual_figure(panels)
+    try:
+        fig.savefig(out, dpi=90)
+    finally:
+        plt.close(fig)
+    return out
 
 
 def make_report(run_dir: str | Path, out_png: str | Path | None = None) -> tuple[Path, str]:

@@ -192,6 +192,12 @@ class RecordSpec(_Strict):
     every_ticks: int = Field(
         10, ge=1, description="keep estimates, pairs and truth every this many ticks (agents publish estimates only then)"
     )
+    batch_fit: bool = Field(
+        False,
+        description="at the end of the run, fit the centralized batch estimator to all of samples.csv and add "
+                    "'centralized' and 'distributed_over_centralized' to summary.json (seconds to a minute of "
+                    "CPU; `coload run` turns it on unless --no-batch-fit, library and test runs leave it off)",
+    )
 
 
 class FrictionSpec(_Strict):
