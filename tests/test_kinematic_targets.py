@@ -49,10 +49,31 @@ def test_reference_scenario_low_noise(sigma: float, seed: int) -> None:
 
 @pytest.mark.slow
 def test_link_faults() -> None:
-    """20 % loss, delay 1..5 ticks (reordering), 10 % duplicates on every directed link."""
+    """20 % loss, delay 1..5 ticks (reordering), 10 % duplicates on every directed link: the fault-free
+    targets (measured z_i 0.042 m; 0.078 m before the reordered samples were used and the flows
+    antisymmetrised)."""
     r = run_closed_loop(reference_load(), line_neighbours(10), sigma=0.3, seconds=T, seed=0, record_every=20,
                         deliver=Links(1, loss=0.2, delay=1, jitter=4, dup=0.1))
-    _check(r, zi_max=0.2)  # faults slow the flow-form centroid iteration down (measured 0.14)
+    _check(r)
+
+
+def test_loss_20_delay_100ms() -> None:
+    """The issue-5 condition: 20 % loss and 10..15 ticks (100-150 ms) of delay on every directed link.
+    Measured: EERD 0.05 %, z_i 0.046 m, omega RMS 0.039 rad/s, |d_ij| within 1.7 %, EERD < 1 % from
+    10.4 s (before the delay compensation: z_i 0.065 m, |d_ij| off by up to 4.1 %, EERD < 1 % from 49.6 s)."""
+    r = run_closed_loop(reference_load(), line_neighbours(10), sigma=0.3, seconds=T, seed=1, record_every=20,
+                        deliver=Links(1, loss=0.2, delay=10, jitter=5, dup=0.0))
+    _check(r, zi_max=0.06)
+    assert r.t[np.flatnonzero(r.eerd_ratio >= 0.01)[-1] + 1] <= 15.0  # converged by 15 s, and stays
+
+
+@pytest.mark.slow
+def test_delay_200ms() -> None:
+    """20..30 ticks of delay (200-300 ms, heavy reordering), no loss. Measured z_i 0.041 m, omega RMS
+    0.034 rad/s; before the delay compensation EERD never stayed below 1 %."""
+    r = run_closed_loop(reference_load(), line_neighbours(10), sigma=0.3, seconds=T, seed=0, record_every=20,
+                        deliver=Links(1, loss=0.0, delay=20, jitter=10, dup=0.0))
+    _check(r, zi_max=0.06)
 
 
 def _n40_control() -> ControlSpec:
