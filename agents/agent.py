@@ -84,6 +84,11 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "J_local",  # this agent's own J estimate, before the averaging consensus (kg m^2)
     "m_local",  # this agent's own m estimate, before the averaging consensus (kg)
     "late_switches",  # stage switches this agent learnt of after the agreed tick (count)
+    # augmented model (DynamicsSpec.estimate_effects; NaN without it)
+    "b",  # viscous floor friction on v_C after the averaging consensus (N s/m)
+    "c",  # rotational damping on omega after the averaging consensus (N m s)
+    "b_local",  # this agent's own b, before the averaging consensus (N s/m)
+    "c_local",  # this agent's own c, before the averaging consensus (N m s)
 )
 _DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
 _NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)

@@ -61,8 +61,12 @@ STAGE_NAMES = ("spinup", "kinematic", "m_excite", "m_average", "j_excite", "j_av
 # would be a rotating agent-specific signal in the world frame, which no consensus tracks; pitfalls note)
 CH_FX, CH_FY, CH_BX, CH_BY, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(11)
 N_CH = 11
-_CH_KEYS = tuple(f"c{c}" for c in range(N_CH))  # their names in StateMsg.shared (built once, not per message)
-NO_FLOWS = (0.0,) * N_CH  # a neighbour that sent no pair entry for us (it has not heard from us yet)
+# augmented model (DynamicsSpec.estimate_effects): the local b and c numerators; their weights are the m
+# and J weight channels (b is offered exactly when m is, c when J is), so two channels, not four
+CH_BN, CH_CN = 11, 12
+N_CH_AUG = 13
+_CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG))  # their names in StateMsg.shared (built once, not per message)
+NO_FLOWS = (0.0,) * N_CH_AUG  # a neighbour that sent no pair entry for us (it has not heard from us yet)
 
 _MASK_BITS = 50  # agents per float in the flooded ready mask (exact in a double)
 
@@ -77,15 +81,16 @@ class FlowAverage:
     which the mean is exact again, and x converges to it.
     """
 
-    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg")
+    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg", "nch")
 
-    def __init__(self, nbr_ids: Sequence[int]) -> None:
-        self.u = [0.0] * N_CH
-        self.x = [0.0] * N_CH
+    def __init__(self, nbr_ids: Sequence[int], nch: int = N_CH) -> None:
+        self.nch = nch
+        self.u = [0.0] * nch
+        self.x = [0.0] * nch
         self.deg = len(nbr_ids)
-        self.flow = {j: [0.0] * N_CH for j in nbr_ids}  # F_ij
+        self.flow = {j: [0.0] * nch for j in nbr_ids}  # F_ij
         self.nx: dict[int, list[float]] = {}  # x_j, latest received
-        self.nf = {j: [0.0] * N_CH for j in nbr_ids}  # F_ji, latest received
+        self.nf = {j: [0.0] * nch for j in nbr_ids}  # F_ji, latest received
         self.ndeg = {j: 1 for j in nbr_ids}
 
     def receive(self, j: int, xj: list[float], fji: Sequence[float], degj: int) -> None:
@@ -96,21 +101,22 @@ class FlowAverage:
     def update(self) -> None:
         x = self.x
         deg = self.deg
-        tot = [0.0] * N_CH
+        nch = self.nch
+        tot = [0.0] * nch
         for j, fl in self.flow.items():
             xj = self.nx.get(j)
             if xj is not None:
                 eps = 1.0 / (1.0 + max(deg, self.ndeg[j]))
                 fji = self.nf[j]
-                for c in range(N_CH):
+                for c in range(nch):
                     # (F_ij - F_ji)/2 rather than -F_ji: both ends update at once from each other's
                     # previous flows, and with -F_ji an asymmetry (from one lost message) would flip
                     # sign every tick for ever; the mean of the two kills it at the next exchange
                     fl[c] = 0.5 * (fl[c] - fji[c]) + eps * (x[c] - xj[c])
-            for c in range(N_CH):
+            for c in range(nch):
                 tot[c] += fl[c]
         u = self.u
-        self.x = [u[c] - tot[c] for c in range(N_CH)]  # a new list: snapshots of x stay valid
+        self.x = [u[c] - tot[c] for c in range(nch)]  # a new list: snapshots of x stay valid
 
 
 class StageBarrier:
@@ -175,9 +181,16 @@ class RigidEKF:
     eq. (9) rate u = omega (variance 2 sigma^2 / sum_j |z_ij|^2). Estimating omega here, with the torque
     model, removes the lag of the kinematic omega_hat filter (which rotated q and the J-stage forces
     away from the body while omega ramped).
+
+    Augmented model (``spec.estimate_effects``): two more states, beta = b/m (1/s) and gamma = c/J (1/s),
+    with v_C(k+1) = v_C + dt (mu F - beta v_C) and omega(k+1) = omega + dt (iota T - gamma omega), the
+    plant's step with viscous friction -b v_C and rotational damping -c omega (simulator/effects.py: forces
+    of the state at tick k act over k -> k+1). The rates rather than b and c keep the model linear in the
+    parameters given the (well-measured) velocities, whatever the current mu; b = beta/mu, c = gamma/iota.
+    An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
     """
 
-    __slots__ = ("s", "P", "Qd", "r", "ready", "_I")
+    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug")
 
     def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
         self.s = np.zeros(7)
@@ -189,12 +202,52 @@ class RigidEKF:
         # per-second process noise intensities; q's angle walk is scaled by |q|^2 at each step
         self.Qd = (spec.kf_v_walk**2, spec.kf_angle_walk**2, walk_mu**2, spec.omega_walk**2, walk_iota**2)
         self._I = np.eye(7)
+        # augmented model: prior variances and per-second walk intensities of (beta, gamma); 0 and 0 for
+        # an effect not estimated (its state stays exactly 0)
+        self.aug: tuple[float, float, float, float] | None = None
+        if spec.estimate_effects:
+            on_b = 1.0 if "viscous_friction" in spec.estimate_effects else 0.0
+            on_c = 1.0 if "rotational_damping" in spec.estimate_effects else 0.0
+            w2 = spec.effect_walk**2
+            self.aug = (on_b, on_c, on_b * w2, on_c * w2)
+            self.s = np.zeros(9)
+            self.P = np.eye(9)
+            self._I = np.eye(9)
 
     def start(self, v: complex, q0: complex, omega: float) -> None:
         vc = v - omega * 1j * q0
         self.s = np.array([vc.real, vc.imag, q0.real, q0.imag, 0.0, omega, 0.0])
         self.P = np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 1e-2])
+        if self.aug is not None:  # beta, gamma pinned at 0 until release_effects()
+            self.s = np.append(self.s, (0.0, 0.0))
+            P = np.zeros((9, 9))
+            P[:7, :7] = self.P
+            self.P = P
         self.ready = True
+
+    def release_effects(self) -> None:
+        """Augmented model: let beta and gamma move (from 0, prior std 0.3 1/s) and restart mu and iota from
+        their current values with the start's priors (their cross-covariances dropped).
+
+        Called when the excitation starts (the m stage, or Algorithm 2's background stage). Free from the
+        start, beta explained the decay of the filter's own initial v_C error (q_i still unknown) as
+        friction (measured: beta ~ 1.4 1/s, a 0.7 s time constant, for a true 0.1) and that wrong start
+        outlived the m stage in some agents (m off by up to 26 %); and what mu and iota learnt before,
+        under the nominal model, had absorbed the friction (iota ~ 0: the regulation torque that holds
+        omega against the damping looked like a torque that does not accelerate the load).
+        """
+        if self.aug is None or not self.ready:
+            return
+        P = self.P.copy()
+        s = self.s.copy()  # replaced, never changed in place (snapshots hold it)
+        for k, var in ((4, 1.0), (6, 1e-2), (7, 0.1 * self.aug[0]), (8, 0.1 * self.aug[1])):
+            if k >= 7:
+                s[k] = 0.0
+            P[k, :] = 0.0
+            P[:, k] = 0.0
+            P[k, k] = var
+        self.s = s
+        self.P = P
 
     def update(self, v: complex, u: float, u_var: float) -> None:
         """Measurement update; H is sparse, so P H^T is three column combinations of P."""
@@ -262,6 +315,18 @@ class RigidEKF:
         A[2, 5] = dt * (-sn * qx - c * qy)
         A[3, 5] = dt * (c * qx - sn * qy)
         A[5, 6] = dt * torque
+        if self.aug is not None:  # augmented model: - dt beta v_C, - dt gamma omega
+            beta, gamma = s[7], s[8]
+            nq[0] -= dt * beta * s[0]
+            nq[1] -= dt * beta * s[1]
+            nq[5] -= dt * gamma * om
+            A[0, 0] -= dt * beta
+            A[1, 1] -= dt * beta
+            A[0, 7] = -dt * s[0]
+            A[1, 7] = -dt * s[1]
+            A[5, 5] -= dt * gamma
+            A[5, 8] = -dt * om
+            nq = np.append(nq, (beta, gamma))
         P = A @ self.P @ A.T
         qv, qa, qm, qo, qi = self.Qd
         P[0, 0] += qv * dt
@@ -272,6 +337,9 @@ class RigidEKF:
         P[4, 4] += qm * dt
         P[5, 5] += qo * dt
         P[6, 6] += qi * dt
+        if self.aug is not None:
+            P[7, 7] += self.aug[2] * dt
+            P[8, 8] += self.aug[3] * dt
         self.s = nq
         self.P = P
 
@@ -303,6 +371,16 @@ class RigidEKF:
     def iota_var(self) -> float:
         return float(self.P[6, 6])
 
+    @property
+    def beta(self) -> float:
+        """b/m (1/s), augmented model only."""
+        return float(self.s[7])
+
+    @property
+    def gamma(self) -> float:
+        """c/J (1/s), augmented model only."""
+        return float(self.s[8])
+
 
 class DynamicPhase:
     """One agent's dynamical phase (see module docstring). Driven by AgentCore.step."""
@@ -314,7 +392,11 @@ class DynamicPhase:
         self.dt = dt
         self.spec = spec
         self.background = spec.algorithm == "background"
-        self.avg = FlowAverage(nbr_ids)
+        self.avg = FlowAverage(nbr_ids, N_CH_AUG if spec.estimate_effects else N_CH)
+        self.ch_keys = _CH_KEYS[:self.avg.nch]
+        self.b_local = math.nan  # augmented model: own b = beta m and c = gamma J, before the averaging
+        self.c_local = math.nan
+        self.released = False
         ticks = lambda s: max(1, int(round(s / dt)))  # noqa: E731
         self.barrier = StageBarrier(agent_id, n, ticks(spec.horizon_s))
         self.kf = RigidEKF(sigma_v, spec, self.background)
@@ -347,12 +429,14 @@ class DynamicPhase:
     # ------------------------------------------------------------------ messages
     def receive(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float]) -> None:
         """A neighbour's state of tick ``t``; raises (KeyError, ValueError, TypeError) if malformed."""
-        xj = [float(sh[key]) for key in _CH_KEYS]
+        xj = [float(sh[key]) for key in self.ch_keys]
         psi = float(sh["ps"])
         if psi - psi != 0.0:
             raise ValueError("non-finite")
         degj = int(sh["dg"])
-        if degj < 1 or len(flows) != N_CH:
+        if flows is NO_FLOWS:
+            flows = NO_FLOWS[:self.avg.nch]
+        if degj < 1 or len(flows) != self.avg.nch:
             raise ValueError("bad dynamic state")
         bar = self.barrier.decode(sh)
         for v in xj:
@@ -367,6 +451,9 @@ class DynamicPhase:
 
     # ------------------------------------------------------------------ helpers
     def _enter(self, stage: int, tick: int) -> None:
+        if stage >= M_EXCITE and self.kf.aug is not None and not self.released:
+            self.released = True  # the excitation starts (or we jumped past it): see release_effects
+            self.kf.release_effects()
         self.stage = stage
         self.stage_tick = tick
         self.barrier.reset()
@@ -529,11 +616,15 @@ class DynamicPhase:
             if m_local is not None:
                 self.m_local = m_local
                 self.frozen_m = stage == M_AVERAGE
+                if kf.aug is not None:  # b = beta m, averaged with m's weights
+                    self.b_local = au[CH_BN] = kf.beta * m_local
         if kf.ready and take_j:
             j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW)
             if j_local is not None:
                 self.j_local = j_local
                 self.frozen_j = stage == J_AVERAGE
+                if kf.aug is not None:  # c = gamma J, averaged with J's weights
+                    self.c_local = au[CH_CN] = kf.gamma * j_local
         self.avg.update()
         x = self.avg.x
 
@@ -553,6 +644,8 @@ class DynamicPhase:
             iota = kf.iota
             if iota > 0.0 and kf.iota_var < (0.1 * iota) ** 2:  # only once 1/J is known to 10 %
                 self.alpha = iota * torque
+                if kf.aug is not None:
+                    self.alpha -= kf.gamma * kf.omega
         return fx, fy, tau
 
     # ------------------------------------------------------------------ outputs
@@ -570,12 +663,13 @@ class DynamicPhase:
         """What :func:`estimates` needs, taken every tick and turned into the estimate only on the ticks
         that are recorded or published (the consensus state ``avg.x`` and the filter state ``kf.s`` are
         replaced each tick, never changed in place, so holding them is enough)."""
-        return (self.avg.x, self.psi, self.kf.s, self.stage, self.j_local, self.m_local, self.late_switches)
+        return (self.avg.x, self.psi, self.kf.s, self.stage, self.j_local, self.m_local, self.late_switches,
+                self.b_local, self.c_local)
 
 
 def estimates(snap: tuple) -> dict[str, float]:
     """The dynamical phase's estimate values (``agents.agent.ESTIMATE_NAMES``) from a :meth:`DynamicPhase.snapshot`."""
-    x, psi, s, stage, j_local, m_local, late = snap
+    x, psi, s, stage, j_local, m_local, late, b_local, c_local = snap
     nan = math.nan
     m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
     J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
@@ -594,4 +688,9 @@ def estimates(snap: tuple) -> dict[str, float]:
         "J_local": j_local,
         "m_local": m_local,
         "late_switches": float(late),
+        # augmented model (estimate_effects): b with m's weights, c with J's
+        "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 else nan,
+        "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 else nan,
+        "b_local": b_local,
+        "c_local": c_local,
     }

@@ -364,6 +364,19 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
             out[key] = _rms_all(rel)
             if col.endswith("_local"):
                 out[f"{key}_per_agent"] = [_num(v) for v in rel]
+    # augmented model (DynamicsSpec.estimate_effects): b and c against the plant's friction, which is
+    # constant over a run and recorded in run.toml ([plant.friction] viscous, rotational; 0 when absent)
+    fr = run.config.get("plant", {}).get("friction", {}) if isinstance(run.config.get("plant"), dict) else {}
+    for col, tname in (("b", "viscous"), ("c", "rotational"), ("b_local", "viscous"), ("c_local", "rotational")):
+        if est.has(col) and np.isfinite(est.columns[col]).any():
+            true_v = float(fr.get(tname, 0.0)) if isinstance(fr, dict) else 0.0
+            final, _ = last_finite(est.columns[col])
+            if not col.endswith("_local"):
+                out[f"{col}_true"] = true_v
+                out[f"{col}_final"] = [_num(v) for v in final]
+            out[f"{col}_err"] = _rms_all(final - true_v)
+            if true_v > 0.0:
+                out[f"{col}_rel"] = _rms_all((final - true_v) / true_v)
     if est.has("zc_x", "zc_y") and "zc_x" in tcol and "zc_y" in tcol:
         true_zc = np.stack([tcol["zc_x"][ti], tcol["zc_y"][ti]], axis=1)[:, None, :]
         err, _ = last_finite(np.sqrt(_sq(_vec(est.columns, "zc_x", "zc_y") - true_zc)))

@@ -44,6 +44,7 @@ ESTIMATE_NAMES: tuple[str, ...] = ("phase", "omega", "zi_x", "zi_y")
 """Estimate columns written today; later estimators add any of :data:`KNOWN_ESTIMATE_NAMES`."""
 KNOWN_ESTIMATE_NAMES: tuple[str, ...] = (
     "phase", "omega", "zi_x", "zi_y", "J", "m", "zc_x", "zc_y", "vc_x", "vc_y",
+    "b", "c", "b_local", "c_local",
 )
 ESTIMATES_HEADER: tuple[str, ...] = ESTIMATES_KEY + ESTIMATE_NAMES
 

@@ -145,3 +145,14 @@ class DynamicsSpec(_Strict):
                                "observable beside z_C (N m)",
     )
     dither_period_s: float = Field(6.0, gt=0, description="background: period of that dither (s)")
+    estimate_effects: tuple[Literal["viscous_friction", "rotational_damping"], ...] = Field(
+        (),
+        description="plant effects the agents estimate online with m and J (names of coload diagnose): "
+                    "viscous_friction, b (N s/m) in dv_C = (F - b v_C) dt/m; rotational_damping, c (N m s) in "
+                    "domega = (T - c omega) dt/J; each an extra filter state averaged by consensus like m and "
+                    "J; empty: the nominal model",
+    )
+    effect_walk: float = Field(
+        1e-3, ge=0, description="Kalman filter: random walk of the estimated effect coefficients b, c, as a "
+                                "fraction of their scale m/10 s, J/10 s (1/sqrt(s))",
+    )

@@ -45,8 +45,8 @@ MAX_NAMES: Final = 64
 MAX_NAME_LEN: Final = 64
 MAX_PAIRS: Final = 1024
 """Most entries in a by-neighbour dict (``StateMsg.pair``, ``Estimate.pairs``)."""
-MAX_PAIR_LEN: Final = 16
-"""Most floats in one ``StateMsg.pair`` value."""
+MAX_PAIR_LEN: Final = 24
+"""Most floats in one ``StateMsg.pair`` value (the dynamical phase with the augmented model sends 4 + 13)."""
 MAX_COUNT: Final = 2**63 - 1
 MAX_VEC: Final = 1024
 """Most floats in one vector of a paper-003 message (``HinfMeas.z``, ``HinfState.xhat``, ...)."""
