@@ -24,8 +24,9 @@ Per tick k (all states refer to tick k-1 on entry and are predicted to tick k on
    tracking heterogeneous inputs; unlike the first-order input dynamic consensus it time-averages
    the per-tick noise and forgets the errors of lost messages instead of keeping them for good.
    A neighbour's o_j of tick ref - age is brought to tick ref by omega_hat's own trend (the
-   beta-path increments and the dynamical phase's modelled acceleration, low-passed; not the
-   consensus increments, which would feed back on themselves): without it the consensus pulls
+   beta-path increments, low-passed; not the consensus increments, which would feed back on
+   themselves) plus the dynamical phase's feed-forward increments of those ticks, summed exactly
+   from a ring buffer (a J-stage ramp starts and reverses at once): without it the consensus pulls
    towards values ``age`` ticks old and omega_hat lags a ramp by eps * degree * age / beta ticks
    (3.3 s at 100 ms delay), which turned the body frame away from the load and z_i with it.
 4. z_i (Result 3, ref. [19]): y_i += eps sum_j (y_j - y_i + e_ij), e_ij = (z_ij - z_ji)/2 with the
@@ -258,6 +259,9 @@ class AgentCore:
         "_vtick",
         "_wr",
         "_omdot",
+        "_asum",
+        "_abuf",
+        "_abuf_t",
         "dropped_stale",
         "dropped_unknown",
         "dt",
@@ -328,6 +332,9 @@ class AgentCore:
         self.dropped_stale = 0
         self._tick = -1
         self._omdot = 0.0  # omega_hat's own trend per tick (its measurement path, low-passed)
+        self._asum = 0.0  # sum of the dynamical phase's feed-forward increments alpha dt so far (rad/s)
+        self._abuf = [0.0] * hist  # _asum at each of the last ticks, to bring old neighbour values forward
+        self._abuf_t = [-1] * hist
         self._dyn = None
         if dynamics is not None and dynamics.algorithm != "none":
             self._dyn = dynamic.DynamicPhase(self.id, nb_ids, self.n, self.dt, sig, dynamics)
@@ -521,6 +528,9 @@ class AgentCore:
         ph = self.phi
         y = self.y
         omdot = self._omdot
+        asum = self._asum
+        abuf = self._abuf
+        abuf_t = self._abuf_t
         acc = 0.0
         cnt = 0
         accp = 0.0
@@ -533,7 +543,14 @@ class AgentCore:
                 continue
             nph = nb.ph
             if nb.om_ok:
-                acc += nb.om + omdot * age - om  # j's value of tick ref - age, brought to ref
+                # j's value of tick ref - age, brought to ref: the trend of the measurement path, plus
+                # the modelled accelerations of those ticks exactly (a ramp starts or reverses at once)
+                fwd = omdot * age
+                if age > 0 and dyn is not None:
+                    ta = nb.st_t % hist
+                    if abuf_t[ta] == nb.st_t:
+                        fwd += asum - abuf[ta]
+                acc += nb.om + fwd - om
                 cnt += 1
                 accp += (nph + omdt * age) - ph
             zs = nb.z_sent
@@ -578,9 +595,15 @@ class AgentCore:
             # z_i fall behind the body while omega ramps (the J stage: EEC rose to ~1 m^2)
             om_new += dyn.alpha * dt
         if om_init and not adopt and b == b:
-            # omega_hat's trend from its measurements (and the modelled acceleration), not from the
-            # consensus term, which would feed back on itself; low-passed with the filter's time constant
-            self._omdot = omdot + self._beta * ((b if dyn is None else b + dyn.alpha * dt) - omdot)
+            # omega_hat's trend from its measurements, not from the consensus term (which would feed
+            # back on itself); low-passed with the filter's time constant
+            self._omdot = omdot + self._beta * (b - omdot)
+        if dyn is not None:
+            if om_init:
+                self._asum = asum = asum + dyn.alpha * dt
+            ta = tick % hist
+            abuf[ta] = asum
+            abuf_t[ta] = tick
         if nlist:
             self.y = y = -sflow  # y_i = -sum_j F_ij
         if adopt:
