@@ -23,12 +23,14 @@ Per tick k (all states refer to tick k-1 on entry and are predicted to tick k on
    agent measures the *same* omega, so the job is averaging noise over time and over the graph, not
    tracking heterogeneous inputs; unlike the first-order input dynamic consensus it time-averages
    the per-tick noise and forgets the errors of lost messages instead of keeping them for good.
-   A neighbour's o_j of tick ref - age is brought to tick ref by omega_hat's own trend (the
-   beta-path increments, low-passed; not the consensus increments, which would feed back on
-   themselves) plus the dynamical phase's feed-forward increments of those ticks, summed exactly
-   from a ring buffer (a J-stage ramp starts and reverses at once): without it the consensus pulls
-   towards values ``age`` ticks old and omega_hat lags a ramp by eps * degree * age / beta ticks
-   (3.3 s at 100 ms delay), which turned the body frame away from the load and z_i with it.
+   Delayed omega information -- a neighbour's o_j of tick ref - age, an eq. (9) sample of tick t --
+   is brought to tick ref (``_forward``) by omega_hat's own trend (the beta-path increments,
+   low-passed; not the consensus increments, which would feed back on themselves) plus the
+   dynamical phase's feed-forward increments of those ticks, summed exactly from a ring buffer (a
+   J-stage ramp starts and reverses at once). Without it the consensus pulls towards values ``age``
+   ticks old and omega_hat lags a ramp by eps * degree * age / beta ticks (3.3 s at 100 ms delay),
+   which turned the body frame away from the load and z_i with it. With fault-free links every age
+   is 0 and the arithmetic is the undelayed one bit for bit.
 4. z_i (Result 3, ref. [19]): y_i += eps sum_j (y_j - y_i + e_ij), e_ij = (z_ij - z_ji)/2 with the
    neighbour's own z_ji from its message, so the edge terms are antisymmetric and sum_i y_i stays 0.
    Two changes make it hold on a rotating load with imperfect links:
@@ -345,6 +347,18 @@ class AgentCore:
         ph = self.phi
         return self.y * complex(cos(ph), sin(ph))
 
+    def _forward(self, t: int, age: int) -> float:
+        """How much omega_hat has changed from tick t to the state tick (t + age), for bringing an
+        omega value of tick t (a neighbour's state, an eq. (9) sample) forward: the trend of the
+        measurement path times age, plus the dynamical phase's feed-forward increments of those ticks
+        exactly (so a modelled ramp starts and reverses at once)."""
+        f = self._omdot * age
+        if self._dyn is not None:
+            ta = t % self._hist
+            if self._abuf_t[ta] == t:
+                f += self._asum - self._abuf[ta]
+        return f
+
     def _release(self, nb: _Nbr, ref: int, om: float, u_num: float, u_den: float) -> tuple[float, float, float]:
         """Feed j's held-back velocities to its pair estimator in tick order.
 
@@ -373,8 +387,11 @@ class AgentCore:
             back = complex(cos(omdt * lag), -sin(omdt * lag)) if lag else 1.0
             if pe.ready:
                 zt = pe.z * back
+                zz = zt.real * zt.real + zt.imag * zt.imag
                 u_num += zt.real * w.imag - zt.imag * w.real
-                u_den += zt.real * zt.real + zt.imag * zt.imag
+                if lag:
+                    u_num += zz * self._forward(t, lag)
+                u_den += zz
                 pe.sample(t, w, back, om, dt)
             else:
                 pe.sample(t, w, back, om, dt)
@@ -503,8 +520,12 @@ class AgentCore:
             pe = nb.pair
             if pe.ready:
                 zt = pe.z * back  # predicted z_ij at tick t (before this sample's correction)
+                zz = zt.real * zt.real + zt.imag * zt.imag
                 u_num += zt.real * w.imag - zt.imag * w.real
-                u_den += zt.real * zt.real + zt.imag * zt.imag
+                if lag:
+                    # eq. (9) of tick t measures omega of tick t: bring it to ref like j's omega state
+                    u_num += zz * self._forward(t, lag)
+                u_den += zz
                 pe.sample(t, w, back, om, dt)
             else:
                 pe.sample(t, w, back, om, dt)
@@ -529,8 +550,6 @@ class AgentCore:
         y = self.y
         omdot = self._omdot
         asum = self._asum
-        abuf = self._abuf
-        abuf_t = self._abuf_t
         acc = 0.0
         cnt = 0
         accp = 0.0
@@ -543,14 +562,8 @@ class AgentCore:
                 continue
             nph = nb.ph
             if nb.om_ok:
-                # j's value of tick ref - age, brought to ref: the trend of the measurement path, plus
-                # the modelled accelerations of those ticks exactly (a ramp starts or reverses at once)
-                fwd = omdot * age
-                if age > 0 and dyn is not None:
-                    ta = nb.st_t % hist
-                    if abuf_t[ta] == nb.st_t:
-                        fwd += asum - abuf[ta]
-                acc += nb.om + fwd - om
+                # j's value of tick ref - age, brought to ref (``_forward``)
+                acc += nb.om + (self._forward(nb.st_t, age) if age else 0.0) - om
                 cnt += 1
                 accp += (nph + omdt * age) - ph
             zs = nb.z_sent
@@ -602,8 +615,8 @@ class AgentCore:
             if om_init:
                 self._asum = asum = asum + dyn.alpha * dt
             ta = tick % hist
-            abuf[ta] = asum
-            abuf_t[ta] = tick
+            self._abuf[ta] = asum
+            self._abuf_t[ta] = tick
         if nlist:
             self.y = y = -sflow  # y_i = -sum_j F_ij
         if adopt:
