@@ -6,8 +6,8 @@
 Each run is ``coload run paper-fig4 --engine inproc --seed S`` with the batch fit on (record.batch_fit):
 summary.json's ``centralized`` (the batch fit of all of samples.csv) and ``distributed_over_centralized``
 (median over agents of the final |x_i - x| / x, over |x_c - x| / x). Prints per seed the distributed and
-centralized relative errors of J and m, the ratios, the centralized 95 % half-widths, the run's and the
-fit's wall and CPU time, then the medians over seeds.
+centralized relative errors of J and m, the ratios, the centralized 95 % half-widths and the distributed
+error over them, the run's and the fit's wall time and the CPU time of both, then the medians over seeds.
 """
 
 from __future__ import annotations
@@ -45,10 +45,16 @@ def row(d: Path) -> dict:
     return {
         "run": d.name, "seed": s.get("seed"),
         "J dist": r.get("J_dist_rel"), "J cen": c.get("J_rel"), "J ratio": r.get("J"), "J CI": _rel_ci(c, "J"),
+        "J dist/CI": _over(r.get("J_dist_rel"), _rel_ci(c, "J")),
         "m dist": r.get("m_dist_rel"), "m cen": c.get("m_rel"), "m ratio": r.get("m"), "m CI": _rel_ci(c, "m"),
+        "m dist/CI": _over(r.get("m_dist_rel"), _rel_ci(c, "m")),
         "run wall s": s.get("wall_s"), "fit wall s": c.get("fit_s"), "total cpu s": bench.get("total_cpu_s"),
         "reason": r.get("reason") or c.get("reason"),
     }  # fmt: skip
+
+
+def _over(a: float | None, b: float | None) -> float | None:
+    return None if a is None or not b else a / b
 
 
 def _rel_ci(c: dict, name: str) -> float | None:
@@ -60,7 +66,7 @@ def _rel_ci(c: dict, name: str) -> float | None:
 def _fmt(k: str, v) -> str:
     if v is None:
         return "-"
-    if k.endswith(("dist", "cen", "CI")):
+    if k.endswith(("dist", "cen", " CI")):
         return f"{100 * v:+.3f} %" if k.endswith("cen") else f"{100 * v:.3f} %"
     if isinstance(v, float):
         return f"{v:.3g}"

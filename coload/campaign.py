@@ -85,7 +85,8 @@ ERROR_COLUMNS = (
 across team sizes). Other numeric keys a run's errors block has are appended, sorted."""
 
 CENTRAL_COLUMNS = ("central_J_rel", "central_m_rel", "central_J_in_ci95", "central_m_in_ci95",
-                   "dist_over_central_J", "dist_over_central_m", "central_fit_s")
+                   "dist_over_central_J", "dist_over_central_m", "dist_over_ci95_J", "dist_over_ci95_m",
+                   "central_fit_s")
 """The batch-fit yardstick (summary.json ``centralized`` and ``distributed_over_centralized``, see
 docs/batch-fit.md); empty unless the runs fit it (``coload campaign --batch-fit``, off by default: the
 fit costs about as much CPU as the run)."""
@@ -94,6 +95,8 @@ CENTRAL_SOURCES = {
     "central_J_in_ci95": ("centralized", "J_in_ci95"), "central_m_in_ci95": ("centralized", "m_in_ci95"),
     "dist_over_central_J": ("distributed_over_centralized", "J"),
     "dist_over_central_m": ("distributed_over_centralized", "m"), "central_fit_s": ("centralized", "fit_s"),
+    "dist_over_ci95_J": ("distributed_over_centralized", "J_over_ci95"),
+    "dist_over_ci95_m": ("distributed_over_centralized", "m_over_ci95"),
 }  # fmt: skip
 
 TAIL_COLUMNS = ("finished_s", "wall_s", "agent_step_us")
@@ -551,7 +554,8 @@ def cell_table(rows: Sequence[dict[str, Any]]) -> str:
     """Median [90th percentile] per (n, sigma) of the plotted errors the runs have (markdown)."""
     cols = [c for c, _ in FIG7_PANELS if any(r.get(c) is not None for r in rows)]
     cols += [c for lo, _, _ in FIG8_PANELS for c in (lo,) if any(r.get(c) is not None for r in rows)]
-    cols += [c for c in ("dist_over_central_J", "dist_over_central_m") if any(r.get(c) is not None for r in rows)]
+    cols += [c for c in ("dist_over_central_J", "dist_over_central_m", "dist_over_ci95_J", "dist_over_ci95_m")
+             if any(r.get(c) is not None for r in rows)]
     head = "| n | sigma | runs | " + " | ".join(f"{c} median [p90]" for c in cols) + " |"
     lines = [head, "|" + "---|" * (3 + len(cols))]
     for n in sorted({r["n"] for r in rows}):

@@ -130,7 +130,7 @@ class Recorder:
 def _centralized(run: fmt.RunData | None) -> dict[str, Any]:
     """The batch-fit yardstick blocks (coload.batch_fit.centralized_blocks); whatever goes wrong, the run
     still gets its summary, with null blocks and the reason."""
-    from coload.batch_fit import CENTRAL_KEYS, centralized_blocks
+    from coload.batch_fit import CENTRAL_KEYS, RATIO_KEYS, centralized_blocks
 
     try:
         if run is None:
@@ -139,8 +139,7 @@ def _centralized(run: fmt.RunData | None) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001  the yardstick must never cost the run its summary
         reason = f"batch fit not run: {type(exc).__name__}: {exc}"
         return {"centralized": {**dict.fromkeys(CENTRAL_KEYS), "flags": [], "reason": reason},
-                "distributed_over_centralized": {"J": None, "m": None, "J_dist_rel": None, "m_dist_rel": None,
-                                                 "reason": reason}}  # fmt: skip
+                "distributed_over_centralized": {**dict.fromkeys(RATIO_KEYS), "reason": reason}}
 
 
 def write_summary(run_dir: Path, summary: dict[str, Any]) -> None:

@@ -355,7 +355,8 @@ def centralized_lines(summary: dict[str, Any] | None) -> list[str]:
     for name in ("J", "m"):
         dist, cen = r.get(f"{name}_dist_rel"), c.get(f"{name}_rel")
         if dist is not None and cen is not None:
-            parts.append(f"{name} {dist:.3%} / {abs(cen):.3%} = {_fmt(r.get(name), '.3g')}")
+            parts.append(f"{name} {dist:.3%} / {abs(cen):.3%} = {_fmt(r.get(name), '.3g')} "
+                         f"({_fmt(r.get(f'{name}_over_ci95'), '.3g')} x its 95 % half-width)")
         else:
             parts.append(f"{name} -")
     lines.append("distributed / centralized error (median over agents): " + ", ".join(parts))

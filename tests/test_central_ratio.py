@@ -83,7 +83,9 @@ def test_ratio_is_median_agent_error_over_centralized_error(fitted_run):
     assert r["J_dist_rel"] == pytest.approx(0.003) and r["m_dist_rel"] == pytest.approx(0.02)
     assert r["J"] == pytest.approx(0.003 / abs(c["J_rel"]))
     assert r["m"] == pytest.approx(0.02 / abs(c["m_rel"]))
-    assert r["reason"] is None
+    truth = read_run(out).truth.columns
+    assert r["J_over_ci95"] == pytest.approx(0.003 / (c["J_ci95"] / truth["inertia"][0]))
+    assert set(r) == set(batch_fit.RATIO_KEYS) and r["reason"] is None
 
 
 def test_a_load_that_changes_is_not_fitted(fitted_run):
@@ -147,11 +149,11 @@ def test_report_table_and_campaign_row_carry_it(fitted_run):
     run = read_run(out)
     table = report.summary_table(run, summary["errors"])
     assert "centralized (batch fit of all samples" in table
-    fake = {**summary, "distributed_over_centralized": {"J": 4.5, "m": 1.25, "J_dist_rel": 0.003,
-                                                         "m_dist_rel": 0.002, "reason": None}}
+    fake = {**summary, "distributed_over_centralized": {"J": 4.5, "m": 1.25, "J_dist_rel": 0.003, "m_dist_rel": 0.002,
+                                                         "J_over_ci95": 6.0, "m_over_ci95": 0.8, "reason": None}}
     planned = campaign.plan(load_scenario(QUICK, ["duration=12"]), out.parent / "camp", [5], [0.1], 1)[0]
     row = campaign.row_of(planned, fake)
-    assert row["dist_over_central_J"] == 4.5 and row["dist_over_central_m"] == 1.25
+    assert row["dist_over_central_J"] == 4.5 and row["dist_over_central_m"] == 1.25 and row["dist_over_ci95_J"] == 6.0
     assert row["central_J_rel"] == summary["centralized"]["J_rel"]
     assert row["central_J_in_ci95"] == 1.0
     cols = campaign.columns_of([row])
