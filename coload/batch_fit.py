@@ -801,10 +801,10 @@ def centralized_blocks(run: RunData, *, options: FitOptions | None = None) -> di
     if no_dynamics:
         why.append("no dynamical phase (dynamics.algorithm = none): the agents estimate neither m nor J")
     for name, col, tcol in (("J", "J", "inertia"), ("m", "m", "mass")):
+        if no_dynamics or true[name] is None:
+            continue
         rel = distributed_rel_errors(run, col, tcol)
         finite = None if rel is None else np.abs(rel[np.isfinite(rel)])
-        if no_dynamics:
-            continue
         if finite is None or finite.size == 0:
             why.append(f"{name}: no agent has a final estimate")
             continue

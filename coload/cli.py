@@ -196,7 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("report", help="draw report.png for a run directory and print its summary table",
-                       description="Draw report.png (true vs estimated quantities) and print a summary table.")
+                       description="Draw report.png (true vs estimated quantities) and print a summary table; "
+                                   "with RUN_DIR/diagnosis.json (see --diagnose) also residual.png, the residual "
+                                   "before/after the diagnosed effects and its autocorrelation with bounds.")
     p.add_argument("run_dir", type=Path, help="a run directory")
     p.add_argument("--out", type=Path, help="PNG path (default: RUN_DIR/report.png)")
     p.add_argument("--diagnose", action="store_true",

@@ -100,6 +100,15 @@ def test_a_load_that_changes_is_not_fitted(fitted_run):
     assert blocks["distributed_over_centralized"]["J"] is None
 
 
+def test_lab_data_without_truth_is_fitted_without_errors(fitted_run):
+    out, summary = fitted_run
+    blocks = centralized_blocks(dataclasses.replace(read_run(out), truth=None))
+    c, r = blocks["centralized"], blocks["distributed_over_centralized"]
+    assert c["J"] == pytest.approx(summary["centralized"]["J"], rel=1e-12) and c["J_ci95"] is not None
+    assert c["J_rel"] is None and c["J_in_ci95"] is None and r["J"] is None
+    assert "no truth" in r["reason"]
+
+
 def test_a_failed_fit_gives_nulls_and_a_reason_not_a_crash(tmp_path):
     # 0.3 s = 30 ticks: too short to fit (and the load has not started to turn)
     summary = run_inproc(load_scenario(QUICK, ["duration=0.3", "record.batch_fit=true"]), tmp_path / "short")
