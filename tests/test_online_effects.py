@@ -60,12 +60,12 @@ def test_augmented_filter_matches_the_plant_step():
     kf = _filter_on_plant(("viscous_friction", "rotational_damping"))
     m, J = 1.0 / kf.mu, 1.0 / kf.iota
     b, c = kf.beta * m, kf.gamma * J
-    # measured on this recording: m, J -0.3 %, b -1.2 %, c +1.8 % (the filter's own std: 0.6, 4.6, 5, 14 %,
-    # pessimistic through the release priors and the effect walk); bounds about 2-7x the measured errors
+    # measured on this recording: m, J -0.3 %, b -2.0 %, c +1.9 % (the filter's own std: 0.6, 4.6, 10, 17 %,
+    # pessimistic through the release priors and the effect walk); bounds 2.5-7x the measured errors
     assert abs(m / M_TRUE - 1) < 0.01
     assert abs(J / J_TRUE - 1) < 0.02
-    assert abs(b / B_TRUE - 1) < 0.03
-    assert abs(c / C_TRUE - 1) < 0.03
+    assert abs(b / B_TRUE - 1) < 0.05
+    assert abs(c / C_TRUE - 1) < 0.05
     nominal = RigidEKF(0.1, DynamicsSpec(algorithm="sequential"), background=False)
     assert nominal.s.shape == (7,)  # no extra states without estimate_effects
 
@@ -113,6 +113,23 @@ def test_extra_channels_never_touch_the_nominal_ones(inputs, losses):
             assert a.x == b.x[:N_CH]
 
 
+def test_augmented_state_message_passes_the_wire_schema():
+    """With the augmented model a state message's per-neighbour value has 4 + 13 floats: the codec the
+    daemons use over Zenoh must carry it unchanged (not drop it as malformed)."""
+    from coload.world import build_agent
+    from net.messages import StateMsg
+    from net.schema import decode, encode
+
+    sc = load_scenario(FRICTION)
+    agent = build_agent(sc, 1)
+    res = None
+    for k in range(3):
+        res = agent.step(k, 0.1, -0.2, [])
+    msg = res.state
+    assert {len(v) for v in msg.pair.values()} == {4 + N_CH_AUG}
+    assert decode(encode(msg), StateMsg) == msg
+
+
 # ---------------------------------------------------------------------------------------------------------
 # The whole team: a reduced friction-online (5 agents, sigma 0.1, shorter stages), one seed, before/after.
 REDUCED = ["n=5", "contacts.start=0.1", "noise.sigma_v=0.1", "dynamics.kin_settle_s=5", "dynamics.m_excite_s=15",
@@ -132,8 +149,8 @@ def test_team_with_augmented_model_beats_the_nominal_one(tmp_path):
     # a torque that does not accelerate the load; the friction force like extra mass)
     assert before["m_rel"] > 0.05 and before["J_rel"] > 0.3
     # issue 4: after at most a third of before, or below 1 %; and an absolute bound. Measured (seed 2):
-    # before m 15.9 %, J 90 %; after m 0.28 %, J 1.1 %, b 0.04 %, c 1.0 % (friction-online over 3 seeds:
-    # m <= 0.1 %, J <= 1.9 %, docs/diagnose.md), so 3 % is ~3x the measured J error
+    # before m 15.9 %, J 90 %; after m 0.28 %, J 0.66 %, b 0.18 %, c 0.44 % (friction-online over 5
+    # seeds: m <= 0.78 %, J <= 0.77 %, docs/diagnose.md); 3 % leaves room for a seed or a filter change
     for key in ("m_rel", "J_rel"):
         assert after[key] <= before[key] / 3 or after[key] < 0.01, (key, after[key], before[key])
         assert after[key] < 0.03, (key, after[key])
