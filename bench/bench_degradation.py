@@ -116,26 +116,33 @@ def main() -> int:
     duration = args.duration if args.duration is not None else (60.0 if args.kinematic else None)
 
     seeds = range(1, args.seeds + 1)
-    jobs = [(k, s) for k in keys for s in seeds]
-    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = {job: pool.submit(run_one, *job, duration, args.kinematic) for job in jobs}
-        rows = {k: [futures[(k, s)].result() for s in seeds] for k in keys}
-
     what = "kinematic phase alone" if args.kinematic else "Algorithm 1"
     print(f"paper-fig4 ({what}), in-process, lockstep, seeds 1-{args.seeds}, "
-          f"{duration if duration is not None else 'scenario'} s; median [max] over seeds")
-    print("| condition | J err (%) | m err (%) | finished (s) | EERD < 1 % from (s) | z_i RMS (m) | omega RMS (rad/s) "
-          "| J / ff | m / ff | finished / ff | EERD time / ff |")
-    print("|" + "---|" * 11)
-    base = {k: _med(rows["ff"], k) for k in KEYS}
+          f"{duration if duration is not None else 'scenario'} s; median [max] over seeds", flush=True)
+    # (key, format) of the value columns, then the ratios to fault-free
+    cols = [("conv", ".1f"), ("zi", ".3f"), ("omega", ".3f")]
+    rcols = ["conv", "zi", "omega"]
+    if not args.kinematic:
+        cols = [("J", ".2f"), ("m", ".2f"), ("finished", ".1f"), *cols]
+        rcols = ["J", "m", "finished", "conv"]
+    names = {"J": "J err (%)", "m": "m err (%)", "finished": "finished (s)", "conv": "EERD < 1 % from (s)",
+             "zi": "z_i RMS (m)", "omega": "omega RMS (rad/s)"}
+    rnames = {"J": "J", "m": "m", "finished": "finished", "conv": "EERD time", "zi": "z_i", "omega": "omega"}
+    print("| condition | " + " | ".join(names[k] for k, _ in cols) + " | "
+          + " | ".join(f"{rnames[k]} / ff" for k in rcols) + " |")
+    print("|" + "---|" * (1 + len(cols) + len(rcols)), flush=True)
     ratios: dict[str, dict[str, float]] = {}
-    for key in keys:
-        r = rows[key]
-        rat = {k: _med(r, k) / base[k] if base[k] else math.nan for k in KEYS}
-        ratios[key] = rat
-        print(f"| {CONDITIONS[key][0]} | {_cell(r, 'J', '.2f')} | {_cell(r, 'm', '.2f')} | {_cell(r, 'finished', '.1f')} "
-              f"| {_cell(r, 'conv', '.1f')} | {_cell(r, 'zi', '.3f')} | {_cell(r, 'omega', '.3f')} "
-              f"| {rat['J']:.2f} | {rat['m']:.2f} | {rat['finished']:.2f} | {rat['conv']:.2f} |", flush=True)
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        futures = {(k, s): pool.submit(run_one, k, s, duration, args.kinematic) for k in keys for s in seeds}
+        base: dict[str, float] = {}
+        for key in keys:  # rows as their runs finish, fault-free first
+            r = [futures[(key, s)].result() for s in seeds]
+            if key == "ff":
+                base = {k: _med(r, k) for k in KEYS}
+            rat = {k: _med(r, k) / base[k] if base[k] else math.nan for k in KEYS}
+            ratios[key] = rat
+            print(f"| {CONDITIONS[key][0]} | " + " | ".join(_cell(r, k, f) for k, f in cols) + " | "
+                  + " | ".join(f"{rat[k]:.2f}" for k in rcols) + " |", flush=True)
     if TARGET not in ratios or args.kinematic:
         return 0
     t = ratios[TARGET]
