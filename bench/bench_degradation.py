@@ -118,7 +118,7 @@ def main() -> int:
     seeds = range(1, args.seeds + 1)
     what = "kinematic phase alone" if args.kinematic else "Algorithm 1"
     print(f"paper-fig4 ({what}), in-process, lockstep, seeds 1-{args.seeds}, "
-          f"{duration if duration is not None else 'scenario'} s; median [max] over seeds", flush=True)
+          f"{f'{duration:g} s' if duration is not None else 'the scenario duration'}; median [max] over seeds", flush=True)
     # (key, format) of the value columns, then the ratios to fault-free
     cols = [("conv", ".1f"), ("zi", ".3f"), ("omega", ".3f")]
     rcols = ["conv", "zi", "omega"]
