@@ -261,6 +261,7 @@ class AgentCore:
         "_vtick",
         "_wr",
         "_omdot",
+        "_held",
         "_asum",
         "_abuf",
         "_abuf_t",
@@ -334,6 +335,7 @@ class AgentCore:
         self.dropped_stale = 0
         self._tick = -1
         self._omdot = 0.0  # omega_hat's own trend per tick (its measurement path, low-passed)
+        self._held = False  # some _Nbr.pend is not empty
         self._asum = 0.0  # sum of the dynamical phase's feed-forward increments alpha dt so far (rad/s)
         self._abuf = [0.0] * hist  # _asum at each of the last ticks, to bring old neighbour values forward
         self._abuf_t = [-1] * hist
@@ -469,6 +471,7 @@ class AgentCore:
                 if depth > nb.hold:
                     nb.hold = depth if depth < _HOLD_MAX else _HOLD_MAX
                 nb.pend[t] = complex(vjx, vjy)
+                self._held = True
                 continue
             # try costs nothing on the normal path (3.11 zero-cost exceptions) and catches every
             # kind of malformed payload at once, cheaper than checking keys and types one by one
@@ -515,6 +518,7 @@ class AgentCore:
             if nb.pend or (nb.hold and t != nb.rel + 1):
                 # this link reorders and earlier samples may still be on their way: hold this one
                 nb.pend[t] = complex(vjx, vjy)
+                self._held = True
                 continue
             nb.rel = t
             w = vbuf[ts] - complex(vjx, vjy)
@@ -540,10 +544,14 @@ class AgentCore:
                     self.omega = om = pe.omega_fit
                     omdt = om * dt
 
-        for nb in self._nlist:
-            if nb.pend:
-                u_num, u_den, u_fw, om = self._release(nb, ref, om, u_num, u_den, u_fw)
-                omdt = om * dt
+        if self._held:  # some neighbour's samples are held back (a reordering link)
+            held = False
+            for nb in self._nlist:
+                if nb.pend:
+                    u_num, u_den, u_fw, om = self._release(nb, ref, om, u_num, u_den, u_fw)
+                    omdt = om * dt
+                    held = held or bool(nb.pend)
+            self._held = held
 
         # 4-5. neighbour states: omega (low-pass consensus), body-frame angle phi (phase consensus),
         # z_i in that frame (centroid iteration with antisymmetric edge terms) ----------------------
