@@ -56,15 +56,18 @@ BACKGROUND = 7  # Algorithm 2: Prop. 6 + torque dither, background observers wit
 STAGE_NAMES = ("spinup", "kinematic", "m_excite", "m_average", "j_excite", "j_average", "done", "background")
 
 # Flow-average channels
-# mean force = world-fixed part (FX, FY) + body-fixed part (BX, BY, in the psi frame) rotated to the
-# world: each part is then a slowly varying input (a force that turns with the load, like the J stage's,
-# would be a rotating agent-specific signal in the world frame, which no consensus tracks; pitfalls note)
-CH_FX, CH_FY, CH_BX, CH_BY, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(11)
-N_CH = 11
+# mean force (FX, FY): world-fixed, so a common force passes through at once. In the J stage the forces turn
+# with the load (f_i = k_z s z_i^perp, agent-specific and rotating in the world frame, which no consensus
+# tracks; pitfalls note) but they sum to zero by construction (z_C is the mean of the q_i), and their torque
+# about the CoM is sum_i q_i x f_i = s sum_i g_i with g_i = k_z q_i . (q_i - z_C) rotation-invariant: JG
+# carries g_i from the m stage on, so it has converged when the J stage starts and s(t) flips (a channel
+# fed s g_i was off by up to 25 N m per agent for ~0.5 s after each flip, measured, and biased J by %).
+CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(10)
+N_CH = 10
 # augmented model (DynamicsSpec.estimate_effects): the local b and c numerators; their weights are the m
 # and J weight channels (b is offered exactly when m is, c when J is), so two channels, not four
-CH_BN, CH_CN = 11, 12
-N_CH_AUG = 13
+CH_BN, CH_CN = 10, 11
+N_CH_AUG = 12
 _CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG))  # their names in StateMsg.shared (built once, not per message)
 NO_FLOWS = (0.0,) * N_CH_AUG  # a neighbour that sent no pair entry for us (it has not heard from us yet)
 
@@ -249,6 +252,21 @@ class RigidEKF:
         self.s = s
         self.P = P
 
+    def forget_iota(self, var: float = 1e-2) -> None:
+        """Drops what the filter believes about 1/J (variance ``var``, no correlations): before the J stage
+        the torque is the agents' regulation torque, whose consensus is off by several N m per tick, and the
+        1/J learnt from it was off by up to 50 % yet confident enough to hold the J-stage estimate there."""
+        P = self.P.copy()
+        P[6, :] = 0.0
+        P[:, 6] = 0.0
+        P[6, 6] = var
+        self.P = P
+
+    def set_omega_walk(self, walk: float) -> None:
+        """Process noise of omega (rad/s/sqrt(s)): small where the torque is known exactly (the J stage)."""
+        qv, qa, qm, _, qi = self.Qd
+        self.Qd = (qv, qa, qm, walk**2, qi)
+
     def update(self, v: complex, u: float, u_var: float) -> None:
         """Measurement update; H is sparse, so P H^T is three column combinations of P."""
         s, P = self.s, self.P
@@ -425,6 +443,7 @@ class DynamicPhase:
         self.nbr_barrier: dict[int, tuple[int, int, int]] = {}
         self.frozen_m = False
         self.frozen_j = False
+        self.restarted = False  # the filter's restart at kinematic readiness is done
 
     # ------------------------------------------------------------------ messages
     def receive(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float]) -> None:
@@ -458,6 +477,11 @@ class DynamicPhase:
         self.stage_tick = tick
         self.barrier.reset()
         self.conv_since = -1
+        if self.kf.ready and stage == J_EXCITE:
+            self.kf.forget_iota()  # J from the J stage's exactly known torque alone (Result 5)
+            self.kf.set_omega_walk(self.spec.j_omega_walk)
+        elif stage != J_EXCITE:
+            self.kf.set_omega_walk(self.spec.omega_walk)
 
     def _advance(self, tick: int) -> None:
         """Stage agreement: neighbours ahead, barrier merges, own readiness, due switches."""
@@ -539,6 +563,12 @@ class DynamicPhase:
                     if self.kin_since < 0:
                         self.kin_since = tick
                     if tick - self.kin_since >= self.settle:
+                        if not self.restarted:
+                            # restart the filter from the settled kinematic z_i and omega_hat: started at
+                            # spin-up from z_i = 0 it could lock onto a wrong (q, omega) and take most of
+                            # the m stage to recover (seed 3: one agent's m off by 5 %, measured)
+                            self.restarted = True
+                            kf.start(v, zi, omega_hat)
                         self.barrier.set_ready(tick)
                 else:
                     self.kin_since = -1
@@ -569,8 +599,7 @@ class DynamicPhase:
 
         # --- control -------------------------------------------------------------------------------
         fx, fy, tau = wrench
-        body = False  # the force turns with the load (else it is fixed in the world)
-        js = 1.0  # augmented model, J stage: s(t), taken out of the body-force and torque consensus inputs
+        jstage = False  # the J stage's forces (torque from the JG channel, net force zero)
         if stage == M_EXCITE or stage == BACKGROUND:
             k = tick - self.stage_tick
             sgn = -1.0 if (k // self.m_switch) & 1 else 1.0
@@ -586,9 +615,7 @@ class DynamicPhase:
             # z_C drops out of the rotation; tau_i = 0
             f = spec.k_z * sgn * 1j * (q - zc)
             fx, fy, tau = f.real, f.imag, 0.0
-            body = True
-            if kf.aug is not None:
-                js = sgn
+            jstage = True
         elif stage == DONE and spec.brake > 0.0:
             fx, fy, tau = -spec.brake * v.real, -spec.brake * v.imag, 0.0
         if stage == BACKGROUND:  # Prop. 6 (above) + the regulation torque + a dither for J
@@ -596,29 +623,18 @@ class DynamicPhase:
 
         # --- consensus inputs for this tick ---------------------------------------------------------
         au = self.avg.u
-        fbar = complex(x[CH_FX], x[CH_FY]) + complex(x[CH_BX], x[CH_BY]) * rot
-        if js != 1.0:
-            fbar = complex(x[CH_FX], x[CH_FY]) + js * complex(x[CH_BX], x[CH_BY]) * rot
-        if body:
-            fb = complex(fx, fy) * rot.conjugate()
-            au[CH_FX] = au[CH_FY] = 0.0
-            au[CH_BX] = fb.real
-            au[CH_BY] = fb.imag
+        if jstage:
+            # sum_i f_i = 0 and the torque is s sum_i g_i (JG); DT gets 0 so that it has no J-stage
+            # values to forget when the kinematic control resumes
+            au[CH_FX] = au[CH_FY] = au[CH_DT] = 0.0
         else:
             au[CH_FX] = fx
             au[CH_FY] = fy
-            au[CH_BX] = au[CH_BY] = 0.0
-        df = complex(fx, fy) - fbar
-        au[CH_DT] = (q.real * df.imag - q.imag * df.real) + tau  # q_i x (f_i - fbar) + tau_i
-        if js != 1.0:
-            # s(t) flips at every agent at the same tick: with s taken out, the inputs stay put across a
-            # flip and the team's torque flips at once at every agent. Left in, each agent's own share of
-            # the flip spreads over the graph's mixing time and the filters read the slope jump (the J
-            # information, once c is unknown too) with agent-specific torque errors (measured, seeds 1-2:
-            # J 1.5-1.8 % -> 0.3-0.75 %, c 1.2-1.7 % -> 0.1-0.4 %)
-            au[CH_BX] *= js
-            au[CH_BY] *= js
-            au[CH_DT] *= js
+            df = complex(fx, fy) - complex(x[CH_FX], x[CH_FY])
+            au[CH_DT] = (q.real * df.imag - q.imag * df.real) + tau  # q_i x (f_i - fbar) + tau_i
+        if kf.ready and M_EXCITE <= stage <= J_EXCITE:
+            # g_i = q_i x (J-stage f_i / s) with this tick's q_i and z_C, exactly as the force is built
+            au[CH_JG] = spec.k_z * (q.real * (q.real - zc.real) + q.imag * (q.imag - zc.imag))
         if kf.ready:
             qp = q * rot.conjugate()  # q_i in the shared body frame; their mean is z_C
             au[CH_ZX] = qp.real
@@ -650,12 +666,12 @@ class DynamicPhase:
 
         # --- prediction to tick + 1 with the total force and torque (decomposition (12)-(14)) ---------
         if kf.ready:
-            fbar = complex(x[CH_FX], x[CH_FY]) + complex(x[CH_BX], x[CH_BY]) * rot
-            zc = complex(x[CH_ZX], x[CH_ZY]) * rot
-            torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + x[CH_DT])
-            if js != 1.0:
-                fbar = complex(x[CH_FX], x[CH_FY]) + js * complex(x[CH_BX], x[CH_BY]) * rot
-                torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + js * x[CH_DT])
+            fbar = complex(x[CH_FX], x[CH_FY])
+            if jstage:
+                torque = n * sgn * x[CH_JG]
+            else:
+                zc = complex(x[CH_ZX], x[CH_ZY]) * rot
+                torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + x[CH_DT])
             self.psi += dt * kf.omega  # the body turns by the pre-update omega (semi-implicit Euler)
             kf.predict(n * fbar, torque, dt)
             iota = kf.iota
@@ -663,6 +679,8 @@ class DynamicPhase:
                 self.alpha = iota * torque
                 if kf.aug is not None:
                     self.alpha -= kf.gamma * kf.omega
+            else:
+                self.alpha = 0.0  # not a stale acceleration from before 1/J was forgotten
         return fx, fy, tau
 
     # ------------------------------------------------------------------ outputs

@@ -140,6 +140,11 @@ class DynamicsSpec(_Strict):
     omega_walk: float = Field(
         0.05, ge=0, description="Kalman filter: random walk of omega beyond the torque model (rad/s/sqrt(s))"
     )
+    j_omega_walk: float = Field(
+        0.005, ge=0, description="Kalman filter: the same during the J stage, where the torque is known exactly "
+                                 "(sum of the agents' own forces' moments); small, so that J rests on the whole "
+                                 "stage's omega ramp and not on the last second of it (rad/s/sqrt(s))",
+    )
     dither_torque: float = Field(
         2.0, ge=0, description="background: amplitude of the sinusoidal torque dither per agent that makes J "
                                "observable beside z_C (N m)",
