@@ -3,8 +3,10 @@
     python bench/dynamics_targets.py [--seeds 10] [--jobs 2] [--scenarios paper-fig4 paper-fig5]
 
 Prints, per scenario, the median and 90th percentile over seeds of the final relative errors of J and
-m (after the averaging consensus, and each agent's own before it), z_C and v_C errors and the time at
-which every agent has finished Algorithm 1 (``finished_s``). An in-process lockstep run equals the Zenoh
+m (after the averaging consensus, and each agent's own before it), the signed error of the team's mean J and
+m (a bias shows as a median far from 0), z_C and v_C errors and the time at which every agent has finished
+Algorithm 1 (``finished_s``); with a centralized batch fit in the summary, also the ratio distributed /
+centralized. An in-process lockstep run equals the Zenoh
 run bit for bit (tests/test_engines.py), so these are also the Zenoh numbers.
 """
 
@@ -23,7 +25,8 @@ sys.path.insert(0, str(ROOT))
 from coload.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 
-KEYS = ("J_rel", "m_rel", "J_local_rel", "m_local_rel", "zC_rms", "vC_rms", "finished_s")
+KEYS = ("J_rel", "m_rel", "J_local_rel", "m_local_rel", "J_signed_rel", "m_signed_rel", "zC_rms", "vC_rms",
+        "finished_s", "J_over_centralized", "m_over_centralized")
 
 
 def one(args: tuple[str, int, list[str]]) -> tuple[str, int, dict]:
@@ -36,7 +39,32 @@ def _errors(sc) -> dict:
     import tempfile
 
     with tempfile.TemporaryDirectory() as d:
-        return run_inproc(sc, Path(d))["errors"]
+        summary = run_inproc(sc, Path(d))
+        err = dict(summary["errors"])
+        err.update(_signed(Path(d)))
+        ratio = summary.get("distributed_over_centralized") or {}
+        for q in ("J", "m"):
+            if ratio.get(q) is not None:
+                err[f"{q}_over_centralized"] = ratio[q]
+        return err
+
+
+def _signed(run_dir: Path) -> dict:
+    """Signed relative error of the agents' mean final J and m (the metrics' J_rel is an RMS over agents)."""
+    import csv
+
+    with open(run_dir / "estimates.csv") as f:
+        rows = list(csv.DictReader(f))
+    with open(run_dir / "truth.csv") as f:
+        truth = {r["t"]: r for r in csv.DictReader(f)}
+    t_end = rows[-1]["t"]
+    last = [r for r in rows if r["t"] == t_end]
+    out = {}
+    for col, tcol in (("J", "inertia"), ("m", "mass")):
+        vals = np.array([float(r[col]) for r in last])
+        if np.isfinite(vals).all() and t_end in truth:
+            out[f"{col}_signed_rel"] = float(vals.mean() / float(truth[t_end][tcol]) - 1.0)
+    return out
 
 
 def main() -> None:
@@ -59,6 +87,8 @@ def main() -> None:
     for name, errs in res.items():
         for k in KEYS:
             v = np.array([e.get(k) if e.get(k) is not None else np.nan for e in errs], dtype=float)
+            if not np.isfinite(v).any():
+                continue
             scale = 100.0 if k.endswith("_rel") else 1.0
             unit = "%" if k.endswith("_rel") else ("s" if k.endswith("_s") else "")
             print(f"{name:12s} {k:12s} {scale * np.nanmedian(v):10.3f} {scale * np.nanpercentile(v, 90):10.3f} "
