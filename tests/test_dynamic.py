@@ -172,8 +172,13 @@ def test_algorithm_1_on_the_reference_scenario(tmp_path):
     sc = load_scenario(FIG4, ["duration=95", "seed=2"])
     summary = run_inproc(sc, tmp_path)
     err = summary["errors"]
-    assert err["J_rel"] <= 0.014  # the paper's single-run error; our median over seeds is ~0.5 %
+    # issue 3: median J <= 0.7 %, p90 <= 1.4 %, m <= 0.3 %; measured over 10 seeds J 0.07 % median,
+    # 0.21 % max, m 0.08 % / 0.32 % (docs/dynamics.md); this seed J 0.02 %, m 0.03 %
+    assert err["J_rel"] <= 0.005
     assert err["m_rel"] <= 0.005
+    # every agent's own J before the averaging (filter sd ~0.5 %): a torque model that is off after the
+    # J stage's sign flip put single agents 2-7 % off while the average still looked fine
+    assert max(abs(e) for e in err["J_local_rel_per_agent"]) <= 0.015
     assert err["zC_rms"] <= 0.06
     assert err["vC_rms"] <= 0.1
     assert err["finished_s"] is not None and err["finished_s"] <= 95.0
