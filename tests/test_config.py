@@ -64,7 +64,9 @@ def test_paper_scenarios_follow_the_paper():
     assert fig4.graph.topology == "line" and fig5.graph.topology == "complete"
     assert fig4.load.com_offset != (0.0, 0.0)
     differing = {k for k in Scenario.model_fields if getattr(fig4, k) != getattr(fig5, k)}
-    assert differing == {"name", "graph"}
+    # and the kinematic consensus gains, which must shrink with the degree (0.3 diverges on the complete graph)
+    assert differing == {"name", "graph", "estimator"}
+    assert fig5.estimator.omega_eps * fig5.n < 2 and fig5.estimator.centroid_eps * fig5.n < 2
     quick = load_scenario(SCENARIOS / "quick.toml")
     assert (quick.n, quick.noise.sigma_v, quick.duration) == (5, 0.1, 20.0)
 
