@@ -18,10 +18,12 @@ What each agent runs (symbols as in the paper; z_C = p_G - p_C, q_i = p_Ci - p_C
   C(t) = dt sum_{k<t} T(k), T the total torque about the CoM, T = n (z_C x fbar + mean_i(q_i x df_i +
   tau_i)) (decomposition (12)-(14): df_i = f_i - fbar, so no consensus on rotating per-agent signals).
   Fitted to the raw pooled eq. (9) measurement (unbiased; omega_hat's low-pass would bias it). In
-  Algorithm 1 it runs over the J stage only, where f_i = k_z s(t) z_i^perp and tau_i = 0 (Result 5);
-  in Algorithm 2 with exponential forgetting under any control law.
+  Algorithm 1 it runs over the J stage only, where f_i = k_z s(t) z_i^perp and tau_i = 0 (Result 5), so
+  sum_i f_i = 0 and T = s(t) sum_i g_i, g_i = k_z q_i . (q_i - z_C), averaged from the m stage on (no
+  consensus transient when the stage starts or s flips); in Algorithm 2 with exponential forgetting
+  under any control law.
 * **Flow-updating average consensus** (:class:`FlowAverage`) for every network quantity: the mean force
-  fbar, the mean extra torque, z_C (in the agents' shared body frame), and the averages of the local
+  fbar, the mean extra torque, the J stage's mean g_i, z_C (in the agents' shared body frame), and the averages of the local
   m and J over the agents that have one (numerator and weight channels). Flows keep the network sum
   exact under loss and delay; common inputs (a common force) are tracked without lag.
 * **Stage agreement** (:class:`StageBarrier`): agents move through the stages together with no clock
