@@ -406,7 +406,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         print(f"{len(runs)} runs ({len(ns)} n x {len(sigmas)} sigma x {args.runs_per_cell}), "
               f"{runs[0].scenario.duration:g} s simulated each")
         return 0
-    result = cp.run_campaign(runs, args.out, jobs=args.jobs, progress=ProgressBar("campaign runs", args.quiet),
+    result = cp.run_campaign(runs, args.out, jobs=args.jobs, progress=ProgressBar("campaign", args.quiet, unit="run"),
                              keep_data=args.keep_data)
     print(cp.cell_table(result.rows))
     rate = f", {result.runs_per_min:.1f} runs/min" if result.runs_per_min else ""

@@ -25,9 +25,10 @@ from config.scenario import Scenario
 class ProgressBar:
     """A one-line progress display on stderr (a line per 10 % when stderr is not a terminal)."""
 
-    def __init__(self, label: str, quiet: bool = False) -> None:
+    def __init__(self, label: str, quiet: bool = False, unit: str = "tick") -> None:
         self.label = label
         self.quiet = quiet
+        self.unit = unit
         self.tty = sys.stderr.isatty()
         self.t0 = time.perf_counter()
         self._last_decile = -1
@@ -37,15 +38,19 @@ class ProgressBar:
             return
         frac = done / total
         wall = time.perf_counter() - self.t0
+        # remaining time at the pace so far: the number a user waiting on a long campaign wants
+        eta = f", ~{wall * (total - done) / done:.0f}s left" if 0 < done < total else ""
         if self.tty:
             bar = "#" * int(30 * frac)
-            sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%  tick {done}/{total}  {wall:6.1f}s wall")
+            sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%  {self.unit} {done}/{total}  "
+                             f"{wall:6.1f}s wall{eta}   ")
             if done >= total:
                 sys.stderr.write("\n")
             sys.stderr.flush()
         elif int(10 * frac) > self._last_decile:
             self._last_decile = int(10 * frac)
-            print(f"{self.label}: {100 * frac:3.0f}% (tick {done}/{total}, {wall:.1f}s wall)", file=sys.stderr, flush=True)
+            print(f"{self.label}: {100 * frac:3.0f}% ({self.unit} {done}/{total}, {wall:.1f}s wall{eta})",
+                  file=sys.stderr, flush=True)
 
 
 def default_run_dir(scenario: Scenario) -> Path:
