@@ -341,7 +341,7 @@ class AgentCore:
         self._abuf_t = [-1] * hist
         self._dyn = None
         if dynamics is not None and dynamics.algorithm != "none":
-            self._dyn = dynamic.DynamicPhase(self.id, nb_ids, self.n, self.dt, sig, dynamics)
+            self._dyn = dynamic.DynamicPhase(self.id, nb_ids, self.n, self.dt, sig, dynamics, hist)
 
     @property
     def x(self) -> complex:
@@ -395,6 +395,8 @@ class AgentCore:
                 u_num += zt.real * w.imag - zt.imag * w.real
                 if lag:
                     u_fw += zz * self._forward(t, lag)
+                    if self._dyn is not None:
+                        self._dyn.note_late(t, zz)
                 u_den += zz
                 pe.sample(t, w, back, om, dt)
             else:
@@ -532,6 +534,8 @@ class AgentCore:
                 if lag:
                     # eq. (9) of tick t measures omega of tick t: bring it to ref like j's omega state
                     u_fw += zz * self._forward(t, lag)
+                    if dyn is not None:
+                        dyn.note_late(t, zz)  # the dynamical phase's filter takes u as a delayed measurement
                 u_den += zz
                 pe.sample(t, w, back, om, dt)
             else:
@@ -608,8 +612,9 @@ class AgentCore:
             om_new = 0.0
         if u_den > 0.0:
             u = u_num / u_den  # as measured: the estimate's omega_local and the dynamical phase's input
-            # brought to tick ref for the filter (the dynamical phase's Kalman filter takes u as it is:
-            # corrected with its own modelled acceleration, it confirmed its own J, measured 2.0 vs 1.8 %)
+            # brought to tick ref for the filter (the dynamical phase's Kalman filter takes u as it is, as a
+            # delayed measurement of its samples' ticks, note_late: brought forward with its own modelled
+            # acceleration here it confirmed its own J, measured 2.0 vs 1.8 %)
             b = self._beta * ((u + u_fw / u_den if u_fw else u) - om)
             om_new += b
         else:

@@ -269,8 +269,15 @@ class RigidEKF:
         qv, qa, qm, _, qi = self.Qd
         self.Qd = (qv, qa, qm, walk**2, qi)
 
-    def update(self, v: complex, u: float, u_var: float) -> None:
-        """Measurement update; H is sparse, so P H^T is three column combinations of P."""
+    def update(self, v: complex, u: float, u_var: float, u_dc: float = 0.0, u_dw: float = 0.0) -> None:
+        """Measurement update; H is sparse, so P H^T is three column combinations of P.
+
+        ``u`` may be older than the state (a delayed measurement): it measured omega ``a`` ticks ago,
+        omega - dt iota sum T + dt gamma sum omega over those ticks. ``u_dc`` is that dt sum T (the
+        torques this filter predicted with), ``u_dw`` the dt sum omega (augmented model), both 0 for a
+        current sample; the u row of H gets -u_dc on iota and u_dw on gamma. Taken as current, a sample
+        100 ms old during the J stage's ramp conflicts with the own velocity by dt iota T per tick of age,
+        which reverses with s(t) (measured: J 0.47 % instead of 0.02 %, issue 5)."""
         s, P = self.s, self.P
         qx, qy, om = s[2], s[3], s[5]
         r = self.r
@@ -284,9 +291,17 @@ class RigidEKF:
         if u == u and u_var > 0.0:
             c2 = P[:, 5]  # ... u
             e2 = u - om
+            if u_dc or u_dw:  # delayed: omega of a ticks ago, d/d iota = -u_dc, d/d gamma = u_dw
+                c2 = c2 - u_dc * P[:, 6]
+                e2 += u_dc * s[6]
+                if self.aug is not None:
+                    c2 = c2 + u_dw * P[:, 8]
+                    e2 -= u_dw * s[8]
+                s22 = c2[5] - u_dc * c2[6] + (u_dw * c2[8] if self.aug is not None else 0.0) + u_var
+            else:
+                s22 = c2[5] + u_var
             s02 = c2[0] - om * c2[3] - qy * c2[5]
             s12 = c2[1] + om * c2[2] + qx * c2[5]
-            s22 = c2[5] + u_var
             # explicit inverse of the symmetric 3x3 innovation covariance
             a00 = s11 * s22 - s12 * s12
             a01 = s02 * s12 - s01 * s22
@@ -406,8 +421,18 @@ class DynamicPhase:
     """One agent's dynamical phase (see module docstring). Driven by AgentCore.step."""
 
     def __init__(self, agent_id: int, nbr_ids: Sequence[int], n: int, dt: float, sigma_v: float,
-                 spec: DynamicsSpec) -> None:
+                 spec: DynamicsSpec, hist: int = 64) -> None:
         self.id = agent_id
+        # delayed eq. (9) samples (RigidEKF.update): cumulative dt T and dt omega of the filter's
+        # predictions up to each of the last ``hist`` state ticks, and this tick's |z|^2-weighted sums
+        # over the late samples (note_late)
+        self.hist = hist
+        self.cum_c = [0.0] * hist
+        self.cum_w = [0.0] * hist
+        self.cum_t = [-1] * hist
+        self.cc = 0.0  # dt sum T up to the current state tick
+        self.cw = 0.0  # dt sum omega
+        self.late_z = self.late_c = self.late_w = 0.0
         self.n = n
         self.dt = dt
         self.spec = spec
@@ -469,6 +494,25 @@ class DynamicPhase:
         self.nbr_barrier[j] = bar
         if msg_phase >= KINEMATIC:  # its filter (and psi) runs from the kinematic stage on
             self.nbr_psi[j] = (psi, t)
+
+    def note_late(self, t: int, zz: float) -> None:
+        """An eq. (9) sample of tick t with pooling weight zz went into this tick's u (AgentCore, only for
+        samples older than the state tick on entry: fault-free ones are not reported, they are 1 tick old)."""
+        i = t % self.hist
+        if self.cum_t[i] == t:
+            self.late_z += zz
+            self.late_c += zz * self.cum_c[i]
+            self.late_w += zz * self.cum_w[i]
+
+    def _u_age(self, tick: int, u_den: float) -> tuple[float, float]:
+        """(dt sum T, dt sum omega) from the pooled u's samples to the state tick: the pooled value is
+        the |z|^2-weighted mean of per-sample omegas, so its prediction is the weighted mean of theirs."""
+        i = (tick - 1) % self.hist
+        c1, w1 = (self.cum_c[i], self.cum_w[i]) if self.cum_t[i] == tick - 1 else (self.cc, self.cw)
+        w0 = u_den - self.late_z  # the samples of tick - 1 (and any older than the buffer)
+        cbar = (self.late_c + w0 * c1) / u_den
+        wbar = (self.late_w + w0 * w1) / u_den
+        return self.cc - cbar, self.cw - wbar
 
     # ------------------------------------------------------------------ helpers
     def _enter(self, stage: int, tick: int) -> None:
@@ -592,8 +636,16 @@ class DynamicPhase:
         rot = complex(cos(psi), sin(psi))
 
         # --- estimator update with this tick's data ----------------------------------------------
+        i = tick % self.hist
+        if self.cum_t[i] != tick:  # the first tick
+            self.cum_t[i], self.cum_c[i], self.cum_w[i] = tick, self.cc, self.cw
         if kf.ready:
-            kf.update(v, u, spec.u_var_scale * 2.0 * self.sigma_v**2 / u_den if u_den > 0.0 and spec.u_var_scale > 0 else 0.0)
+            u_var = spec.u_var_scale * 2.0 * self.sigma_v**2 / u_den if u_den > 0.0 and spec.u_var_scale > 0 else 0.0
+            if spec.u_delayed and u_var > 0.0:
+                u_dc, u_dw = self._u_age(tick, u_den)
+                kf.update(v, u, u_var, u_dc, u_dw)
+            else:
+                kf.update(v, u, u_var)
             q = kf.q
         else:
             q = zi
@@ -675,6 +727,8 @@ class DynamicPhase:
                 zc = complex(x[CH_ZX], x[CH_ZY]) * rot
                 torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + x[CH_DT])
             self.psi += dt * kf.omega  # the body turns by the pre-update omega (semi-implicit Euler)
+            self.cc += dt * torque
+            self.cw += dt * kf.omega
             kf.predict(n * fbar, torque, dt)
             iota = kf.iota
             if iota > 0.0 and kf.iota_var < (0.1 * iota) ** 2:  # only once 1/J is known to 10 %
@@ -683,6 +737,9 @@ class DynamicPhase:
                     self.alpha -= kf.gamma * kf.omega
             else:
                 self.alpha = 0.0  # not a stale acceleration from before 1/J was forgotten
+        i = (tick + 1) % self.hist
+        self.cum_t[i], self.cum_c[i], self.cum_w[i] = tick + 1, self.cc, self.cw
+        self.late_z = self.late_c = self.late_w = 0.0
         return fx, fy, tau
 
     # ------------------------------------------------------------------ outputs

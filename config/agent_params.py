@@ -137,6 +137,11 @@ class DynamicsSpec(_Strict):
         1.0, ge=0, description="Kalman filter: weight of the pooled eq. (9) rate as an omega measurement, as a "
                                "factor on its variance; 0 leaves it out (-)",
     )
+    u_delayed: bool = Field(
+        True, description="Kalman filter: take the pooled eq. (9) rate as a delayed measurement of omega at "
+                          "its samples' ticks (predicted back through the filter's own torque model); false: "
+                          "as a measurement of the current tick",
+    )
     omega_walk: float = Field(
         0.05, ge=0, description="Kalman filter: random walk of omega beyond the torque model (rad/s/sqrt(s))"
     )
