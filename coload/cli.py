@@ -27,7 +27,9 @@ EXAMPLES = """examples:
 
 
 def _add_scenario_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", type=Path, help="scenario TOML file (or a run directory's run.toml)")
+    p.add_argument("scenario", type=Path,
+                   help="scenario TOML file, a run directory (its run.toml) or a bundled scenario's name "
+                        "(paper-fig4, paper-fig5, paper-fig9, quick, ...)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario field, dotted key, TOML value (repeatable), e.g. noise.sigma_v=0.1")
     p.add_argument("--seed", type=int, help="run seed (overrides the scenario's)")

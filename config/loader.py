@@ -280,13 +280,35 @@ def _validate(data: dict, file: str, lines: dict, origin: dict[tuple[str, ...], 
 # Public API
 
 
+BUNDLED_SCENARIOS = Path(__file__).resolve().parent / "scenarios"
+"""The scenarios shipped with coload; a bare name such as ``paper-fig4`` means one of these."""
+
+
+def resolve_scenario_path(path: str | Path) -> Path:
+    """A file as given, a run directory's ``run.toml``, or a bundled scenario by its bare name."""
+    p = Path(path)
+    if p.is_dir() and (p / "run.toml").is_file():
+        return p / "run.toml"
+    if not p.exists() and len(p.parts) == 1:
+        bundled = BUNDLED_SCENARIOS / (p.name if p.suffix == ".toml" else f"{p.name}.toml")
+        if bundled.is_file():
+            return bundled
+    return p
+
+
+def bundled_scenario_names() -> list[str]:
+    return sorted(f.stem for f in BUNDLED_SCENARIOS.glob("*.toml"))
+
+
 def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
-    """Read a scenario file (or a run directory's ``run.toml``) and apply ``--set`` overrides."""
+    """Read a scenario file (a path, a run directory or a bundled name) and apply ``--set`` overrides."""
+    path = resolve_scenario_path(path)
     file = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(file, None, "", f"cannot read: {exc}") from None
+        hint = f"; bundled scenarios: {', '.join(bundled_scenario_names())}" if not path.exists() else ""
+        raise ScenarioError(file, None, "", f"cannot read: {exc}{hint}") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

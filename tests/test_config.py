@@ -326,3 +326,20 @@ def test_random_scenarios_round_trip(sc):
         path.write_text(text, encoding="utf-8")
         assert load_scenario(path) == sc
     assert dump_scenario(scenario_from_dict(tomllib.loads(text))) == text
+
+
+def test_scenario_by_bundled_name_run_dir_or_path(tmp_path, monkeypatch):
+    """`coload run paper-fig4` means the bundled file; a run directory means its run.toml."""
+    from config.loader import bundled_scenario_names
+
+    monkeypatch.chdir(tmp_path)  # bare names must not depend on the working directory
+    by_name = load_scenario("paper-fig4")
+    assert by_name == load_scenario(SCENARIOS / "paper-fig4.toml")
+    assert load_scenario("paper-fig4.toml") == by_name
+    run_dir = tmp_path / "a-run"
+    run_dir.mkdir()
+    (run_dir / "run.toml").write_text((SCENARIOS / "quick.toml").read_text(encoding="utf-8"), encoding="utf-8")
+    assert load_scenario(run_dir).name == load_scenario("quick").name
+    assert {"paper-fig4", "paper-fig5", "paper-fig9", "quick"} <= set(bundled_scenario_names())
+    with pytest.raises(ScenarioError, match="bundled scenarios: .*paper-fig4"):
+        load_scenario("no-such-scenario")
