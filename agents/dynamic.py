@@ -731,7 +731,7 @@ class DynamicPhase:
             self.cw += dt * kf.omega
             kf.predict(n * fbar, torque, dt)
             iota = kf.iota
-            if iota > 0.0 and kf.iota_var < (0.1 * iota) ** 2:  # only once 1/J is known to 10 %
+            if iota > 0.0 and (kf.iota_var < (0.1 * iota) ** 2 or (jstage and spec.j_feedforward)):
                 self.alpha = iota * torque
                 if kf.aug is not None:
                     self.alpha -= kf.gamma * kf.omega

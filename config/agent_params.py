@@ -142,6 +142,11 @@ class DynamicsSpec(_Strict):
                           "its samples' ticks (predicted back through the filter's own torque model); false: "
                           "as a measurement of the current tick",
     )
+    j_feedforward: bool = Field(
+        True, description="J stage: feed the filter's modelled angular acceleration (current 1/J times the "
+                          "exactly known torque) forward into omega_hat from the stage's first tick, before "
+                          "1/J is known to 10 %; false: only once it is",
+    )
     omega_walk: float = Field(
         0.05, ge=0, description="Kalman filter: random walk of omega beyond the torque model (rad/s/sqrt(s))"
     )
