@@ -731,6 +731,8 @@ class DynamicPhase:
             self.cw += dt * kf.omega
             kf.predict(n * fbar, torque, dt)
             iota = kf.iota
+            # only once 1/J is known to 10 % (or, with j_feedforward, through the whole J stage: its torque
+            # is exact and 1/J keeps its pre-stage value when it is forgotten)
             if iota > 0.0 and (kf.iota_var < (0.1 * iota) ** 2 or (jstage and spec.j_feedforward)):
                 self.alpha = iota * torque
                 if kf.aug is not None:

@@ -143,9 +143,10 @@ class DynamicsSpec(_Strict):
                           "as a measurement of the current tick",
     )
     j_feedforward: bool = Field(
-        True, description="J stage: feed the filter's modelled angular acceleration (current 1/J times the "
-                          "exactly known torque) forward into omega_hat from the stage's first tick, before "
-                          "1/J is known to 10 %; false: only once it is",
+        False, description="J stage: feed the filter's modelled angular acceleration (current 1/J times the "
+                           "exactly known torque) forward into omega_hat from the stage's first tick, before "
+                           "1/J is known to 10 %; false: only once it is (true keeps EERD < 1 % through the "
+                           "J-stage start under 100 ms delay but cost ~0.05 points of J error, docs/faults.md)",
     )
     omega_walk: float = Field(
         0.05, ge=0, description="Kalman filter: random walk of omega beyond the torque model (rad/s/sqrt(s))"
