@@ -75,6 +75,9 @@ class _FeedForward:
     def receive(self, *args: object) -> None:
         pass
 
+    def note_late(self, t: int, zz: float) -> None:  # a late eq. (9) sample for the filter: none here
+        pass
+
     def step(self, tick, v, u, u_den, omega_hat, phi, zi, trusted, om_init, wrench):  # noqa: ANN001, ANN201
         return wrench
 
