@@ -26,6 +26,8 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
+FINISH_GRACE_S = 2.0
+"""How long an agent told `done` waits for its neighbours' last states before it reports anyway."""
 
 # Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
 # consumes a link-model draw). The simulator publishes measurements tick after tick on one key, and a
@@ -76,6 +78,8 @@ class AgentDaemon:
         self._timer: asyncio.TimerHandle | None = None
         self._jump: Measurement | None = None  # lockstep: a measurement that skips ticks, held back
         self._jump_timer: asyncio.TimerHandle | None = None
+        self._finishing = False  # the simulator said `done`; waiting for the neighbours' last states
+        self._finish_timer: asyncio.TimerHandle | None = None
         self._jump_base = -1  # last_meas when the skip was held back
         self._subs: list = []
         self._k_state = keys.state(run, agent_id)
@@ -109,7 +113,7 @@ class AgentDaemon:
         return self.report()
 
     def stop(self) -> None:
-        for timer in (self._timer, self._jump_timer):
+        for timer in (self._timer, self._jump_timer, self._finish_timer):
             if timer is not None:
                 timer.cancel()
         for s in reversed(self._subs):
@@ -141,6 +145,8 @@ class AgentDaemon:
             return  # a neighbour that comes back is waited for again from its first message
         self.expect.discard(ident)
         self._try_step()
+        if self._finishing:
+            self._maybe_finish()
 
     def _on_sim_alive(self, alive: bool) -> None:
         if alive == self.sim_alive:
@@ -166,9 +172,26 @@ class AgentDaemon:
             return
         if msg.kind == "start":
             self.seen_start = True
-        elif msg.kind == "done":
-            self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))
-            self.done.set()
+        elif msg.kind == "done" and not self._finishing:
+            # Zenoh orders messages per publisher only: a neighbour's last state can still be on its
+            # way when the simulator's `done` arrives. Report once it is in (or after a grace time),
+            # so the link counters are the run's whole story.
+            self._finishing = True
+            self._finish_timer = asyncio.get_running_loop().call_later(FINISH_GRACE_S, self._finish)
+            self._maybe_finish()
+
+    def _maybe_finish(self) -> None:
+        if self._finishing and all(self.last_from[j] >= self.scenario.ticks - 1 for j in self.expect):
+            self._finish()
+
+    def _finish(self) -> None:
+        if self.done.is_set():
+            return
+        if self._finish_timer is not None:
+            self._finish_timer.cancel()
+            self._finish_timer = None
+        self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))
+        self.done.set()
 
     def _on_meas(self, _key: str, payload: bytes) -> None:
         m = self._decode(payload, Measurement)
@@ -292,6 +315,8 @@ class AgentDaemon:
         st.delivered += len(delays)
         st.duplicated += max(0, len(delays) - 1)
         self._try_step()
+        if self._finishing:
+            self._maybe_finish()
 
     # ---- stepping --------------------------------------------------------------------------
     def _ready(self, k: int) -> bool:
