@@ -79,6 +79,7 @@ class AgentDaemon:
         self._jump: Measurement | None = None  # lockstep: a measurement that skips ticks, held back
         self._jump_timer: asyncio.TimerHandle | None = None
         self._finishing = False  # the simulator said `done`; waiting for the neighbours' last states
+        self._end_tick = scenario.ticks  # ticks the run lasted, as the `done` notice says
         self._finish_timer: asyncio.TimerHandle | None = None
         self._jump_base = -1  # last_meas when the skip was held back
         self._subs: list = []
@@ -167,12 +168,16 @@ class AgentDaemon:
         msg = self._decode(payload, Control)
         if msg is None:
             return
-        if msg.ticks != self.scenario.ticks or (msg.kind == "done" and msg.tick != msg.ticks):
+        # a run lasts its scenario's ticks, or fewer when it stops after done (stop_after_done_s)
+        early_end = self.scenario.stop_after_done_s is not None
+        if msg.ticks != self.scenario.ticks or (
+                msg.kind == "done" and not (msg.tick == msg.ticks or (early_end and 0 < msg.tick < msg.ticks))):
             self.drops["bad_control"] += 1  # not this run's simulator (or a forgery): ignore it
             return
         if msg.kind == "start":
             self.seen_start = True
         elif msg.kind == "done" and not self._finishing:
+            self._end_tick = msg.tick
             # Zenoh orders messages per publisher only: a neighbour's last state can still be on its
             # way when the simulator's `done` arrives. Report once it is in (or after a grace time),
             # so the link counters are the run's whole story.
@@ -181,7 +186,7 @@ class AgentDaemon:
             self._maybe_finish()
 
     def _maybe_finish(self) -> None:
-        if self._finishing and all(self.last_from[j] >= self.scenario.ticks - 1 for j in self.expect):
+        if self._finishing and all(self.last_from[j] >= self._end_tick - 1 for j in self.expect):
             self._finish()
 
     def _finish(self) -> None:

@@ -67,6 +67,10 @@ MASS_PER_AGENT = 5.0
 """m = 5 n kg (paper)."""
 
 CSV_NAME = "campaign.csv"
+LOG_NAME = "campaign-log.jsonl"
+"""One JSON line per run finished by ``coload campaign``: the invocation (segment) it belongs to, its
+name, and the segment's wall time when it finished. A grid run over several invocations (resumed) has
+its wall time as the sum over segments of their last elapsed time (:func:`logged_wall`)."""
 PLOT_NAME = "campaign.png"
 CONSENSUS_PLOT_NAME = "campaign-consensus.png"
 RUNS_DIR = "runs"
@@ -369,9 +373,31 @@ class CampaignResult:
     wall_s: float = 0.0
     plots: list[Path] = field(default_factory=list)
 
+    total_wall_s: float = 0.0  # over every invocation that worked on this directory (campaign-log.jsonl)
+    total_ran: int = 0  # runs those invocations finished
+
     @property
     def runs_per_min(self) -> float | None:
         return 60.0 * self.ran / self.wall_s if self.ran and self.wall_s > 0 else None
+
+
+def logged_wall(path: Path) -> tuple[float, int, int]:
+    """(wall seconds, runs, segments) of a campaign log: per segment the elapsed time at its last
+    finished run (a killed segment counts up to there; the run it was in is redone and counted then)."""
+    last: dict[str, tuple[float, int]] = {}
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError:
+        return 0.0, 0, 0
+    for line in lines:
+        try:
+            rec = json.loads(line)
+            seg, el = str(rec["segment"]), float(rec["elapsed_s"])
+        except (ValueError, KeyError, TypeError):
+            continue  # a line cut by a kill
+        _, k = last.get(seg, (0.0, 0))
+        last[seg] = (el, k + 1)
+    return sum(e for e, _ in last.values()), sum(k for _, k in last.values()), len(last)
 
 
 def run_campaign(
@@ -406,12 +432,16 @@ def run_campaign(
     done = 0
     if progress is not None:
         progress(0, len(todo))
+    segment = time.strftime("%Y-%m-%dT%H:%M:%S") + f"-{os.getpid()}"
 
     def finish(r: PlannedRun, fut_result: Callable[[], dict[str, Any]]) -> None:
         nonlocal done
         try:
             rows[r.run_dir.name] = row_of(r, fut_result())
             write_csv(csv_path, list(rows.values()))
+            with (out / LOG_NAME).open("a", encoding="utf-8") as log:
+                log.write(json.dumps({"segment": segment, "run": r.run_dir.name,
+                                      "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
         except Exception as exc:  # noqa: BLE001  a failed run must not stop the campaign
             failed.append((r.run_dir.name, f"{type(exc).__name__}: {exc}"))
         done += 1
@@ -438,6 +468,7 @@ def run_campaign(
     result = CampaignResult(rows=sorted(rows.values(), key=lambda r: (r["n"], r["sigma"], r["run"])),
                             planned=len(runs), reused=reused, ran=done - len(failed), failed=failed,
                             wall_s=time.perf_counter() - t0)
+    result.total_wall_s, result.total_ran, _ = logged_wall(out / LOG_NAME)
     if plots and result.rows:
         result.plots = plot_campaign(result.rows, out)
     return result

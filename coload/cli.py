@@ -194,6 +194,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch-fit", action="store_true",
                    help="fit the centralized batch estimator in every run (columns central_*, dist_over_central_*; "
                         "about doubles each run's CPU, see docs/campaign.md)")
+    p.add_argument("--stop-after-done", type=float, default=2.0, metavar="S",
+                   help="end each run S seconds after its agents agreed they are done (scenario field "
+                        "stop_after_done_s; the duration stays the cap; default: %(default)s)")
+    p.add_argument("--to-end", action="store_true",
+                   help="run every run its whole duration (no early end; the braking phase is simulated too)")
     p.add_argument("--plan", action="store_true", help="print the geometry table and the number of runs, run nothing")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -393,6 +398,10 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
     overrides = list(args.overrides) + ([f"duration={args.duration}"] if args.duration is not None else [])
     overrides += ["record.batch_fit=true"] if args.batch_fit else []
+    if args.stop_after_done < 0:
+        print(f"coload campaign: --stop-after-done: must be >= 0 s (got {args.stop_after_done})", file=sys.stderr)
+        return 2
+    overrides += [] if args.to_end else [f"stop_after_done_s={args.stop_after_done}"]
     base = load_scenario(args.scenario or cp.DEFAULT_BASE, overrides)
     try:
         ns = cp.parse_list(args.ns, int, "--n")
@@ -414,6 +423,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     rate = f", {result.runs_per_min:.1f} runs/min" if result.runs_per_min else ""
     print(f"{result.planned} runs planned: {result.reused} finished before, {result.ran} run now, "
           f"{len(result.failed)} failed; {result.wall_s:.1f} s wall{rate}")
+    if result.total_ran > result.ran:
+        print(f"over every invocation on {args.out}: {result.total_ran} runs in {result.total_wall_s:.0f} s wall "
+              f"({60.0 * result.total_ran / max(result.total_wall_s, 1e-9):.1f} runs/min; {cp.LOG_NAME})")
     for name, err in result.failed:
         print(f"coload campaign: run {name} failed: {err}", file=sys.stderr)
     print(f"table: {args.out / cp.CSV_NAME}")

@@ -18,6 +18,7 @@ from coload.world import build_agent
 from config.scenario import Scenario
 from net.link import DelayLine, LinkStats, build_in_links, partition_events
 from simulator.plant import Plant, sensor_rng
+from simulator.stop import done_stop
 
 Progress = Callable[[int, int], None]
 
@@ -125,11 +126,15 @@ def run_inproc(
         ring = [[[] for _ in range(span)] for _ in range(n)]
         nbr_rings = [[ring[j] for j in neighbours[i]] for i in range(n)]
 
+    stop = done_stop(scenario)
+    every = scenario.record.every_ticks
     step_s = 0.0  # time inside AgentCore.step, for the per-agent cost in the summary
     clock = time.perf_counter
     wall0 = clock()
     report_every = max(1, ticks // 100)
     for k in range(ticks):
+        if stop is not None and k >= stop.end:
+            break
         if pace:
             lag = wall0 + k * dt - time.perf_counter()
             if lag > 0:
@@ -166,12 +171,16 @@ def run_inproc(
                 send(i, k, state)
             if keep:
                 rec.estimate(res.estimate)  # type: ignore[union-attr]
+            if stop is not None and k % every == 0:
+                stop.see(k, i, res.estimate.values["phase"])
         if rec is not None:
             rec.samples(k, meas, wrenches)
         plant.apply_and_step(wrenches)
         if progress is not None and (k % report_every == 0 or k == ticks - 1):
             progress(k + 1, ticks)
     wall = time.perf_counter() - wall0
+    if stop is not None:
+        ticks = stop.end  # ticks run (fewer than the scenario's if it stopped after done)
 
     summary: dict[str, Any] = {
         "engine": "inproc",

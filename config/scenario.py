@@ -337,6 +337,12 @@ class Scenario(_Strict):
     n: int = Field(10, ge=2, le=1000, description="number of agents")
     dt: float = Field(0.01, gt=0, description="tick length (s)")
     duration: float = Field(60.0, gt=0, description="simulated time (s)")
+    stop_after_done_s: float | None = Field(
+        None, ge=0,
+        description="end the run this long (s) after every agent's recorded estimates show the done stage of "
+                    "Algorithm 1 (both engines, same tick; the duration stays the cap); unset: run the whole "
+                    "duration",
+    )
     seed: int = Field(0, ge=0, description="run seed: sensor noise and every link's faults derive from it")
     mode: Literal["lockstep", "realtime"] = Field(
         "lockstep", description="lockstep: the simulator is the clock (reproducible); realtime: wall-clock pace"

@@ -23,6 +23,7 @@ import base64
 import hashlib
 import json
 import logging
+import math
 import struct
 import time
 from collections import Counter
@@ -40,6 +41,7 @@ from net.messages import AgentReport, Control, Estimate, Measurement, Wrench
 from net.schema import decode, decode_counted, encode
 from net.transport import Transport
 from simulator.plant import Plant, sensor_rng
+from simulator.stop import done_stop
 
 log = logging.getLogger("coload.sim")
 
@@ -84,6 +86,9 @@ class SimDaemon:
         self.last_wrench: list[int] = [-1] * self.n  # tick of the last wrench accepted per agent
         self._partition_events = partition_events(scenario)  # recorded as their tick comes
         self.tick = 0
+        # ticks the run lasts: the scenario's, or fewer once every agent is done (stop_after_done_s)
+        self._stop = done_stop(scenario)
+        self.ended = False  # 'done' published: reports are expected from now on
         self.wrenches: dict[int, tuple[float, float, float]] = {}  # of self.tick; emptied after each step
         self.latest: list[tuple[float, float, float]] = [ZERO_WRENCH] * self.n
         self._subs: list = []
@@ -125,7 +130,7 @@ class SimDaemon:
         i = parsed[2]
         was = i in self.alive
         (self.alive.add if alive else self.alive.discard)(i)
-        if was != alive and 0 < self.tick < self.scenario.ticks:  # not start-up, not shutdown
+        if was != alive and 0 < self.tick and not self.ended:  # not start-up, not shutdown
             if alive and i in self._expected_alive:
                 self._expected_alive.discard(i)  # alive before the restart: found again, not an event
             else:
@@ -193,6 +198,8 @@ class SimDaemon:
             return
         self.last_estimate[i] = est.tick
         self.recorder.estimate(est)
+        if self._stop is not None:
+            self._stop.see(est.tick, i, est.values.get("phase", math.nan))
         self._write_journal({"e": base64.b64encode(payload).decode("ascii")})
 
     def _on_report(self, key: str, payload: bytes) -> None:
@@ -203,7 +210,7 @@ class SimDaemon:
         if rep.agent != i:
             self.drops["spoofed_sender"] += 1
             return
-        if self.tick < self.scenario.ticks:
+        if not self.ended:
             self.drops["early"] += 1  # agents report after the simulator's done notice only
             return
         if i in self.reports:
@@ -310,6 +317,8 @@ class SimDaemon:
                 est = decode(base64.b64decode(rec["e"]), Estimate)
                 self.last_estimate[est.agent] = est.tick
                 self.recorder.estimate(est)
+                if self._stop is not None:
+                    self._stop.see(est.tick, est.agent, est.values.get("phase", math.nan))
             elif "ev" in rec:
                 self.events.append(rec["ev"])
             elif "alive" in rec:
@@ -388,7 +397,10 @@ class SimDaemon:
         ticks = sc.ticks
         report_every = max(1, ticks // 100)
         pevents = self._partition_events
+        stop = self._stop
         for k in range(start, ticks):
+            if stop is not None and k >= stop.end:
+                break
             self.tick = k
             while pevents and pevents[0]["tick"] <= k:
                 ev = pevents.pop(0)
@@ -428,7 +440,8 @@ class SimDaemon:
                 if self.progress is not None:
                     self.progress(k + 1, ticks)
         wall = time.perf_counter() - t_begin
-        self.tick = ticks
+        ticks = self.tick  # the scenario's, or stop.end (the estimate that set it is a tick old, after_ticks before)
+        self.ended = True
         self._publish_control("done", ticks)
         expected = set(self.alive)
         if not await self._wait_for(lambda: expected <= self.reports.keys(), sc.timing.startup_timeout_s):
@@ -447,7 +460,7 @@ class SimDaemon:
         summary: dict[str, Any] = {
             "engine": self.engine,
             "mode": self.scenario.mode,
-            "sim_s": self.scenario.ticks * self.scenario.dt,
+            "sim_s": self.tick * self.scenario.dt,
             "wall_s": wall,
             "seed": self.scenario.seed,
             "n": self.n,

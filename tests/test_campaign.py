@@ -216,6 +216,10 @@ def test_cli_killed_campaign_leaves_a_valid_table_and_resumes(tmp_path):
     assert [float(r["sigma"]) for r in rows] == sigmas
     assert all(r in rows for r in killed_rows)  # finished runs were kept as they were
     assert f"{len(killed_rows)} finished before" in done.stdout
+    # the wall time of the whole grid adds up over both invocations (the killed one up to its last run)
+    wall, ran, segments = cp.logged_wall(out / cp.LOG_NAME)
+    assert (ran, segments) == (len(sigmas), 2)
+    assert wall > 0 and f"over every invocation on {out}: {len(sigmas)} runs" in done.stdout
 
 
 def test_plots_draw_the_consensus_figure_when_local_estimates_exist(tmp_path):
@@ -273,7 +277,7 @@ def test_cli_plan_prints_the_geometry(tmp_path, capsys):
 def test_algorithm_1_fills_the_dynamic_columns_and_the_consensus_figure(tmp_path):
     """With the dynamical phase (paper-fig4's Algorithm 1) the table carries J and m before and after
     the averaging consensus and the time the team finished; the Fig. 8-like figure is drawn."""
-    base = load_scenario(FIG4, ["duration=90"])
+    base = load_scenario(FIG4, ["duration=90", "stop_after_done_s=2"])
     runs = cp.plan(base, tmp_path, [5], [0.3], 1, seed0=2)
     res = cp.run_campaign(runs, tmp_path, jobs=1)
     assert res.failed == []
@@ -283,4 +287,6 @@ def test_algorithm_1_fills_the_dynamic_columns_and_the_consensus_figure(tmp_path
         assert float(row[key]) == summary["errors"][key]
         assert float(row[key]) < 0.05, key  # loose: the estimator's own tests hold the tight targets
     assert 0 < float(row["finished_s"]) < 90
+    # the run ended 2 s after the team was done (the recorded grid is 0.1 s)
+    assert float(row["t_final"]) == pytest.approx(float(row["finished_s"]) + 2.0, abs=0.11)
     assert (tmp_path / cp.CONSENSUS_PLOT_NAME).stat().st_size > 10_000

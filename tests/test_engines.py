@@ -52,3 +52,29 @@ def test_memory_daemons_reproduce_inproc(tmp_path, faults):
         # 100 ticks cut in each direction of 1-2, 120 of 3-4
         assert {k: v["partitioned"] for k, v in links_a.items() if v["partitioned"]} == {
             "1->2": 100, "2->1": 100, "3->4": 120, "4->3": 120}
+
+
+def test_stop_after_done_ends_both_engines_on_the_same_tick(tmp_path):
+    """stop_after_done_s: the run ends 1 s after the team agreed it was done, on the same tick in both
+    engines (the daemons' rule reads the published estimates, as the in-process engine does), with the
+    estimates of the full-length run up to there."""
+    short = ['dynamics.algorithm="sequential"', "dynamics.kin_settle_s=3", "dynamics.m_excite_s=8",
+             "dynamics.j_excite_s=10", "duration=60"]
+    sc = load_scenario(SCENARIOS / "quick.toml", [*short, "stop_after_done_s=1.0"])
+    a, b = tmp_path / "inproc", tmp_path / "memory"
+    sa = run_inproc(sc, a)
+    sb = asyncio.run(run_daemons_in_memory(sc, b))
+    done = sa["errors"]["finished_s"]
+    assert done is not None and done < 50.0
+    # the tick after the first recorded all-done tick, plus 100 ticks
+    assert sa["sim_s"] == pytest.approx(done + 0.01 + 1.0)
+    assert sb["sim_s"] == sa["sim_s"]
+    assert sb["timeouts"] == {"wrench": 0, "neighbour": 0}
+    assert sorted(sb["agents_reported"]) == list(range(sc.n))  # every agent reported after the early `done`
+    for name, keys in (("samples.csv", 2), ("estimates.csv", 2), ("truth.csv", 1)):
+        assert max_table_difference(a, b, name, keys) <= 1e-9, name
+    assert sa["links"] == sb["links"]
+    # the same run without the stop: identical up to the early end, and the same final J and m
+    full = run_inproc(load_scenario(SCENARIOS / "quick.toml", short), tmp_path / "full")
+    assert full["sim_s"] == 60.0
+    assert full["errors"]["J_rel"] == sa["errors"]["J_rel"] and full["errors"]["m_rel"] == sa["errors"]["m_rel"]
