@@ -17,6 +17,7 @@ from coload.engine import deliver_tick
 from coload.world import build_agent
 from config.scenario import Scenario
 from net import keys
+from net.finish import FinishGate
 from net.link import DelayLine, LinkStats, build_in_links
 from net.messages import AgentReport, Control, Measurement, StateMsg
 from net.schema import decode_counted, encode
@@ -26,8 +27,6 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
-FINISH_GRACE_S = 2.0
-"""How long an agent told `done` waits for its neighbours' last states before it reports anyway."""
 
 # Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
 # consumes a link-model draw). The simulator publishes measurements tick after tick on one key, and a
@@ -78,9 +77,7 @@ class AgentDaemon:
         self._timer: asyncio.TimerHandle | None = None
         self._jump: Measurement | None = None  # lockstep: a measurement that skips ticks, held back
         self._jump_timer: asyncio.TimerHandle | None = None
-        self._finishing = False  # the simulator said `done`; waiting for the neighbours' last states
-        self._end_tick = scenario.ticks  # ticks the run lasted, as the `done` notice says
-        self._finish_timer: asyncio.TimerHandle | None = None
+        self._finish = FinishGate(self._report_and_end)  # after `done`: the neighbours' last states, then report
         self._jump_base = -1  # last_meas when the skip was held back
         self._subs: list = []
         self._k_state = keys.state(run, agent_id)
@@ -114,9 +111,10 @@ class AgentDaemon:
         return self.report()
 
     def stop(self) -> None:
-        for timer in (self._timer, self._jump_timer, self._finish_timer):
+        for timer in (self._timer, self._jump_timer):
             if timer is not None:
                 timer.cancel()
+        self._finish.cancel()
         for s in reversed(self._subs):
             s.close()
         self._subs.clear()
@@ -146,8 +144,7 @@ class AgentDaemon:
             return  # a neighbour that comes back is waited for again from its first message
         self.expect.discard(ident)
         self._try_step()
-        if self._finishing:
-            self._maybe_finish()
+        self._finish.check(self.last_from, self.expect)
 
     def _on_sim_alive(self, alive: bool) -> None:
         if alive == self.sim_alive:
@@ -176,25 +173,10 @@ class AgentDaemon:
             return
         if msg.kind == "start":
             self.seen_start = True
-        elif msg.kind == "done" and not self._finishing:
-            self._end_tick = msg.tick
-            # Zenoh orders messages per publisher only: a neighbour's last state can still be on its
-            # way when the simulator's `done` arrives. Report once it is in (or after a grace time),
-            # so the link counters are the run's whole story.
-            self._finishing = True
-            self._finish_timer = asyncio.get_running_loop().call_later(FINISH_GRACE_S, self._finish)
-            self._maybe_finish()
+        elif msg.kind == "done":
+            self._finish.begin(msg.tick, self.last_from, self.expect)
 
-    def _maybe_finish(self) -> None:
-        if self._finishing and all(self.last_from[j] >= self._end_tick - 1 for j in self.expect):
-            self._finish()
-
-    def _finish(self) -> None:
-        if self.done.is_set():
-            return
-        if self._finish_timer is not None:
-            self._finish_timer.cancel()
-            self._finish_timer = None
+    def _report_and_end(self) -> None:
         self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))
         self.done.set()
 
@@ -320,8 +302,7 @@ class AgentDaemon:
         st.delivered += len(delays)
         st.duplicated += max(0, len(delays) - 1)
         self._try_step()
-        if self._finishing:
-            self._maybe_finish()
+        self._finish.check(self.last_from, self.expect)
 
     # ---- stepping --------------------------------------------------------------------------
     def _ready(self, k: int) -> bool:

@@ -31,6 +31,7 @@ import numpy as np
 
 from net import keys
 from net.hinf_messages import HinfInput, HinfMeas, HinfState
+from net.finish import FinishGate
 from net.link import DelayLine, LinkStats
 from net.messages import AgentReport, Control
 from net.schema import decode_counted, encode
@@ -49,9 +50,6 @@ from .runtime import (
 log = logging.getLogger("coload.hinf")
 
 MAX_TICK_LEAD = 10_000
-#: After the simulator's `done`, how long an estimator waits for its neighbours' last states before it
-#: reports anyway (Zenoh orders messages per publisher only; see agents.daemon.FINISH_GRACE_S).
-FINISH_GRACE_S = 2.0
 """A measurement or state further ahead than this many ticks is treated as hostile."""
 
 
@@ -285,8 +283,7 @@ class HinfAgentDaemon:
         self.expect = set(self.nbrs)
         self.done = asyncio.Event()
         self._timer: asyncio.TimerHandle | None = None
-        self._finishing = False  # `done` came; waiting for the neighbours' last states
-        self._finish_timer: asyncio.TimerHandle | None = None
+        self._finish = FinishGate(self._report_and_end)  # after `done`: the neighbours' last states, then report
         self._subs: list = []
         self._k_input = keys.hinf(run, k, "input")
         self._k_state = keys.hinf(run, k, "state")
@@ -310,9 +307,9 @@ class HinfAgentDaemon:
         try:
             await self.done.wait()
         finally:
-            for timer in (self._timer, self._finish_timer):
-                if timer is not None:
-                    timer.cancel()
+            if self._timer is not None:
+                self._timer.cancel()
+            self._finish.cancel()
             for s in reversed(self._subs):
                 s.close()
             self._subs.clear()
@@ -333,7 +330,7 @@ class HinfAgentDaemon:
             return
         self.expect.discard(parsed[2])  # back in with its next message
         self._try_step()
-        self._maybe_finish()
+        self._finish.check(self.last_from, self.expect)
 
     def _on_control(self, _key: str, payload: bytes) -> None:
         msg = self._decode(payload, Control)
@@ -342,23 +339,10 @@ class HinfAgentDaemon:
         if msg.ticks != self.setup.ticks:
             self.drops["bad_control"] += 1
             return
-        if msg.kind == "done" and msg.tick == msg.ticks and not self._finishing:
-            # a neighbour's last state can still be on its way (Zenoh orders per publisher only):
-            # report once it is in, or after a grace time, so the link counters are the whole run's
-            self._finishing = True
-            self._finish_timer = asyncio.get_running_loop().call_later(FINISH_GRACE_S, self._finish)
-            self._maybe_finish()
+        if msg.kind == "done" and msg.tick == msg.ticks:
+            self._finish.begin(msg.tick, self.last_from, self.expect)
 
-    def _maybe_finish(self) -> None:
-        if self._finishing and all(self.last_from[j] >= self.setup.ticks - 1 for j in self.expect):
-            self._finish()
-
-    def _finish(self) -> None:
-        if self.done.is_set():
-            return
-        if self._finish_timer is not None:
-            self._finish_timer.cancel()
-            self._finish_timer = None
+    def _report_and_end(self) -> None:
         self.transport.publish(keys.hinf(self.run_name, self.id, "report"), encode(self.report()))
         self.done.set()
 
@@ -425,7 +409,7 @@ class HinfAgentDaemon:
         st.delivered += len(delays)
         st.duplicated += max(0, len(delays) - 1)
         self._try_step()
-        self._maybe_finish()
+        self._finish.check(self.last_from, self.expect)
 
     def _ready(self, t: int) -> bool:
         return self.mode == "realtime" or t == 0 or all(self.last_from[j] >= t - 1 for j in self.expect)
