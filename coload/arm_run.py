@@ -32,11 +32,10 @@ import numpy as np
 
 from agents.agent import ESTIMATE_NAMES
 from agents.arm import ArmFrontEnd, MotionPlan, Tracking, make_observer
-from coload.engine import LinkNetwork
+from coload.engine import LinkNetwork, base_summary
 from coload.recorder import Recorder
 from coload.world import build_agent
 from config.scenario import Scenario
-from net.link import partition_events
 from simulator.arms import ArmPlant
 from simulator.plant import sensor_rng
 
@@ -179,20 +178,8 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
         "plan_centre": list(plan.centre),
         "sigma_v_agents": agents[0].sigma_v,
     }
-    summary: dict[str, Any] = {
-        "engine": "arms-inproc",
-        "mode": "lockstep",
-        "sim_s": ticks * dt,
-        "wall_s": wall,
-        "seed": scenario.seed,
-        "n": n,
-        "scenario": scenario.name,
-        "links": net.close(ticks),
-        "drops": {},
-        "timeouts": {"wrench": 0, "neighbour": 0},
-        "events": partition_events(scenario),
-        "arms": arms_summary,
-    }
+    summary = base_summary("arms-inproc", scenario, "lockstep", ticks, wall, net.close(ticks))
+    summary["arms"] = arms_summary
     if rec is not None:
         assert run_dir is not None
         (Path(run_dir) / ARMS_CSV).write_text(",".join(ARMS_HEADER) + "\n" + "\n".join(arms_rows) + "\n", encoding="utf-8")

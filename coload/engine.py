@@ -90,6 +90,24 @@ class LinkNetwork:
         return {f"{s}->{r}": st.as_dict() for (s, r), st in sorted(self.stats.items())}
 
 
+def base_summary(engine: str, scenario: Scenario, mode: str, ticks: int, wall: float,
+                 links: dict[str, dict[str, int]]) -> dict[str, Any]:
+    """summary.json's head for an in-process engine (no daemons: nothing dropped at an edge, no timeouts)."""
+    return {
+        "engine": engine,
+        "mode": mode,
+        "sim_s": ticks * scenario.dt,
+        "wall_s": wall,
+        "seed": scenario.seed,
+        "n": scenario.n,
+        "scenario": scenario.name,
+        "links": links,
+        "drops": {},
+        "timeouts": {"wrench": 0, "neighbour": 0},
+        "events": partition_events(scenario),
+    }
+
+
 def run_inproc(
     scenario: Scenario,
     run_dir: Path | None,
@@ -182,20 +200,8 @@ def run_inproc(
     if stop is not None:
         ticks = stop.end  # ticks run (fewer than the scenario's if it stopped after done)
 
-    summary: dict[str, Any] = {
-        "engine": "inproc",
-        "mode": mode,
-        "sim_s": ticks * dt,
-        "wall_s": wall,
-        "agent_step_us": 1e6 * step_s / max(1, ticks * n),
-        "seed": scenario.seed,
-        "n": n,
-        "scenario": scenario.name,
-        "links": net.close(ticks),
-        "drops": {},
-        "timeouts": {"wrench": 0, "neighbour": 0},
-        "events": partition_events(scenario),
-    }
+    summary = base_summary("inproc", scenario, mode, ticks, wall, net.close(ticks))
+    summary["agent_step_us"] = 1e6 * step_s / max(1, ticks * n)
     if rec is not None:
         summary = rec.close(summary)
     return summary
