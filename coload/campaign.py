@@ -522,6 +522,18 @@ def _legend(ax: Any, ns: list[int]) -> None:
               loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=len(ns), frameon=False, fontsize=8)
 
 
+def _save(fig: Any, legend_axes: Sequence[Any], ns: list[int], path: Path) -> Path:
+    """The colour key above the top panels, then the file."""
+    import matplotlib.pyplot as plt
+
+    for ax in legend_axes:
+        _legend(ax, ns)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def plot_campaign(rows: Sequence[dict[str, Any]], out: Path) -> list[Path]:
     """campaign.png (Fig. 7-like) and, when local estimates exist, campaign-consensus.png (Fig. 8)."""
     import matplotlib
@@ -542,12 +554,7 @@ def plot_campaign(rows: Sequence[dict[str, Any]], out: Path) -> list[Path]:
         axes[-1, 0].set_xlabel("velocity noise sigma (m/s)")
         fig.suptitle(f"campaign: {len(rows)} runs, line graph, m = 5n (a box = the runs of one (n, sigma))",
                      fontsize=10)
-        _legend(axes[0, 0], ns)
-        fig.tight_layout()
-        path = out / PLOT_NAME
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        written.append(_save(fig, [axes[0, 0]], ns, out / PLOT_NAME))
     pairs = [(lo, hi, q) for lo, hi, q in FIG8_PANELS if lo in has and hi in has]
     if pairs:
         wide = min(12.0, max(5.0, 0.2 * len(sigmas) * len(ns) + 2))
@@ -559,13 +566,7 @@ def plot_campaign(rows: Sequence[dict[str, Any]], out: Path) -> list[Path]:
         for ax in axes[-1]:
             ax.set_xlabel("velocity noise sigma (m/s)")
         fig.suptitle("relative errors before and after the averaging consensus (Fig. 8)", fontsize=10)
-        _legend(axes[0, 0], ns)
-        _legend(axes[0, 1], ns)
-        fig.tight_layout()
-        path = out / CONSENSUS_PLOT_NAME
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        written.append(_save(fig, list(axes[0]), ns, out / CONSENSUS_PLOT_NAME))
     return written
 
 
