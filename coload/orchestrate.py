@@ -165,6 +165,8 @@ def watch_simulator(
         except DecodeError:
             return
         state["tick"] = msg.tick
+        if msg.kind == "done":
+            state["end"] = msg.tick  # the run may end before its duration (stop_after_done_s)
         progressed.set()
 
     conf = zenoh_config(mode="client", connect=[endpoint], listen=[])
@@ -183,7 +185,8 @@ def watch_simulator(
             if time.monotonic() > deadline:
                 print(f"{cmd}: the run exceeded its time budget; stopping", file=sys.stderr)
                 return False
-    bar(ticks, ticks)
+    end = state.get("end", ticks)
+    bar(end, end)
     return True
 
 
