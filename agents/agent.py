@@ -645,7 +645,7 @@ class AgentCore:
         self.phi = ph
         self.omega = om_new
         rot = complex(cos(om_new * dt), sin(om_new * dt))
-        pairs_msg: dict[int, tuple[float, float, float, float]] = {}
+        pairs_msg: dict[int, tuple[float, ...]] = {}
         ready = 0
         for nb in nlist:
             pe = nb.pair
@@ -656,8 +656,9 @@ class AgentCore:
             else:
                 z = pe.z
             nb.z_sent = z
-            f = nb.flow
-            pairs_msg[nb.id] = (z.real, z.imag, f.real, f.imag)
+            if dyn is None:  # with the dynamical phase the entries are built once its flows are updated
+                f = nb.flow
+                pairs_msg[nb.id] = (z.real, z.imag, f.real, f.imag)
         self.trusted = ready == len(nlist) and ready > 0
 
         # 6. control (KinematicControl.wrench, inlined), outputs -------------------------------------
@@ -677,7 +678,6 @@ class AgentCore:
         i = me
         shared = {"om": om_new, "oi": 1.0 if om_init else 0.0, "ph": ph, "yx": y.real, "yy": y.imag}
         stage = PHASE_REGULATE if om_init else PHASE_SPINUP
-        pairs_est = pairs_msg
         dyn_snap = None
         if dyn is not None:
             fx, fy, tau = dyn.step(
@@ -686,8 +686,15 @@ class AgentCore:
             )
             stage = dyn.stage
             dyn.shared(shared)
-            pairs_msg = {j: p + tuple(dyn.flows_to(j)) for j, p in pairs_msg.items()}
+            # (z_ij, F_ij, the dynamical flows to j); the estimate reads only the first two, so the
+            # same dict serves it (one dict and tuple per neighbour, not two)
+            flows_to = dyn.flows_to
+            for nb in nlist:
+                z = nb.z_sent
+                f = nb.flow
+                pairs_msg[nb.id] = (z.real, z.imag, f.real, f.imag, *flows_to(nb.id))
             dyn_snap = dyn.snapshot()
+        pairs_est = pairs_msg
         res = _new(StepResult)
         res.state = _new_state(tick, i, vx, vy, stage, shared, pairs_msg)
         res.wrench = _new_wrench(tick, i, fx, fy, tau)
