@@ -59,7 +59,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import fields
 from math import cos, sin
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 
 from agents import dynamic
 from agents.control import KinematicControl
@@ -101,6 +101,7 @@ PHASE_SPINUP = 0
 PHASE_REGULATE = 1
 
 _by_tick = attrgetter("tick", "sender")
+_get_kin = itemgetter("om", "ph", "yx", "yy", "oi")  # a neighbour's kinematic states, in one call
 
 
 def _fast_factory(cls):  # type: ignore[no-untyped-def]
@@ -479,11 +480,8 @@ class AgentCore:
             # kind of malformed payload at once, cheaper than checking keys and types one by one
             try:
                 sh = msg.shared
-                s_om = sh["om"]
-                s_ph = sh["ph"]
-                yx = sh["yx"]
-                yy = sh["yy"]
-                s_ok = sh["oi"] > 0.0
+                s_om, s_ph, yx, yy, s_ok = _get_kin(sh)
+                s_ok = s_ok > 0.0
                 pz = msg.pair.get(me)
                 if dyn is None:
                     if pz is None:

@@ -102,7 +102,7 @@ class FlowAverage:
         self._rows = tuple(self.flow.items())  # (j, F_ij), in neighbour order: no dict walk per tick
         # for DynamicPhase's message handling: the channels' StateMsg.shared values in one call, the
         # flows of a neighbour that sent none, the degree as sent
-        self.get_x = itemgetter(*_CH_KEYS[:nch])
+        self.get_x = itemgetter("ps", "dg", *_CH_KEYS[:nch])  # (psi, degree, x_j) as sent
         self.no_flows = NO_FLOWS[:nch]
         self.deg_f = float(self.deg)
 
@@ -507,11 +507,12 @@ class DynamicPhase:
     def receive(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float]) -> None:
         """A neighbour's state of tick ``t``; raises (KeyError, ValueError, TypeError) if malformed."""
         avg = self.avg
-        xj = list(map(float, avg.get_x(sh)))
-        psi = float(sh["ps"])
+        psi, degj, *xj = avg.get_x(sh)
+        xj = list(map(float, xj))
+        psi = float(psi)
         if psi - psi != 0.0:
             raise ValueError("non-finite")
-        degj = int(sh["dg"])
+        degj = int(degj)
         if flows is NO_FLOWS:
             flows = avg.no_flows
         if degj < 1 or len(flows) != avg.nch:
@@ -519,7 +520,12 @@ class DynamicPhase:
         bar = self.barrier.decode(sh)
         if not all(map(isfinite, xj)):
             raise ValueError("non-finite")
-        avg.receive(j, xj, list(map(float, flows)), degj)
+        # FlowAverage.receive, inlined (the Metropolis weight only when the degree is new)
+        avg.nx[j] = xj
+        avg.nf[j] = list(map(float, flows))
+        if avg.ndeg[j] != degj or j not in avg._eps:
+            avg.ndeg[j] = degj
+            avg._eps[j] = 1.0 / (1.0 + max(avg.deg, degj))
         self.nbr_stage[j] = int(msg_phase)
         self.nbr_stage_tick[j] = int(sh["Sk"])
         self.nbr_barrier[j] = bar
