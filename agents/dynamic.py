@@ -37,6 +37,7 @@ What each agent runs (symbols as in the paper; z_C = p_G - p_C, q_i = p_Ci - p_C
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from math import cos, isfinite, sin
@@ -87,7 +88,7 @@ class FlowAverage:
     which the mean is exact again, and x converges to it.
     """
 
-    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg", "nch", "_eps", "_rows", "get_x", "no_flows", "deg_f")
+    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg", "nch", "_eps", "_rows", "get_x", "no_flows", "deg_f", "_upd")
 
     def __init__(self, nbr_ids: Sequence[int], nch: int = N_CH) -> None:
         self.nch = nch
@@ -105,6 +106,7 @@ class FlowAverage:
         self.get_x = itemgetter("ps", "dg", *_CH_KEYS[:nch])  # (psi, degree, x_j) as sent
         self.no_flows = NO_FLOWS[:nch]
         self.deg_f = float(self.deg)
+        self._upd = _flow_update(nch)
 
     def receive(self, j: int, xj: list[float], fji: Sequence[float], degj: int) -> None:
         self.nx[j] = xj
@@ -113,30 +115,51 @@ class FlowAverage:
         self._eps[j] = 1.0 / (1.0 + max(self.deg, degj))  # Metropolis weight, once per message
 
     def update(self) -> None:
-        x = self.x
-        nx = self.nx
-        nf = self.nf
-        eps_of = self._eps
-        chans = range(self.nch)
-        tot = [0.0] * self.nch
-        # indexed loops, not zip comprehensions: ~1.5x faster on CPython 3.11 for ten channels (measured)
-        for j, fl in self._rows:
-            xj = nx.get(j)
-            if xj is not None:
-                eps = eps_of[j]
-                fji = nf[j]
-                for c in chans:
-                    # (F_ij - F_ji)/2 rather than -F_ji: both ends update at once from each other's
-                    # previous flows, and with -F_ji an asymmetry (from one lost message) would flip
-                    # sign every tick for ever; the mean of the two kills it at the next exchange
-                    f = 0.5 * (fl[c] - fji[c]) + eps * (x[c] - xj[c])
-                    fl[c] = f
-                    tot[c] += f
-            else:
-                for c in chans:
-                    tot[c] += fl[c]
-        u = self.u
-        self.x = [u[c] - tot[c] for c in chans]  # a new list: snapshots of x stay valid
+        # x_i = u_i - sum_j F_ij, F_ij = (F_ij - F_ji)/2 + eps_ij (x_i - x_j): (F_ij - F_ji)/2 rather than
+        # -F_ji because both ends update at once from each other's previous flows, and with -F_ji an
+        # asymmetry (from one lost message) would flip sign every tick for ever; the mean of the two kills
+        # it at the next exchange. The arithmetic is in ``_flow_update`` (unrolled over the channels).
+        self.x = self._upd(self.x, self.u, self._rows, self.nx, self.nf, self._eps)
+
+
+@functools.cache
+def _flow_update(nch: int):  # type: ignore[no-untyped-def]
+    """FlowAverage.update's arithmetic for ``nch`` channels, unrolled into straight-line code on locals.
+
+    The plain form (a loop over neighbours, an inner loop over channels indexing lists) was the
+    dominant cost of FlowAverage; unrolled it is ~1.6x faster on CPython 3.11 (measured). The same
+    expressions in the same order (per neighbour in ``_rows`` order: F_ij, then the running sum from
+    0.0), so the result is bit-identical to the loop (tests/test_agent_speed.py checks it). Neighbours
+    not heard from yet keep their flows. Returns the new x (a new list: snapshots of x stay valid); the
+    flow lists are updated in place.
+    """
+    ch = range(nch)
+
+    def names(p: str) -> str:
+        return ", ".join(f"{p}{c}" for c in ch) + ("," if nch == 1 else "")
+
+    lines = [
+        "def update(x, u, rows, nx, nf, eps_of):",
+        f"    {names('x')} = x",
+        "".join(f"    t{c} = 0.0\n" for c in ch).rstrip("\n"),
+        "    for j, fl in rows:",
+        "        xj = nx.get(j)",
+        "        if xj is not None:",
+        "            e = eps_of[j]",
+        f"            {names('f')} = fl",
+        f"            {names('g')} = nf[j]",
+        f"            {names('a')} = xj",
+        *(f"            f{c} = 0.5 * (f{c} - g{c}) + e * (x{c} - a{c})" for c in ch),
+        f"            fl[:] = ({names('f')})",
+        "        else:",
+        f"            {names('f')} = fl",
+        *(f"        t{c} += f{c}" for c in ch),
+        f"    {names('u')} = u",
+        "    return [" + ", ".join(f"u{c} - t{c}" for c in ch) + "]",
+    ]
+    env: dict = {}
+    exec("\n".join(lines), env)  # noqa: S102 - generated from the channel count only
+    return env["update"]
 
 
 class StageBarrier:
