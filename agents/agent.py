@@ -152,7 +152,8 @@ def _build_estimate(
 ) -> Estimate:
     """The :class:`Estimate` of one tick, from the values :meth:`AgentCore.step` snapshots.
 
-    ``pair`` is the tick's outgoing ``StateMsg.pair`` (z_ij_x, z_ij_y, F_ij_x, F_ij_y): it already
+    ``pair`` is the tick's outgoing ``StateMsg.pair`` (z_ij_x, z_ij_y, F_ij_x, F_ij_y, then the dynamical
+    phase's flows if any; only the first two are read): it already
     holds every z_ij estimate, in neighbour order; ``dyn`` the dynamical phase's snapshot
     (``DynamicPhase.snapshot``), None without it.
     """
