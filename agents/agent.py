@@ -614,7 +614,12 @@ class AgentCore:
             # brought to tick ref for the filter (the dynamical phase's Kalman filter takes u as it is, as a
             # delayed measurement of its samples' ticks, note_late: brought forward with its own modelled
             # acceleration here it confirmed its own J, measured 2.0 vs 1.8 %)
-            b = self._beta * ((u + u_fw / u_den if u_fw else u) - om)
+            um = u + u_fw / u_den if u_fw else u
+            if dyn is not None and dyn.om_meas == dyn.om_meas:
+                # the dynamical phase's filter from its restart on (DynamicsSpec.filter_omega): the pairs'
+                # angles are dead-reckoned with omega_hat at high noise and eq. (9) then fed its lag back
+                um = dyn.om_meas
+            b = self._beta * (um - om)
             om_new += b
         else:
             b = _NAN

@@ -76,6 +76,7 @@ _CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG))  # their names in StateMsg.sh
 NO_FLOWS = (0.0,) * N_CH_AUG  # a neighbour that sent no pair entry for us (it has not heard from us yet)
 
 _MASK_BITS = 50  # agents per float in the flooded ready mask (exact in a double)
+_U_BIAS_SD0 = 0.05  # prior std of the eq. (9) rate's error b at a filter start (rad/s): fresh circle fits
 
 
 class FlowAverage:
@@ -249,7 +250,7 @@ class RigidEKF:
     An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
     """
 
-    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug")
+    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0")
 
     def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
         self.s = np.zeros(7)
@@ -272,6 +273,14 @@ class RigidEKF:
             self.s = np.zeros(9)
             self.P = np.eye(9)
             self._I = np.eye(9)
+        # the pooled eq. (9) rate's own slowly varying error b (u = omega + b), the last state; pinned at 0
+        # (zero variance, no walk) with u_bias_walk = 0
+        self.ib = len(self.s)
+        self.qb = spec.u_bias_walk**2
+        self.b0 = _U_BIAS_SD0**2 if self.qb > 0.0 else 0.0
+        self.s = np.zeros(self.ib + 1)
+        self.P = np.eye(self.ib + 1)
+        self._I = np.eye(self.ib + 1)
 
     def start(self, v: complex, q0: complex, omega: float) -> None:
         vc = v - omega * 1j * q0
@@ -282,6 +291,12 @@ class RigidEKF:
             P = np.zeros((9, 9))
             P[:7, :7] = self.P
             self.P = P
+        ib = self.ib
+        self.s = np.append(self.s, 0.0)
+        P = np.zeros((ib + 1, ib + 1))
+        P[:ib, :ib] = self.P
+        P[ib, ib] = self.b0
+        self.P = P
         self.ready = True
 
     def release_effects(self) -> None:
@@ -343,17 +358,18 @@ class RigidEKF:
         s01 = c1[0] - om * c1[3] - qy * c1[5]
         s11 = c1[1] + om * c1[2] + qx * c1[5] + r
         if u == u and u_var > 0.0:
-            c2 = P[:, 5]  # ... u
-            e2 = u - om
+            ib = self.ib
+            c2 = P[:, 5] + P[:, ib]  # ... u = omega + b
+            e2 = u - om - s[ib]
             if u_dc or u_dw:  # delayed: omega of a ticks ago, d/d iota = -u_dc, d/d gamma = u_dw
                 c2 = c2 - u_dc * P[:, 6]
                 e2 += u_dc * s[6]
                 if self.aug is not None:
                     c2 = c2 + u_dw * P[:, 8]
                     e2 -= u_dw * s[8]
-                s22 = c2[5] - u_dc * c2[6] + (u_dw * c2[8] if self.aug is not None else 0.0) + u_var
+                s22 = c2[5] + c2[ib] - u_dc * c2[6] + (u_dw * c2[8] if self.aug is not None else 0.0) + u_var
             else:
-                s22 = c2[5] + u_var
+                s22 = c2[5] + c2[ib] + u_var
             s02 = c2[0] - om * c2[3] - qy * c2[5]
             s12 = c2[1] + om * c2[2] + qx * c2[5]
             # explicit inverse of the symmetric 3x3 innovation covariance
@@ -416,6 +432,7 @@ class RigidEKF:
             A[5, 5] -= dt * gamma
             A[5, 8] = -dt * om
             nq = np.append(nq, (beta, gamma))
+        nq = np.append(nq, s[self.ib])
         P = A @ self.P @ A.T
         qv, qa, qm, qo, qi = self.Qd
         P[0, 0] += qv * dt
@@ -429,6 +446,7 @@ class RigidEKF:
         if self.aug is not None:
             P[7, 7] += self.aug[2] * dt
             P[8, 8] += self.aug[3] * dt
+        P[self.ib, self.ib] += self.qb * dt
         self.s = nq
         self.P = P
 
@@ -525,6 +543,9 @@ class DynamicPhase:
         self.frozen_m = False
         self.frozen_j = False
         self.restarted = False  # the filter's restart at kinematic readiness is done
+        # omega_hat's measurement for the next tick (AgentCore): the filter's predicted omega once it has
+        # restarted at kinematic readiness (``DynamicsSpec.filter_omega``), NaN before (the eq. (9) rate)
+        self.om_meas = math.nan
 
     # ------------------------------------------------------------------ messages
     def receive(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float]) -> None:
@@ -799,6 +820,9 @@ class DynamicPhase:
                     self.alpha -= kf.gamma * kf.omega
             else:
                 self.alpha = 0.0  # not a stale acceleration from before 1/J was forgotten
+            if self.restarted and spec.filter_omega:
+                om = kf.omega
+                self.om_meas = om if om - om == 0.0 else math.nan  # a diverged filter: back to eq. (9)
         i = (tick + 1) % self.hist
         self.cum_t[i], self.cum_c[i], self.cum_w[i] = tick + 1, self.cc, self.cw
         self.late_z = self.late_c = self.late_w = 0.0

@@ -151,6 +151,18 @@ class DynamicsSpec(_Strict):
     omega_walk: float = Field(
         0.05, ge=0, description="Kalman filter: random walk of omega beyond the torque model (rad/s/sqrt(s))"
     )
+    u_bias_walk: float = Field(
+        0.05, ge=0, description="Kalman filter: random walk of the pooled eq. (9) rate's own slowly varying error "
+                                "b (u = omega + b; the pair trackers' angle error, which no circle fit corrects "
+                                "for short pairs at high noise), so that omega's slow part rests on the rotation "
+                                "of the own contact velocity; 0 takes u as unbiased (rad/s/sqrt(s))",
+    )
+    filter_omega: bool = Field(
+        True, description="from the filter's restart at kinematic readiness on, omega_hat's measurement is the "
+                          "filter's omega instead of the pooled eq. (9) rate (whose pair angles, dead-reckoned "
+                          "with omega_hat at high noise, fed a lagging omega_hat back to itself until it lost "
+                          "lock); false: the eq. (9) rate throughout",
+    )
     j_omega_walk: float = Field(
         0.005, ge=0, description="Kalman filter: the same during the J stage, where the torque is known exactly "
                                  "(sum of the agents' own forces' moments); small, so that J rests on the whole "

@@ -142,7 +142,7 @@ def test_rigid_ekf_recovers_mass_and_inertia_of_a_noise_free_body():
     q = complex(1.2, -0.7)
     vc = 0.3 + 0.1j
     om = 1.5
-    kf = D.RigidEKF(0.01, DynamicsSpec(kf_angle_walk=0.0, kf_v_walk=0.0, omega_walk=0.0), False)
+    kf = D.RigidEKF(0.01, DynamicsSpec(kf_angle_walk=0.0, kf_v_walk=0.0, omega_walk=0.0, u_bias_walk=0.0), False)
     kf.start(vc + om * 1j * q + 0.05, q + 0.2, om + 0.1)
     for k in range(6000):
         force = 20.0 * complex(math.cos(0.5), math.sin(0.5)) * (1 if (k // 300) % 2 == 0 else -1)
@@ -260,7 +260,7 @@ def test_rigid_ekf_matches_the_plant_step_and_finds_J_under_the_j_stage_forces()
     assert kf.omega == pytest.approx(tr.omega, abs=1e-4)
 
 
-def _j_stage_with_delayed_u(d: int, model_delay: bool) -> tuple[float, float]:
+def _j_stage_with_delayed_u(d: int, model_delay: bool, u_bias_walk: float | None = None) -> tuple[float, float]:
     """The filter on the noise-free pymunk plant as in the test above (m stage, then Result 5's J stage),
     given the own contact velocity of the tick and an eq. (9) sample (the exact omega) ``d`` ticks old,
     with (``model_delay``) or without the dt sum of its own predicted torques over those ticks. The
@@ -270,7 +270,7 @@ def _j_stage_with_delayed_u(d: int, model_delay: bool) -> tuple[float, float]:
     sc = load_scenario(FIG4, ["noise.sigma_v=0.0", "initial.omega=1.5"])
     plant = Plant(sc)
     n, dt = sc.n, sc.dt
-    spec = DynamicsSpec()
+    spec = DynamicsSpec() if u_bias_walk is None else DynamicsSpec(u_bias_walk=u_bias_walk)
     kf = D.RigidEKF(0.01, spec, False)
     tr = plant.truth()
     kf.start(complex(*plant.velocities()[0]) + 0.05, complex(*tr.zi[0]) + complex(*tr.zc) + 0.3, tr.omega + 0.05)
@@ -316,7 +316,9 @@ def test_rigid_ekf_takes_a_delayed_rate_sample_without_biasing_J(d):
 
 def test_rigid_ekf_biases_J_when_a_delayed_rate_sample_is_taken_as_current():
     """The counterpart: the same 10-tick-old samples without their age move J far outside the tolerance
-    above (so the delayed-measurement model is what the previous test checks)."""
-    jd, md = _j_stage_with_delayed_u(10, False)
+    above (so the delayed-measurement model is what the previous test checks). Shown with u taken as
+    unbiased (u_bias_walk = 0): the default rate-error state b absorbs most of this slowly varying error
+    too (J 5e-5 off, measured), which is its job at high noise."""
+    jd, md = _j_stage_with_delayed_u(10, False, u_bias_walk=0.0)
     assert abs(jd - 1.0) > 1e-3
     assert abs(md - 1.0) > 5e-3
