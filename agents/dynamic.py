@@ -14,6 +14,11 @@ What each agent runs (symbols as in the paper; z_C = p_G - p_C, q_i = p_Ci - p_C
   (Result 10 without differentiating velocities), q_i (hence z_C = mean_i q_i by average consensus,
   and a refined z_i = q_i - z_C: mm instead of cm), and v_C (Result 9). With a random walk on 1/m it
   is the background mass observer of Algorithm 2 (the role of (26); no sign condition on the input).
+  The pooled eq. (9) rate is taken as u = omega + b with a slowly varying error b of its own (the pair
+  trackers' angle error: at sigma >= 0.9 short pairs get no angle correction and u drifts below omega),
+  so that omega's slow part rests on the rotation of the own contact velocity; and from the filter's
+  restart at kinematic readiness on, omega_hat measures this filter's omega instead of u, which cuts
+  the loop omega_hat -> pair angles -> u -> omega_hat that lost lock there (docs/high-noise.md).
 * **Rotation regression** (Result 5 / (11), and the role of (24)): omega(t) = omega_0 + (1/J) C(t),
   C(t) = dt sum_{k<t} T(k), T the total torque about the CoM, T = n (z_C x fbar + mean_i(q_i x df_i +
   tau_i)) (decomposition (12)-(14): df_i = f_i - fbar, so no consensus on rotating per-agent signals).
@@ -233,7 +238,9 @@ class StageBarrier:
 
 
 class RigidEKF:
-    """Extended Kalman filter on s = (v_Cx, v_Cy, q_x, q_y, mu = 1/m, omega, iota = 1/J), world frame.
+    """Extended Kalman filter on s = (v_Cx, v_Cy, q_x, q_y, mu = 1/m, omega, iota = 1/J, [beta, gamma,] b),
+    world frame; b (always the last state, index ``ib``) is the pooled rate's own error, u = omega + b, a
+    random walk of ``spec.u_bias_walk`` (pinned at 0 when that is 0).
 
     Model (the plant's own discrete step, semi-implicit Euler): v_C(k+1) = v_C + dt mu F(k),
     q(k+1) = R(omega dt) q, omega(k+1) = omega + dt iota T(k); F, T the total force and torque about the

@@ -64,7 +64,7 @@ def run(sc) -> dict[str, np.ndarray]:
                 dyn = a._dyn
                 rec["stage"][k, i] = dyn.stage
                 if dyn.kf.ready:
-                    rec["s"][k, i] = dyn.kf.s
+                    rec["s"][k, i] = dyn.kf.s[:7]  # the rigid-body states (not the effects, nor b)
                 rec["tq"][k, i] = seen.pop(id(dyn.kf), np.nan)
             inbox = nxt
             w = np.asarray(wr)

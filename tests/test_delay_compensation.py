@@ -68,6 +68,7 @@ class _FeedForward:
     AgentCore feeds forward into omega_hat (``alpha``); the wrench passes through unchanged."""
 
     stage = 1
+    om_meas = float("nan")  # no filter omega (DynamicsSpec.filter_omega): omega_hat measures eq. (9)
 
     def __init__(self) -> None:
         self.alpha = 0.0

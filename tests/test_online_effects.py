@@ -67,7 +67,7 @@ def test_augmented_filter_matches_the_plant_step():
     assert abs(b / B_TRUE - 1) < 0.05
     assert abs(c / C_TRUE - 1) < 0.05
     nominal = RigidEKF(0.1, DynamicsSpec(algorithm="sequential"), background=False)
-    assert nominal.s.shape == (7,)  # no extra states without estimate_effects
+    assert nominal.s.shape == (8,)  # no effect states without estimate_effects (7 + the rate's error b)
 
 
 def test_nominal_filter_is_biased_on_the_same_data():
