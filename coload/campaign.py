@@ -408,7 +408,8 @@ def run_campaign(
     plots: bool = True,
     keep_data: bool = False,
 ) -> CampaignResult:
-    """Runs what is not finished yet in ``jobs`` worker processes; writes the CSV and the plots.
+    """Runs what is not finished yet in ``jobs`` worker processes, run index by run index over the
+    cells; writes the CSV and the plots.
 
     ``jobs = 1`` runs in this process (no pool). ``keep_data`` keeps each run's CSV tables
     (otherwise only run.toml, summary.json and logs/ stay, see :data:`BULK_FILES`). A run that raises is reported in ``failed`` and
@@ -428,6 +429,9 @@ def run_campaign(
             rows[r.run_dir.name] = row_of(r, s)
     reused = len(rows)
     write_csv(csv_path, list(rows.values()))
+    # run index first: an interrupted grid has (nearly) the same number of runs in every cell, so its
+    # table and plots are those of a smaller grid, not of a few finished cells
+    todo.sort(key=lambda r: r.k)
     failed: list[tuple[str, str]] = []
     done = 0
     if progress is not None:
