@@ -13,12 +13,11 @@ import asyncio
 import logging
 from collections import Counter
 
-from coload.engine import deliver_tick
 from coload.world import build_agent
 from config.scenario import Scenario
 from net import keys
 from net.finish import FinishGate
-from net.link import DelayLine, LinkStats, build_in_links
+from net.link import DelayLine, LinkStats, build_in_links, receive_through
 from net.messages import AgentReport, Control, Measurement, StateMsg
 from net.schema import decode_counted, encode
 from net.transport import Transport
@@ -288,19 +287,8 @@ class AgentDaemon:
             return
         self.last_from[sender] = msg.tick
         self.expect.add(sender)
-        st = self.stats[sender]
-        st.sent += 1
-        link = self.links[sender]
-        delays = link.deliveries(msg.tick)
-        if not delays:
-            st.count_lost(link, msg.tick)
-        for copy, d in enumerate(delays):
-            due = deliver_tick(msg.tick, d, self.scenario.dt, self.mode)
-            if due < self.next_tick:
-                st.late += 1
-            self.line.push(due, sender, msg.tick, copy, msg)
-        st.delivered += len(delays)
-        st.duplicated += max(0, len(delays) - 1)
+        receive_through(self.links[sender], self.stats[sender], self.line, sender, msg.tick, msg, self.scenario.dt,
+                        self.mode, self.next_tick)
         self._try_step()
         self._finish.check(self.last_from, self.expect)
 

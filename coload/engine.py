@@ -16,22 +16,17 @@ from agents.agent import ESTIMATE_NAMES
 from coload.recorder import Recorder
 from coload.world import build_agent
 from config.scenario import Scenario
-from net.link import DelayLine, LinkStats, build_in_links, partition_events
+from net.link import (
+    DelayLine,
+    LinkStats,
+    build_in_links,
+    deliver_tick,
+    partition_events,
+)
 from simulator.plant import Plant, sensor_rng
 from simulator.stop import done_stop
 
 Progress = Callable[[int, int], None]
-
-
-def deliver_tick(tick: int, delay: float, dt: float, mode: str) -> int:
-    """Tick at which a message sent at ``tick`` with link delay ``delay`` is in the receiver's inbox.
-
-    A message sent during tick k is first usable at k + 1; lockstep delays are whole ticks,
-    real-time delays are seconds.
-    """
-    if mode == "lockstep":
-        return tick + 1 + int(delay)
-    return tick + 1 + int(delay // dt)
 
 
 class LinkNetwork:

@@ -30,9 +30,9 @@ from typing import Any
 import numpy as np
 
 from net import keys
-from net.hinf_messages import HinfInput, HinfMeas, HinfState
 from net.finish import FinishGate
-from net.link import DelayLine, LinkStats
+from net.hinf_messages import HinfInput, HinfMeas, HinfState
+from net.link import DelayLine, LinkStats, receive_through
 from net.messages import AgentReport, Control
 from net.schema import decode_counted, encode
 from net.transport import Transport
@@ -43,7 +43,6 @@ from .runtime import (
     Setup,
     Trace,
     TraceWriter,
-    deliver_tick,
     in_links,
 )
 
@@ -396,18 +395,8 @@ class HinfAgentDaemon:
             return
         self.last_from[sender] = msg.tick
         self.expect.add(sender)
-        st, link = self.stats[sender], self.links[sender]
-        st.sent += 1
-        delays = link.deliveries(msg.tick)
-        if not delays:
-            st.count_lost(link, msg.tick)
-        for copy, d in enumerate(delays):
-            due = deliver_tick(msg.tick, d, s.dt, self.mode)
-            if due < self.next_tick:
-                st.late += 1
-            self.line.push(due, sender, msg.tick, copy, msg)
-        st.delivered += len(delays)
-        st.duplicated += max(0, len(delays) - 1)
+        receive_through(self.links[sender], self.stats[sender], self.line, sender, msg.tick, msg, s.dt, self.mode,
+                        self.next_tick)
         self._try_step()
         self._finish.check(self.last_from, self.expect)
 

@@ -35,7 +35,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from net.hinf_messages import HinfInput, HinfState
-from net.link import DelayLine, LinkModel, LinkStats
+from net.link import DelayLine, LinkModel, LinkStats, deliver_tick
 
 from . import design as D
 from .spec import HinfSpec
@@ -54,13 +54,6 @@ def zoh(F: np.ndarray, G: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
     M[:n, n:] = G
     E = sla.expm(M * dt)
     return E[:n, :n], E[:n, n:]
-
-
-def deliver_tick(tick: int, delay: float, dt: float, mode: str) -> int:
-    """Tick at which a state sent during ``tick`` is in the receiver's inbox (first usable at tick + 1)."""
-    if mode == "lockstep":
-        return tick + 1 + int(delay)
-    return tick + 1 + int(delay // dt)
 
 
 # ----------------------------------------------------------------------------- setup

@@ -251,6 +251,35 @@ class DelayLine(Generic[T]):
         return len(self._heap)
 
 
+def deliver_tick(tick: int, delay: float, dt: float, mode: str) -> int:
+    """Tick at which a message sent at ``tick`` with link delay ``delay`` is in the receiver's inbox.
+
+    A message sent during tick k is first usable at k + 1; lockstep delays are whole ticks,
+    real-time delays are seconds.
+    """
+    if mode == "lockstep":
+        return tick + 1 + int(delay)
+    return tick + 1 + int(delay // dt)
+
+
+def receive_through(link: LinkModel, stats: LinkStats, line: DelayLine, sender: int, tick: int, msg: object,
+                    dt: float, mode: str, next_tick: int) -> None:
+    """A daemon's receive side of one directed link: the sender's message of ``tick`` goes through the
+    link's fault model (the daemons apply it where the in-process engine applies it on send), is
+    counted, and waits in ``line`` for its delivery tick(s); a copy due before ``next_tick`` is late."""
+    stats.sent += 1
+    delays = link.deliveries(tick)
+    if not delays:
+        stats.count_lost(link, tick)
+    for copy, d in enumerate(delays):
+        due = deliver_tick(tick, d, dt, mode)
+        if due < next_tick:
+            stats.late += 1
+        line.push(due, sender, tick, copy, msg)
+    stats.delivered += len(delays)
+    stats.duplicated += max(0, len(delays) - 1)
+
+
 def window_ticks(start: float, end: float, dt: float) -> tuple[int, int]:
     """A partition window [start, end) in seconds as the half-open range of send ticks it covers.
 
