@@ -190,19 +190,26 @@ def watch_simulator(
     return True
 
 
+def process_run(run_dir: Path, verbose: int = 0) -> tuple[str, str, list[str], _Children]:
+    """What every multi-process run starts from: ``run_dir/logs``, a free loopback endpoint for the
+    embedded router, the run name (the key-expression namespace), the command that starts a ``coload``
+    child process and the supervisor of the children."""
+    from net.zenoh_transport import free_tcp_port
+
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)
+    return endpoint, run_name_for(run_dir), py, _Children(run_dir / "logs")
+
+
 def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0) -> dict[str, Any] | None:
     """The real thing: an embedded Zenoh router, the simulator and n agent daemons, each its own process."""
     from net import keys
-    from net.zenoh_transport import free_tcp_port
 
     run_dir = Path(run_dir)
-    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    endpoint, run, py, children = process_run(run_dir, verbose)
     toml = run_dir / "run.toml"
     toml.write_text(dump_scenario(scenario), encoding="utf-8")
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    run = run_name_for(run_dir)
-    py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)
-    children = _Children(run_dir / "logs")
     bar = ProgressBar(f"{scenario.name} (zenoh, {scenario.n} agents)", quiet)
     try:
         if not start_router(children, py, endpoint, run_dir, "coload run"):

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sys
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -472,19 +471,13 @@ def run_processes(setup: Setup, run_dir: Path, quiet: bool = False, verbose: int
     """
     from coload.orchestrate import (
         ProgressBar,
-        _Children,
-        run_name_for,
+        process_run,
         start_router,
         watch_simulator,
     )
-    from net.zenoh_transport import free_tcp_port
 
     run_dir = Path(run_dir)
-    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    run = run_name_for(run_dir)
-    py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)
-    children = _Children(run_dir / "logs")
+    endpoint, run, py, children = process_run(run_dir, verbose)
     bar = ProgressBar(f"{setup.spec.name} (zenoh, {setup.N} estimators)", quiet)
     try:
         if not start_router(children, py, endpoint, run_dir, "coload hinf run"):
