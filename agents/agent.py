@@ -315,6 +315,7 @@ class AgentCore:
                 max_gap_ticks=estimator.max_gap_ticks,
                 angle_walk=estimator.angle_walk,
                 gate_snr=estimator.gate_snr,
+                angle_meas=estimator.angle_meas,
             )
             self._nbrs[j] = _Nbr(j, pe)
         self._nlist = list(self._nbrs.values())

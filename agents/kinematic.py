@@ -47,7 +47,7 @@ class PairEstimator:
         "z", "ready", "r", "_rw", "_rsum", "_p",
         "last_t", "_s", "_w_prev", "_sums", "_pts", "_nfold", "_rot", "_t0",
         "_arc", "_dt", "_min_ticks", "_max_ticks", "_check", "_max_gap", "_q", "_noise2", "_gate2",
-        "windows", "rejected", "omega_fit",
+        "windows", "rejected", "omega_fit", "_axis",
     )
 
     def __init__(
@@ -62,6 +62,7 @@ class PairEstimator:
         max_gap_ticks: int,
         angle_walk: float,
         gate_snr: float,
+        angle_meas: str = "linear",
     ) -> None:
         self.z = 0j  # estimate of z_ij (m, world) at the owner's state tick; 0 until the first fit
         self.ready = False
@@ -89,6 +90,9 @@ class PairEstimator:
         self._q = angle_walk * angle_walk * dt
         self._noise2 = 2.0 * sigma_v * sigma_v  # variance of each component of v_Ci - v_Cj
         self._gate2 = gate_snr * gate_snr * self._noise2
+        if angle_meas not in ("linear", "axis"):
+            raise ValueError(f"angle_meas must be 'linear' or 'axis', got {angle_meas!r}")
+        self._axis = angle_meas == "axis"
         self.windows = 0  # accepted circle-fit windows
         self.rejected = 0  # windows closed without an accepted fit
         self.omega_fit = 0.0  # mean omega over the last accepted window (arc / duration), rad/s
@@ -140,31 +144,53 @@ class PairEstimator:
                 self._try_fit(back, t)
         if not self.ready:
             return
-        # Result 1: pull the angle of z_ij towards the axis perp(w), sign nearest the prediction
-        r = self.r
-        sig2 = omega_hat * omega_hat * r * r  # (|omega| |z|)^2
-        if sig2 < self._gate2 or sig2 <= 0.0:
+        if self._axis:
+            # the original form (EstimatorSpec.angle_meas = "axis"): the normalised axis perp(w), sign
+            # nearest the prediction, gated at |omega_hat| |z_ij| >= gate_snr sigma sqrt(2)
+            r = self.r
+            sig2 = omega_hat * omega_hat * r * r  # (|omega| |z|)^2
+            if sig2 < self._gate2 or sig2 <= 0.0:
+                return
+            z = self.z
+            zt = z * back
+            wr = w.real
+            wi = w.imag
+            ztr = zt.real
+            zti = zt.imag
+            cr = zti * wr - ztr * wi
+            ci = ztr * wr + zti * wi
+            if cr < 0.0:
+                cr = -cr
+                ci = -ci
+            mag = sqrt(cr * cr + ci * ci)
+            if mag <= 0.0:
+                return
+            p = self._p
+            k = p / (p + self._noise2 / sig2)
+            self._p = p - k * p
+            z = z * complex(1.0, k * ci / mag)
+            self.z = z * (r / abs(z))
+            return
+        # Result 1, linear form: w / z_ij = i omega e^{i delta} for an angle error delta of the
+        # prediction, so the radial part -Re(w / zt) = omega sin(delta) (+ noise of variance
+        # 2 sigma^2 / |z|^2, zero-mean) measures the angle error without normalising w or picking
+        # a sign: no gate, the weight goes to 0 with omega_hat
+        if omega_hat == 0.0:
             return
         z = self.z
         zt = z * back
-        # c = conj(zt) * (1j * w): angle between the predicted z and the measured axis
-        wr = w.real
-        wi = w.imag
         ztr = zt.real
         zti = zt.imag
-        cr = zti * wr - ztr * wi
-        ci = ztr * wr + zti * wi
-        if cr < 0.0:
-            cr = -cr
-            ci = -ci
-        mag = sqrt(cr * cr + ci * ci)
-        if mag <= 0.0:
+        zz = ztr * ztr + zti * zti
+        if zz <= 0.0:
             return
+        meas = -(w.real * ztr + w.imag * zti) / zz  # omega sin(delta)
         p = self._p
-        k = p / (p + self._noise2 / sig2)
-        self._p = p - k * p
-        z = z * complex(1.0, k * ci / mag)
-        self.z = z * (r / abs(z))
+        h = omega_hat
+        k = p * h / (h * h * p + self._noise2 / zz)
+        self._p = p - k * h * p
+        z = z * complex(1.0, k * meas)
+        self.z = z * (self.r / abs(z))
 
     def _restart(self, w: complex, t: int) -> None:
         """Re-anchor the window at the current sample (s := 0) so the integrated noise restarts."""

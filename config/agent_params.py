@@ -48,7 +48,15 @@ class EstimatorSpec(_Strict):
     gate_snr: float = Field(
         2.5,
         ge=0,
-        description="z_ij angle corrections only when |omega_hat| |z_ij| >= gate_snr * sigma_v * sqrt(2) (-)",
+        description="with angle_meas = 'axis': z_ij angle corrections only when |omega_hat| |z_ij| >= gate_snr * sigma_v * sqrt(2) (-)",
+    )
+    angle_meas: Literal["linear", "axis"] = Field(
+        "linear",
+        description=(
+            "z_ij angle correction per sample: 'linear' = the radial part of (v_Ci - v_Cj) / z_ij, "
+            "omega sin(angle error), weighted by omega_hat, no gate; 'axis' = the normalised axis "
+            "perp(v_Ci - v_Cj), gated by gate_snr (the form before docs/spinup.md)"
+        ),
     )
     omega_tau: float = Field(
         0.5, gt=0, description="time constant of the omega low-pass consensus filter (s)"

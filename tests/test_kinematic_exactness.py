@@ -142,10 +142,12 @@ class _ReferencePair(PairEstimator):
 
 def _make(cls):  # type: ignore[no-untyped-def]
     e = EstimatorSpec()
-    return cls(
+    pe = cls(
         dt=0.01, sigma_v=0.3, fit_arc=e.fit_arc, fit_min_ticks=e.fit_min_ticks, fit_max_ticks=e.fit_max_ticks,
         fit_check_ticks=e.fit_check_ticks, max_gap_ticks=e.max_gap_ticks, angle_walk=e.angle_walk, gate_snr=e.gate_snr,
     )
+    pe._axis = True  # the reference is the axis form of the angle correction (EstimatorSpec.angle_meas)
+    return pe
 
 
 def test_pair_estimator_with_deferred_moments_matches_per_sample_moments() -> None:
