@@ -43,7 +43,12 @@ class EstimatorSpec(_Strict):
         25, ge=1, description="a longer run of missing samples restarts the circle-fit window (ticks)"
     )
     angle_walk: float = Field(
-        0.02, gt=0, description="process noise of the z_ij angle tracker, i.e. omega_hat error (rad/sqrt(s))"
+        0.05,
+        gt=0,
+        description=(
+            "process noise of the z_ij angle tracker, i.e. omega_hat error (rad/sqrt(s)); sets the angle "
+            "loop's bandwidth, which must outrun omega_hat's lag (0.02 lost lock at sigma 1, docs/spinup.md)"
+        ),
     )
     gate_snr: float = Field(
         2.5,
