@@ -43,11 +43,11 @@ class EstimatorSpec(_Strict):
         25, ge=1, description="a longer run of missing samples restarts the circle-fit window (ticks)"
     )
     angle_walk: float = Field(
-        0.05,
+        0.02,
         gt=0,
         description=(
             "process noise of the z_ij angle tracker, i.e. omega_hat error (rad/sqrt(s)); sets the angle "
-            "loop's bandwidth, which must outrun omega_hat's lag (0.02 lost lock at sigma 1, docs/spinup.md)"
+            "loop's bandwidth: 0.05 keeps lock in more runs at sigma 1 but is noisier (docs/spinup.md)"
         ),
     )
     gate_snr: float = Field(
