@@ -11,21 +11,24 @@ Why this shape:
   runs over windows that are re-anchored (s := 0) each time a window covering ``fit_arc`` radians of
   rotation is accepted; the radius is the inverse-residual-weighted mean over accepted windows.
 * The direction of z_ij is tracked between fits by rotating the estimate with the agent's omega_hat
-  (prediction) and correcting its angle with Result 1: the axis of z_ij is perp(v_Ci - v_Cj). The
-  sign of the axis is taken as the one nearer the prediction (the "two observers, pick the smaller
-  residual" rule), which is safe because the first estimate comes sign-correct from the circle fit
-  and corrections are gated. The correction is a scalar Kalman filter on the angle: measurement
-  variance (sigma*sqrt(2) / (|omega_hat| |z_ij|))^2 (radial noise over the signal), process noise
-  ``angle_walk``^2 dt (the error of omega_hat integrated by the prediction).
+  (prediction) and correcting its angle with Result 1 in linear form (``angle_meas = "linear"``): for
+  a rigid body w / z_ij = i omega e^{i delta} (w = v_Ci - v_Cj, delta the prediction's angle error), so
+  the radial part -Re(w / z_ij) = omega sin(delta) + zero-mean noise of variance 2 sigma^2 / |z_ij|^2.
+  The correction is a scalar Kalman filter on the angle with H = omega_hat, process noise
+  ``angle_walk``^2 dt (the error of omega_hat integrated by the prediction). No gate and no sign rule:
+  the weight goes to 0 with omega_hat. The former form (``"axis"``) normalised w to the axis
+  perp(w), took the sign nearer the prediction and needed a gate (below); at high noise that gate
+  closed for every pair, the angles were dead-reckoned with omega_hat, and eq. (9) (omega cos(delta)
+  < omega) fed omega_hat's lag back until lock was lost (docs/spinup.md).
 * Each accepted window also yields the position s - c of z_ij, which is fed to the same angle
   filter as a measurement; if it disagrees by more than ~30 degrees the tracker has lost lock and is
   re-anchored on it (needed when omega changes faster than omega_hat follows, e.g. at spin-up).
 * Window acceptance gates: covered arc >= ``fit_arc``, radius > 4x the residual and > 4x the
   integrated noise of the window, mean tangential speed above the per-sample noise (rejects the
   small "circles" that the integrated noise draws while the load is at rest).
-* Gate: angle corrections only when |omega_hat| |z_ij| >= gate_snr * sigma*sqrt(2) -- a gate that
-  scales with sigma (the paper's fixed 0.5 m/s lets pure noise through at sigma = 0.3). Below it the
-  estimate is only rotated by omega_hat (which is ~0 there), i.e. it freezes.
+* Gate of the ``"axis"`` form: angle corrections only when |omega_hat| |z_ij| >= gate_snr * sigma*sqrt(2)
+  -- a gate that scales with sigma (the paper's fixed 0.5 m/s lets pure noise through at sigma = 0.3).
+  With omega_hat = 0 either form only rotates by omega_hat (0), i.e. the estimate freezes.
 """
 
 from __future__ import annotations
