@@ -116,9 +116,10 @@ class FlowAverage:
 
     def receive(self, j: int, xj: list[float], fji: Sequence[float], degj: int) -> None:
         self.nx[j] = xj
-        self.nf[j] = list(fji)
-        self.ndeg[j] = degj
-        self._eps[j] = 1.0 / (1.0 + max(self.deg, degj))  # Metropolis weight, once per message
+        self.nf[j] = list(map(float, fji))
+        if self.ndeg[j] != degj or j not in self._eps:  # the Metropolis weight only when the degree is new
+            self.ndeg[j] = degj
+            self._eps[j] = 1.0 / (1.0 + max(self.deg, degj))
 
     def update(self) -> None:
         # x_i = u_i - sum_j F_ij, F_ij = (F_ij - F_ji)/2 + eps_ij (x_i - x_j): (F_ij - F_ji)/2 rather than
@@ -260,15 +261,12 @@ class RigidEKF:
     __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0")
 
     def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
-        self.s = np.zeros(7)
-        self.P = np.eye(7)
         self.r = max(sigma_v, 1e-3) ** 2
         self.ready = False
         walk_mu = spec.mu_walk if background else 0.0
         walk_iota = spec.iota_walk if background else 0.0
         # per-second process noise intensities; q's angle walk is scaled by |q|^2 at each step
         self.Qd = (spec.kf_v_walk**2, spec.kf_angle_walk**2, walk_mu**2, spec.omega_walk**2, walk_iota**2)
-        self._I = np.eye(7)
         # augmented model: prior variances and per-second walk intensities of (beta, gamma); 0 and 0 for
         # an effect not estimated (its state stays exactly 0)
         self.aug: tuple[float, float, float, float] | None = None
@@ -277,12 +275,9 @@ class RigidEKF:
             on_c = 1.0 if "rotational_damping" in spec.estimate_effects else 0.0
             w2 = spec.effect_walk**2
             self.aug = (on_b, on_c, on_b * w2, on_c * w2)
-            self.s = np.zeros(9)
-            self.P = np.eye(9)
-            self._I = np.eye(9)
         # the pooled eq. (9) rate's own slowly varying error b (u = omega + b), the last state; pinned at 0
         # (zero variance, no walk) with u_bias_walk = 0
-        self.ib = len(self.s)
+        self.ib = 7 if self.aug is None else 9
         self.qb = spec.u_bias_walk**2
         self.b0 = _U_BIAS_SD0**2 if self.qb > 0.0 else 0.0
         self.s = np.zeros(self.ib + 1)
@@ -571,12 +566,7 @@ class DynamicPhase:
         bar = self.barrier.decode(sh)
         if not all(map(isfinite, xj)):
             raise ValueError("non-finite")
-        # FlowAverage.receive, inlined (the Metropolis weight only when the degree is new)
-        avg.nx[j] = xj
-        avg.nf[j] = list(map(float, flows))
-        if avg.ndeg[j] != degj or j not in avg._eps:
-            avg.ndeg[j] = degj
-            avg._eps[j] = 1.0 / (1.0 + max(avg.deg, degj))
+        avg.receive(j, xj, flows, degj)
         self.nbr_stage[j] = int(msg_phase)
         self.nbr_stage_tick[j] = int(sh["Sk"])
         self.nbr_barrier[j] = bar
