@@ -155,6 +155,7 @@ def run_inproc(
         meas = plant.measure(rng)
         # only recorded ticks need the truth and the (lazily built) estimates
         keep = keeps is not None and keeps(k)
+        watch = stop is not None and k % every == 0  # the agents' stages, on the recording grid
         if keep:
             rec.truth(plant.truth())  # type: ignore[union-attr]
         wrenches = []
@@ -184,8 +185,8 @@ def run_inproc(
                 send(i, k, state)
             if keep:
                 rec.estimate(res.estimate)  # type: ignore[union-attr]
-            if stop is not None and k % every == 0:
-                stop.see(k, i, res.estimate.values["phase"])
+            if watch:
+                stop.see(k, i, res.estimate.values["phase"])  # type: ignore[union-attr]
         if rec is not None:
             rec.samples(k, meas, wrenches)
         plant.apply_and_step(wrenches)

@@ -196,11 +196,15 @@ class SimDaemon:
         if not self.recorder.keeps(est.tick):
             self.drops["off_grid"] += 1
             return
-        self.last_estimate[i] = est.tick
+        self._take_estimate(est)
+        self._write_journal({"e": base64.b64encode(payload).decode("ascii")})
+
+    def _take_estimate(self, est: Estimate) -> None:
+        """A valid estimate, live or replayed from the journal: recorded, and seen by the early-end rule."""
+        self.last_estimate[est.agent] = est.tick
         self.recorder.estimate(est)
         if self._stop is not None:
-            self._stop.see(est.tick, i, est.values.get("phase", math.nan))
-        self._write_journal({"e": base64.b64encode(payload).decode("ascii")})
+            self._stop.see(est.tick, est.agent, est.values.get("phase", math.nan))
 
     def _on_report(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key)
@@ -315,10 +319,7 @@ class SimDaemon:
                 self.tick = k + 1
             elif "e" in rec:
                 est = decode(base64.b64decode(rec["e"]), Estimate)
-                self.last_estimate[est.agent] = est.tick
-                self.recorder.estimate(est)
-                if self._stop is not None:
-                    self._stop.see(est.tick, est.agent, est.values.get("phase", math.nan))
+                self._take_estimate(est)
             elif "ev" in rec:
                 self.events.append(rec["ev"])
             elif "alive" in rec:
