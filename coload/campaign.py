@@ -348,12 +348,23 @@ def read_csv(path: Path) -> list[dict[str, Any]]:
     """campaign.csv back as rows of floats (ints for n, run, seed); empty cells are absent."""
     rows = []
     with open(path, encoding="utf-8", newline="") as f:
-        for rec in csv.DictReader(f):
+        reader = csv.DictReader(f)
+        lacking = [c for c in ("n", "sigma", "run") if c not in (reader.fieldnames or [])]
+        if lacking:
+            raise ValueError(f"{path}, line 1: the header lacks the column(s) {', '.join(lacking)}")
+        for rec in reader:
             row: dict[str, Any] = {}
             for k, v in rec.items():
-                if v == "":
+                if v == "" or v is None or k is None:
                     continue
-                row[k] = int(v) if k in ("n", "run", "seed") else float(v)
+                try:
+                    row[k] = int(v) if k in ("n", "run", "seed") else float(v)
+                except ValueError:
+                    raise ValueError(f"{path}, line {reader.line_num}, column {k}: expected "
+                                     f"{'an integer' if k in ('n', 'run', 'seed') else 'a number'}, "
+                                     f"got {v!r}") from None
+            if any(c not in row for c in ("n", "sigma", "run")):
+                raise ValueError(f"{path}, line {reader.line_num}: n, sigma and run must not be empty")
             rows.append(row)
     return rows
 
@@ -603,3 +614,67 @@ def cell_table(rows: Sequence[dict[str, Any]]) -> str:
                 vals.append(f"{np.median(v):.3g} [{np.percentile(v, 90):.3g}]" if v else "-")
             lines.append(f"| {n} | {sigma:g} | {len(cell)} | " + " | ".join(vals) + " |")
     return "\n".join(lines)
+
+
+MATRIX_VIEWS = (
+    ("J_rel", 50.0, 100.0, "RE of J (%), median"),
+    ("J_rel", 90.0, 100.0, "RE of J (%), 90th percentile"),
+    ("m_rel", 50.0, 100.0, "RE of m (%), median"),
+    ("m_rel", 90.0, 100.0, "RE of m (%), 90th percentile"),
+    ("finished_s", 50.0, 1.0, "finished (s of simulated time), median"),
+)
+"""The tables ``coload campaign --table`` prints: (column, percentile, scale, title)."""
+
+
+def cell_matrix(rows: Sequence[dict[str, Any]], col: str, q: float = 50.0, scale: float = 1.0,
+                digits: int = 2) -> str:
+    """One statistic of one column as a sigma x n markdown table (the paper's grid layout).
+
+    A cell where some runs lack the value (a run whose agents never got that far) says how many,
+    "(k n/a)": the statistic is over the runs that have it, and hiding the rest would flatter it."""
+    ns = sorted({int(r["n"]) for r in rows})
+    sigmas = sorted({float(r["sigma"]) for r in rows})
+    lines = ["| sigma \\ n | " + " | ".join(map(str, ns)) + " |", "|---|" + "---|" * len(ns)]
+    for sigma in sigmas:
+        vals = []
+        for n in ns:
+            have = [r for r in rows if r["n"] == n and r["sigma"] == sigma]
+            v = _values(have, col, n, sigma)
+            miss = len(have) - len(v)
+            text = "-" if not v else f"{np.percentile(v, q) * scale:.{digits}f}"
+            vals.append(text + (f" ({miss} n/a)" if miss and have else ""))
+        lines.append(f"| {sigma:g} | " + " | ".join(vals) + " |")
+    return "\n".join(lines)
+
+
+def digest(rows: Sequence[dict[str, Any]], log: Path | None = None, worst: int = 5) -> str:
+    """What a campaign directory holds now, for a person: how many runs per cell, the wall time over
+    every invocation, the grid tables of :data:`MATRIX_VIEWS`, the runs without an estimate of J or m
+    and the worst runs by J. Safe on a campaign still running (the CSV is replaced atomically)."""
+    if not rows:
+        return "no finished runs"
+    cells: dict[tuple[int, float], int] = {}
+    for r in rows:
+        key = (int(r["n"]), float(r["sigma"]))
+        cells[key] = cells.get(key, 0) + 1
+    lo, hi = min(cells.values()), max(cells.values())
+    out = [f"{len(rows)} finished runs in {len(cells)} cells ({lo if lo == hi else f'{lo} to {hi}'} per cell)"]
+    if log is not None:
+        wall, ran, segments = logged_wall(log)
+        if ran:
+            out.append(f"{ran} runs in {wall:.0f} s wall over {segments} invocation(s) "
+                       f"({60.0 * ran / max(wall, 1e-9):.1f} runs/min; {log.name})")
+    for col, q, scale, title in MATRIX_VIEWS:
+        if any(r.get(col) is not None for r in rows):
+            out += ["", f"{title}:", "", cell_matrix(rows, col, q, scale, 0 if scale == 1.0 else 2)]
+    def name(r: dict[str, Any]) -> str:
+        return run_name(int(r["n"]), float(r["sigma"]), int(r["run"]))
+
+    missing = [name(r) for r in rows if r.get("J_rel") is None or r.get("m_rel") is None]
+    if missing:
+        out += ["", f"{len(missing)} run(s) without an estimate of J or m: " + ", ".join(missing)]
+    ranked = sorted((r for r in rows if r.get("J_rel") is not None), key=lambda r: -r["J_rel"])[:worst]
+    if ranked:
+        out += ["", f"worst {len(ranked)} by RE of J: " + ", ".join(
+            f"{name(r)} {100.0 * r['J_rel']:.2f} %" for r in ranked)]
+    return "\n".join(out)

@@ -200,6 +200,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--to-end", action="store_true",
                    help="run every run its whole duration (no early end; the braking phase is simulated too)")
     p.add_argument("--plan", action="store_true", help="print the geometry table and the number of runs, run nothing")
+    p.add_argument("--table", action="store_true",
+                   help="print the grid tables (median and 90th percentile of the RE of J and m, finish time) "
+                        "of the runs OUT holds now, the wall time over every invocation, and redraw the "
+                        "plots; run nothing (safe while another invocation works on OUT)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("report", help="draw report.png for a run directory and print its summary table",
@@ -402,6 +406,8 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         print(f"coload campaign: --stop-after-done: must be >= 0 s (got {args.stop_after_done})", file=sys.stderr)
         return 2
     overrides += [] if args.to_end else [f"stop_after_done_s={args.stop_after_done}"]
+    if args.table:
+        return _campaign_table(args.out)
     base = load_scenario(args.scenario or cp.DEFAULT_BASE, overrides)
     try:
         ns = cp.parse_list(args.ns, int, "--n")
@@ -432,6 +438,25 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     for path in result.plots:
         print(f"plot: {path}")
     return 1 if result.failed else 0
+
+
+def _campaign_table(out: Path) -> int:
+    from coload import campaign as cp
+
+    csv_path = out / cp.CSV_NAME
+    try:
+        rows = cp.read_csv(csv_path)
+    except FileNotFoundError:
+        print(f"coload campaign: {csv_path}: no such file (no run of this campaign has finished yet, "
+              f"or --out is not a campaign directory)", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        print(f"coload campaign: {exc}", file=sys.stderr)
+        return 2
+    print(cp.digest(rows, out / cp.LOG_NAME))
+    for path in cp.plot_campaign(rows, out) if rows else []:
+        print(f"plot: {path}")
+    return 0
 
 
 def cmd_hinf_runtime(args: argparse.Namespace) -> int:

@@ -274,6 +274,41 @@ def test_cli_plan_prints_the_geometry(tmp_path, capsys):
     assert not (tmp_path / cp.CSV_NAME).exists()
 
 
+def test_table_of_a_campaign_directory_without_running(tmp_path, capsys):
+    """``--table``: the grid as sigma x n tables of what OUT holds (median and p90 over the runs of a
+    cell), runs lacking J or m named and counted in their cell, the logged wall time; nothing run."""
+    rows = [{"n": n, "sigma": s, "run": k, "J_rel": 0.001 * (k + 1) * n, "m_rel": 0.002, "finished_s": 80.0 + k}
+            for n in (5, 8) for s in (0.1, 0.9) for k in range(5)]
+    del rows[-1]["J_rel"]  # n8-s0.9-r4: its agents never estimated J
+    cp.write_csv(tmp_path / cp.CSV_NAME, rows)
+    (tmp_path / cp.LOG_NAME).write_text("".join(
+        json.dumps({"segment": seg, "run": f"r{k}", "elapsed_s": 10.0 * (k + 1)}) + "\n"
+        for seg in ("a", "b") for k in range(3)), encoding="utf-8")
+    assert cli_main(["campaign", "--out", str(tmp_path), "--table"]) == 0
+    text = capsys.readouterr().out
+    j_median = text.split("RE of J (%), median:")[1].split("\n\n")[1]
+    # n = 5: J_rel = 0.005 (k + 1), median over k = 0..4 is 0.015 -> 1.50 %; n = 8 at sigma 0.9 has 4 runs
+    assert "| 0.1 | 1.50 | 2.40 |" in j_median
+    assert "| 0.9 | 1.50 | 2.00 (1 n/a) |" in j_median
+    assert "p90" not in j_median and "RE of J (%), 90th percentile:" in text
+    assert "1 run(s) without an estimate of J or m: n8-s0.9-r4" in text
+    assert "6 runs in 60 s wall over 2 invocation(s)" in text
+    assert "20 finished runs in 4 cells (5 per cell)" in text
+    assert (tmp_path / cp.PLOT_NAME).exists() and not (tmp_path / cp.RUNS_DIR).exists()
+
+
+def test_table_names_the_line_and_column_of_a_bad_value(tmp_path, capsys):
+    assert cli_main(["campaign", "--out", str(tmp_path), "--table"]) == 2
+    assert "no such file" in capsys.readouterr().err
+    (tmp_path / cp.CSV_NAME).write_text("n,sigma,run,J_rel\n5,0.1,0,0.01\n5,0.1,1,abc\n", encoding="utf-8")
+    assert cli_main(["campaign", "--out", str(tmp_path), "--table"]) == 2
+    err = capsys.readouterr().err
+    assert "line 3, column J_rel: expected a number, got 'abc'" in err
+    (tmp_path / cp.CSV_NAME).write_text("n,run,J_rel\n5,0,0.01\n", encoding="utf-8")
+    assert cli_main(["campaign", "--out", str(tmp_path), "--table"]) == 2
+    assert "line 1: the header lacks the column(s) sigma" in capsys.readouterr().err
+
+
 def test_algorithm_1_fills_the_dynamic_columns_and_the_consensus_figure(tmp_path):
     """With the dynamical phase (paper-fig4's Algorithm 1) the table carries J and m before and after
     the averaging consensus and the time the team finished; the Fig. 8-like figure is drawn."""
