@@ -36,16 +36,21 @@ def _add_scenario_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=["lockstep", "realtime"], help="time mode (overrides the scenario's)")
 
 
-def _add_zenoh_args(p: argparse.ArgumentParser, router_default: bool = False) -> None:
+def _add_zenoh_args(p: argparse.ArgumentParser, router: bool = False) -> None:
     g = p.add_argument_group("zenoh")
-    g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                   help="endpoint to listen on (repeatable)")
-    g.add_argument("--zenoh-mode", choices=["client", "peer", "router"],
-                   default="router" if router_default else "client", help="Zenoh session mode")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)"
+                        + ("; other routers of a mesh" if router else ""))
+    g.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="endpoint to listen on (repeatable)"
+                        + ("; default tcp/127.0.0.1:7447, or with --zenoh-config the file's listen.endpoints"
+                           if router else ""))
+    if not router:
+        g.add_argument("--zenoh-mode", choices=["client", "peer", "router"],
+                       help="Zenoh session mode (default: client, or the --zenoh-config file's mode)")
     g.add_argument("--zenoh-config", type=Path, metavar="FILE",
-                   help="a Zenoh JSON5 config file; --connect/--listen are applied on top")
+                   help="a Zenoh JSON5 config file (TLS, lease, ...); its mode and endpoints are kept unless "
+                        "given here; multicast scouting stays off")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -86,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("router", help="run an embedded Zenoh router",
                        description="Run a Zenoh router in this process (nothing to install).")
-    _add_zenoh_args(p, router_default=True)
+    _add_zenoh_args(p, router=True)
 
     p = sub.add_parser("compose", help="write a docker-compose file: router, simulator and N agents",
                        description="Write a docker-compose file for one run (one image, explicit endpoints, "
@@ -241,15 +246,29 @@ def _scenario(args: argparse.Namespace):
 def _zenoh_conf(args: argparse.Namespace):
     from net.zenoh_transport import zenoh_config
 
-    return zenoh_config(mode=args.zenoh_mode, connect=args.connect, listen=args.listen,
-                        config_file=args.zenoh_config)
+    mode = args.zenoh_mode or (None if args.zenoh_config else "client")
+    return zenoh_config(mode=mode, connect=args.connect, listen=args.listen, config_file=args.zenoh_config)
+
+
+class DaemonStartError(Exception):
+    """A daemon could not start: no router, a bad endpoint or config, an agent id the scenario lacks."""
 
 
 async def _serve(coro_factory, transport_factory):
-    """Runs a daemon until it finishes or SIGINT/SIGTERM arrives."""
+    """Runs a daemon until it finishes or SIGINT/SIGTERM arrive. What fails before the daemon runs
+    (opening the session, building the daemon) is a :class:`DaemonStartError`, not a traceback."""
     loop = asyncio.get_running_loop()
-    transport = transport_factory(loop)
-    task = asyncio.ensure_future(coro_factory(transport))
+    try:
+        transport = transport_factory(loop)
+    except Exception as exc:  # zenoh.ZError: nothing listens at the endpoint, a bad locator, ...
+        raise DaemonStartError(f"cannot open the Zenoh session ({_first_line(exc)}); is the router "
+                               f"running and --connect its endpoint?") from None
+    try:
+        coro = coro_factory(transport)
+    except ValueError as exc:
+        transport.close()
+        raise DaemonStartError(str(exc)) from None
+    task = asyncio.ensure_future(coro)
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, task.cancel)
     try:
@@ -260,29 +279,40 @@ async def _serve(coro_factory, transport_factory):
         transport.close()
 
 
-def cmd_agent(args: argparse.Namespace) -> int:
-    from agents.daemon import AgentDaemon
+def _first_line(exc: BaseException) -> str:
+    """A library error without its source location (zenoh appends ``at /path/file.rs:N``)."""
+    return str(exc).splitlines()[0].split(" at /")[0] if str(exc) else type(exc).__name__
+
+
+def _run_daemon(name: str, args: argparse.Namespace, coro_factory):
+    """Opens the daemon's Zenoh session and runs it; start-up errors are one line on stderr, exit 2."""
     from net.zenoh_transport import ZenohTransport
 
+    try:
+        conf = _zenoh_conf(args)
+        return asyncio.run(_serve(coro_factory, lambda loop: ZenohTransport(conf, loop)))
+    except (DaemonStartError, ValueError) as exc:
+        print(f"coload {name}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def cmd_agent(args: argparse.Namespace) -> int:
+    from agents.daemon import AgentDaemon
+
     scenario = _scenario(args)
-    conf = _zenoh_conf(args)
-    report = asyncio.run(_serve(
-        lambda t: AgentDaemon(scenario, args.id, t, args.run).run(),
-        lambda loop: ZenohTransport(conf, loop),
-    ))
+    if not 0 <= args.id < scenario.n:
+        print(f"coload agent: --id {args.id} is not an agent of {scenario.name} (0..{scenario.n - 1})",
+              file=sys.stderr)
+        return 2
+    report = _run_daemon("agent", args, lambda t: AgentDaemon(scenario, args.id, t, args.run).run())
     return 0 if report is not None else 130
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
-    from net.zenoh_transport import ZenohTransport
     from simulator.daemon import SimDaemon
 
     scenario = _scenario(args)
-    conf = _zenoh_conf(args)
-    summary = asyncio.run(_serve(
-        lambda t: SimDaemon(scenario, t, args.run, args.out).run(),
-        lambda loop: ZenohTransport(conf, loop),
-    ))
+    summary = _run_daemon("sim", args, lambda t: SimDaemon(scenario, t, args.run, args.out).run())
     if summary is None:
         return 130
     print(f"run directory: {args.out}")
@@ -292,8 +322,16 @@ def cmd_sim(args: argparse.Namespace) -> int:
 def cmd_router(args: argparse.Namespace) -> int:
     from net.zenoh_transport import run_router
 
-    listen = args.listen or ["tcp/127.0.0.1:7447"]
-    return run_router(listen, config_file=args.zenoh_config)
+    listen = args.listen or (None if args.zenoh_config else ["tcp/127.0.0.1:7447"])
+    try:
+        return run_router(listen, config_file=args.zenoh_config, connect=args.connect)
+    except ValueError as exc:
+        print(f"coload router: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # zenoh.ZError: the port is taken, a bad locator
+        print(f"coload router: cannot listen on {' '.join(listen or ['the config file endpoints'])} "
+              f"({_first_line(exc)})", file=sys.stderr)
+        return 2
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -483,16 +521,16 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
         return 0
     from hinf.daemon import HinfAgentDaemon, HinfSimDaemon
     from hinf.report import finish_run, load_run_dir
-    from net.zenoh_transport import ZenohTransport
 
-    setup = load_run_dir(args.run_dir)
-    conf = _zenoh_conf(args)
+    try:
+        setup = load_run_dir(args.run_dir)
+    except SpecError as exc:
+        print(f"coload hinf {args.hinf_command}: {exc}", file=sys.stderr)
+        return 2
     if args.hinf_command == "agent":
-        rep = asyncio.run(_serve(lambda t: HinfAgentDaemon(setup, args.id, t, args.run).run(),
-                                 lambda loop: ZenohTransport(conf, loop)))
+        rep = _run_daemon("hinf agent", args, lambda t: HinfAgentDaemon(setup, args.id, t, args.run).run())
         return 0 if rep is not None else 130
-    res = asyncio.run(_serve(lambda t: HinfSimDaemon(setup, t, args.run).run(),
-                             lambda loop: ZenohTransport(conf, loop)))
+    res = _run_daemon("hinf sim", args, lambda t: HinfSimDaemon(setup, t, args.run).run())
     if res is None:
         return 130
     trace, info = res

@@ -26,7 +26,7 @@ from .runtime import (
     discrete_norm,
     errors,
 )
-from .spec import HinfSpec, parse_spec
+from .spec import HinfSpec, SpecError, parse_spec
 
 COLOURS = ["black", "red", "blue", "green"]  # agents 1-4 as in the paper's Fig. 2
 
@@ -42,8 +42,23 @@ def prepare_run_dir(run_dir: Path, spec: HinfSpec, design: dict) -> None:
 def load_run_dir(run_dir: Path) -> Setup:
     """The Setup of a prepared run directory (what `coload hinf sim|agent RUN_DIR` start from)."""
     run_dir = Path(run_dir)
-    spec = parse_spec(json.loads((run_dir / "spec.json").read_text()), str(run_dir / "spec.json"))
-    return build_setup(spec, json.loads((run_dir / "design.json").read_text()))
+
+    def read(name: str) -> dict:
+        path = run_dir / name
+        try:
+            return json.loads(path.read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise SpecError(f"{path}: cannot read it ({exc.strerror}); RUN_DIR must be a directory "
+                            f"prepared by `coload hinf run`") from None
+        except json.JSONDecodeError as exc:
+            raise SpecError(f"{path}, line {exc.lineno}, column {exc.colno}: not JSON ({exc.msg})") from None
+
+    spec = parse_spec(read("spec.json"), str(run_dir / "spec.json"))
+    design = read("design.json")
+    try:
+        return build_setup(spec, design)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise SpecError(f"{run_dir / 'design.json'}: not a design of this spec ({exc!r})") from None
 
 
 def load_trace(run_dir: Path) -> Trace:

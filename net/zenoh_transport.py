@@ -148,9 +148,9 @@ def close_session(session: zenoh.Session) -> None:
 
 
 def zenoh_config(
-    mode: Mode = "peer",
-    connect: Sequence[str] = (),
-    listen: Sequence[str] = (),
+    mode: Mode | None = None,
+    connect: Sequence[str] | None = None,
+    listen: Sequence[str] | None = None,
     scouting: bool = False,
     lease_ms: int | None = None,
     config_file: str | Path | None = None,
@@ -160,33 +160,74 @@ def zenoh_config(
     ``connect``/``listen`` are Zenoh locators (``tcp/127.0.0.1:7447``); an empty ``listen`` means the
     session listens nowhere (Zenoh's default would be every interface). ``lease_ms`` shortens the
     lease after which a silent (hung, partitioned) session is declared dead; default 10 s.
-    ``config_file`` (a Zenoh JSON5 config) is the base; the arguments above override its keys.
+    ``config_file`` (a Zenoh JSON5 config) is the base: its mode and endpoints stay unless ``mode``,
+    ``connect`` or ``listen`` are given (``None``); without a file they default to a peer that
+    connects to and listens on nothing. Multicast scouting is set either way (off unless
+    ``scouting``): a daemon must not find peers its operator did not name.
     Clients and peers retry a lost connection after 200 ms, then every 1 s at most (:data:`RETRY`),
     unless the config file sets ``connect/retry`` itself.
     """
-    if mode not in ("peer", "client", "router"):
+    if mode is not None and mode not in ("peer", "client", "router"):
         raise ValueError(f"mode must be peer, client or router: {mode!r}")
-    conf = zenoh.Config.from_file(str(config_file)) if config_file is not None else zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-    conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if config_file is None:
+        conf = zenoh.Config()
+        mode, connect, listen = mode or "peer", connect or (), listen or ()
+    else:
+        try:
+            conf = zenoh.Config.from_file(str(config_file))
+        except Exception as exc:  # zenoh.ZError: the file is missing or not a valid config
+            raise ValueError(f"{config_file}: not a usable Zenoh config ({str(exc).split(' at /')[0]})") from None
+        if listen is None and _is_default(conf, "listen/endpoints"):
+            listen = ()  # a file without listen endpoints: listen nowhere, not on every interface
+    if mode is not None:
+        conf.insert_json5("mode", json.dumps(mode))
+    if connect is not None:
+        conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if listen is not None:
+        conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(bool(scouting)))
     if lease_ms is not None:
         if lease_ms <= 0:
             raise ValueError("lease_ms must be positive")
         conf.insert_json5("transport/link/tx/lease", json.dumps(int(lease_ms)))
-    if mode != "router" and json.loads(conf.get_json("connect/retry")) is None:
+    if json.loads(conf.get_json("mode")) != "router" and json.loads(conf.get_json("connect/retry")) is None:
         conf.insert_json5("connect/retry", json.dumps(RETRY))
     return conf
 
 
+def _is_default(conf: zenoh.Config, key: str) -> bool:
+    """Whether ``key`` of ``conf`` is Zenoh's built-in value (a config file that does not set it)."""
+    return bool(conf.get_json(key) == zenoh.Config().get_json(key))
+
+
+def router_config(
+    listen: Sequence[str] | None, lease_ms: int | None = None, config_file: str | Path | None = None,
+    connect: Sequence[str] | None = None,
+) -> zenoh.Config:
+    """A router's config: listening on ``listen`` (or the config file's endpoints) and connecting
+    to ``connect`` (other routers of a mesh; or the file's). Never Zenoh's built-in listen
+    endpoint, every interface: a file without endpoints needs ``listen``."""
+    conf = zenoh_config("router", connect=connect, listen=listen, lease_ms=lease_ms, config_file=config_file)
+    if not router_endpoints(conf):
+        raise ValueError("a router needs at least one listen endpoint"
+                         + (f" (--listen, or listen.endpoints in {config_file})" if config_file else ""))
+    return conf
+
+
+def router_endpoints(conf: zenoh.Config) -> list[str]:
+    """The endpoints a (router) config listens on."""
+    endpoints = json.loads(conf.get_json("listen/endpoints"))
+    if isinstance(endpoints, dict):  # per-mode form {"router": [...], "peer": [...]}
+        endpoints = endpoints.get("router", [])
+    return [str(e) for e in endpoints or []]
+
+
 def open_router(
-    listen: Sequence[str], lease_ms: int | None = None, config_file: str | Path | None = None
+    listen: Sequence[str] | None, lease_ms: int | None = None, config_file: str | Path | None = None,
+    connect: Sequence[str] | None = None,
 ) -> zenoh.Session:
-    """Open an embedded Zenoh router listening on ``listen``; the caller closes the session."""
-    if not listen:
-        raise ValueError("a router needs at least one listen endpoint")
-    return open_session(zenoh_config("router", listen=listen, lease_ms=lease_ms, config_file=config_file))
+    """Open an embedded Zenoh router (see :func:`router_config`); the caller closes the session."""
+    return open_session(router_config(listen, lease_ms, config_file, connect))
 
 
 def _print_ready(listen: Sequence[str]) -> None:
@@ -194,11 +235,12 @@ def _print_ready(listen: Sequence[str]) -> None:
 
 
 def run_router(
-    listen: Sequence[str],
+    listen: Sequence[str] | None,
     stop: threading.Event | None = None,
     lease_ms: int | None = None,
     on_ready: Callable[[], None] | None = None,
     config_file: str | Path | None = None,
+    connect: Sequence[str] | None = None,
 ) -> int:
     """Run an embedded router until ``stop`` is set, or SIGTERM/SIGINT arrive; returns exit status 0.
 
@@ -207,14 +249,15 @@ def run_router(
     process waits for instead of sleeping. Without ``stop``, and on the main thread, SIGTERM and
     SIGINT close the router cleanly.
     """
+    conf = router_config(listen, lease_ms, config_file, connect)
     if stop is None:
         stop = threading.Event()
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGINT):
                 signal.signal(sig, lambda *_: stop.set())
-    session = open_router(listen, lease_ms=lease_ms, config_file=config_file)
+    session = open_session(conf)
     try:
-        (on_ready or (lambda: _print_ready(listen)))()
+        (on_ready or (lambda: _print_ready(router_endpoints(conf))))()
         while not stop.wait(1.0):  # a timed wait keeps the main thread responsive to signals
             pass
     finally:
