@@ -340,9 +340,16 @@ def cmd_report(args: argparse.Namespace) -> int:
     if not args.run_dir.is_dir():
         print(f"coload report: {args.run_dir}: not a directory", file=sys.stderr)
         return 2
-    path, table = make_report(args.run_dir, args.out)
-    print(table)
-    print(f"report: {path}")
+    try:
+        path, table = make_report(args.run_dir, args.out)
+    except ValueError as exc:  # RunFormatError; a recording without truth.csv/estimates.csv
+        print(f"coload report: {exc}", file=sys.stderr)
+        if not args.diagnose:
+            return 2
+        print("coload report: no report.png; diagnosing the recording", file=sys.stderr)
+    else:
+        print(table)
+        print(f"report: {path}")
     from coload.diagnose import DiagnoseError, stderr_progress
     from coload.report import residual_figure, write_diagnosis
 

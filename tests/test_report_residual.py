@@ -69,3 +69,20 @@ def test_a_diagnosis_without_residual_data_is_a_clear_error(tmp_path):
     (tmp_path / report.DIAGNOSIS_JSON).write_text(json.dumps({"nominal": {}}))
     with pytest.raises(ValueError, match="no residual data"):
         report.residual_figure(tmp_path)
+
+
+def test_a_recording_without_truth_is_diagnosed_not_a_traceback(diagnosed, tmp_path):
+    """A measured recording (run.toml + samples.csv, nothing the simulator knows): no report.png to
+    draw, said in one line; with --diagnose the diagnosis and the residual figure still come."""
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    for name in ("run.toml", "samples.csv"):
+        (rec / name).write_bytes((diagnosed / name).read_bytes())
+    plain = subprocess.run(coload_cmd("report", str(rec)), capture_output=True, text=True, timeout=600)
+    assert plain.returncode == 2 and "Traceback" not in plain.stderr
+    assert "truth.csv" in plain.stderr
+    proc = subprocess.run(coload_cmd("report", str(rec), "--diagnose"), capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "no report.png" in proc.stderr and not (rec / report.REPORT_PNG).exists()
+    assert json.loads((rec / report.DIAGNOSIS_JSON).read_text())["effects"][0]["name"] == "viscous_friction"
+    assert (rec / report.RESIDUAL_PNG).stat().st_size > 10_000
