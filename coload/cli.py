@@ -397,9 +397,13 @@ def cmd_alive(args: argparse.Namespace) -> int:
 
 
 def cmd_observer(args: argparse.Namespace) -> int:
-    from coload.observer_run import run_observer_cli
+    from coload.observer_run import ObserverScenarioError, run_observer_cli
 
-    summary = run_observer_cli(args.scenario, args.out, list(args.overrides))
+    try:
+        summary = run_observer_cli(args.scenario, args.out, list(args.overrides))
+    except ObserverScenarioError as exc:
+        print(f"coload observer run: {exc}", file=sys.stderr)
+        return 2
     print(json.dumps(summary, indent=2, default=str))
     print(f"plot: {args.out / 'observer.png'}")
     return 0

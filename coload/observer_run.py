@@ -11,7 +11,6 @@ The scenario model lives here (not in config/scenario.py, which describes load-p
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -248,18 +247,10 @@ def run_observer_cli(scenario_path: Path, out_dir: Path, overrides: list[str]) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="coload observer run", description=__doc__.splitlines()[0])
-    p.add_argument("scenario", type=Path)
-    p.add_argument("--out", type=Path, default=Path("runs/ii-two-link"))
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
-    a = p.parse_args(argv)
-    try:
-        s = run_observer_cli(a.scenario, a.out, a.overrides)
-    except ObserverScenarioError as exc:
-        print(f"coload observer run: {exc}", file=sys.stderr)
-        return 2
-    print(json.dumps({k: s[k] for k in ("scenario", "wall_s", "nfev", "metrics", "png")}, indent=2))
-    return 0
+    """``python -m coload.observer_run ARGS`` is ``coload observer run ARGS`` (one entry point)."""
+    from coload.cli import main as cli_main
+
+    return cli_main(["observer", "run", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -223,3 +223,19 @@ def test_run_observer_cli_writes_png_and_summary(tmp_path):
                          ["run.t_end=0.3", "run.samples=61", "run.rtol=1e-6", "observer.nodes=8"])
     assert (tmp_path / "observer.png").stat().st_size > 10_000 and (tmp_path / "summary.json").exists()
     assert s["metrics"]["s_x-x"]["t_5pct"] is not None and s["metrics"]["r"]["max"] < 1
+
+
+def test_cli_names_a_bad_file_or_field(tmp_path, capsys):
+    from coload.cli import main
+
+    scenario = str(ROOT / "config/observers/ii-two-link.toml")
+    assert main(["observer", "run", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "nope.toml" in capsys.readouterr().err
+    assert main(["observer", "run", scenario, "--out", str(tmp_path / "o"), "--set", "observer.k1=3"]) == 2
+    assert "observer.k1" in capsys.readouterr().err
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[observer]\nk1 = \n")
+    assert main(["observer", "run", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.toml" in err and "line 2" in err
+    assert not (tmp_path / "o").exists()
