@@ -21,9 +21,8 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
-from config.scenario import Scenario
+from config.scenario import RecordSpec, Scenario
 
-_RUN_TOML_EXTRAS = ("edges", "recording")  # written by the recorder next to the scenario fields
 
 
 class ScenarioError(Exception):
@@ -253,9 +252,14 @@ def _convert(exc: ValidationError, file: str, lines: dict, origin: dict[tuple[st
 def _validate(data: dict, file: str, lines: dict, origin: dict[tuple[str, ...], str]) -> Scenario:
     data = dict(data)
     edges = data.pop("edges", None)
+    # [recording]: free-form provenance a lab's recorder may add to run.toml (rig, operator, date);
+    # ignored, except the keys of [record], which in [recording] would silently do nothing
     recording = data.pop("recording", None)
     if recording is not None and not isinstance(recording, dict):
         raise ScenarioError(file, lines.get(("recording",)), "recording", "must be a table")
+    for key in sorted(set(recording or {}) & set(RecordSpec.model_fields)):
+        raise ScenarioError(file, lines.get(("recording", key)), f"recording.{key}",
+                            "[recording] is provenance and is ignored: did you mean [record]?")
     try:
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:

@@ -80,6 +80,13 @@ def test_run_toml_with_recording_table_loads(tmp_path):
     assert load_scenario(write(tmp_path, text)) == sc
 
 
+def test_a_record_key_in_the_recording_table_is_an_error(tmp_path):
+    text = dump_scenario(load_scenario(SCENARIOS / "quick.toml")) + "\n[recording]\nrig = \"lab 2\"\nevery_ticks = 1\n"
+    err = error_of(write(tmp_path, text))
+    assert err.field == "recording.every_ticks" and "did you mean [record]" in err.message
+    assert err.line == len(text.splitlines())
+
+
 def test_run_toml_with_wrong_edges_is_rejected(tmp_path):
     sc = load_scenario(SCENARIOS / "quick.toml")
     lines = dump_scenario(sc).splitlines()
