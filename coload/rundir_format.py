@@ -25,6 +25,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
+from agents.agent import ESTIMATE_NAMES as AGENT_ESTIMATE_NAMES
+
 # --- file names --------------------------------------------------------------------------------
 RUN_TOML = "run.toml"
 SAMPLES_CSV = "samples.csv"
@@ -40,13 +42,11 @@ SAMPLES_HEADER: tuple[str, ...] = ("t", "agent", "vx", "vy", "fx", "fy", "tau")
 """Measured data: one row per agent per tick (the input format of ``coload diagnose`` too)."""
 
 ESTIMATES_KEY: tuple[str, ...] = ("t", "agent")
-ESTIMATE_NAMES: tuple[str, ...] = ("phase", "omega", "zi_x", "zi_y")
-"""Estimate columns written today; later estimators add any of :data:`KNOWN_ESTIMATE_NAMES`."""
-KNOWN_ESTIMATE_NAMES: tuple[str, ...] = (
-    "phase", "omega", "zi_x", "zi_y", "J", "m", "zc_x", "zc_y", "vc_x", "vc_y",
-    "b", "c", "b_local", "c_local",
-)
-ESTIMATES_HEADER: tuple[str, ...] = ESTIMATES_KEY + ESTIMATE_NAMES
+KNOWN_ESTIMATE_NAMES: tuple[str, ...] = AGENT_ESTIMATE_NAMES
+"""The estimate columns the agents write (one list, the writer's: ``agents.agent.ESTIMATE_NAMES``);
+a reader parses each of them strictly (a bad cell is an error naming file, line and column). Any
+may be absent (an older run, a lab's own estimator); other columns are kept when numeric."""
+ESTIMATES_HEADER: tuple[str, ...] = ESTIMATES_KEY + AGENT_ESTIMATE_NAMES
 
 PAIRS_HEADER: tuple[str, ...] = ("t", "agent", "neighbour", "zij_x", "zij_y")
 

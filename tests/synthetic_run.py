@@ -149,7 +149,7 @@ def write_run(
     zi_hat = tr.zi[keep] + (zi_err or _zero_err((n, 2)))(te)
     om_hat = tr.omega[keep][:, None] + (omega_err or _zero_err((n,)))(te)
     phase = np.where(te < spec.duration / 3, 0, np.where(te < 2 * spec.duration / 3, 1, 2))
-    header = list(rf.ESTIMATES_HEADER)
+    header = [*rf.ESTIMATES_KEY, "phase", "omega", "zi_x", "zi_y"]  # the kinematic phase's columns
     extra: dict[str, np.ndarray] = {}
     if spec.extra_estimates:
         errs = extra_err(te) if extra_err else {}

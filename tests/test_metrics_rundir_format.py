@@ -39,7 +39,22 @@ def test_headers_agree_with_the_docs():
     assert rf.truth_header(2)[-4:] == ("z0_x", "z0_y", "z1_x", "z1_y")
     assert rf.TRUTH_HEADER == list(rf.TRUTH_BASE_HEADER)
     assert rf.ESTIMATES_HEADER[:2] == ("t", "agent")
-    assert set(rf.ESTIMATE_NAMES) <= set(rf.KNOWN_ESTIMATE_NAMES)
+
+
+def test_every_estimate_column_the_agents_write_is_read_strictly(run_dir):
+    """A bad cell in any column the agents write (J_local here, which Fig. 8 needs) is an error that
+    names file, line and column, not a column that silently vanishes."""
+    from agents.agent import ESTIMATE_NAMES
+
+    assert rf.KNOWN_ESTIMATE_NAMES == ESTIMATE_NAMES
+    path = run_dir / rf.ESTIMATES_CSV
+    lines = path.read_text().splitlines()
+    lines[0] += ",J_local"
+    lines[1:] = [line + ",1.5" for line in lines[1:]]
+    lines[3] = lines[3][: -len("1.5")] + "oops"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(rf.RunFormatError, match=r"estimates\.csv:4.*J_local"):
+        rf.read_run(run_dir)
 
 
 def test_optional_files_may_be_absent(run_dir):
