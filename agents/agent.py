@@ -14,7 +14,7 @@ Per tick k (all states refer to tick k-1 on entry and are predicted to tick k on
    overdue, and fed in tick order (``_release``); dropping them cost ~1/3 of the samples at 0-5 ticks
    of jitter and biased |z_ij|.
 2. z_ij (``agents.kinematic.PairEstimator``): circle fit of the integrated relative velocity for
-   |z_ij|, angle tracked by rotation with omega_hat and corrected by the axis perp(v_Ci - v_Cj).
+   |z_ij|, angle tracked by rotation with omega_hat and corrected by the radial part of (v_Ci - v_Cj)/z_ij.
 3. omega: eq. (9) with the corrected sign, evaluated with the *predicted* z_ij and pooled over
    the agent's pairs as a least-squares ratio u_i = sum_j z_ij x zdot_ij / sum_j |z_ij|^2 (the
    minimum-variance combination: each pair's noise on omega scales as 1/|z_ij|). It is unbiased at
