@@ -431,6 +431,16 @@ def run_campaign(
     out.mkdir(parents=True, exist_ok=True)
     csv_path = out / CSV_NAME
     rows: dict[str, dict[str, Any]] = {}
+    # the directory's table keeps the runs of other invocations (another grid subset) whose
+    # directories are still there: a subset run on a campaign directory must not shrink its table
+    planned = {r.run_dir.name for r in runs}
+    try:
+        for row in read_csv(csv_path):
+            name = run_name(int(row["n"]), float(row["sigma"]), int(row["run"]))
+            if name not in planned and (out / RUNS_DIR / name / "summary.json").is_file():
+                rows[name] = row
+    except (OSError, ValueError):
+        pass  # no table yet, or an unreadable one: rebuilt from the planned runs
     todo: list[PlannedRun] = []
     for r in runs:
         s = finished_summary(r)
@@ -438,7 +448,7 @@ def run_campaign(
             todo.append(r)
         else:
             rows[r.run_dir.name] = row_of(r, s)
-    reused = len(rows)
+    reused = len(rows.keys() & planned)
     write_csv(csv_path, list(rows.values()))
     # run index first: an interrupted grid has (nearly) the same number of runs in every cell, so its
     # table and plots are those of a smaller grid, not of a few finished cells

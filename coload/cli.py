@@ -385,7 +385,11 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 def cmd_compose(args: argparse.Namespace) -> int:
     from coload.compose import write_compose
 
-    path = write_compose(args.out, args.agents, args.scenario, args.run)
+    try:
+        path = write_compose(args.out, args.agents, args.scenario, args.run)
+    except ValueError as exc:
+        print(f"coload compose: {exc}", file=sys.stderr)
+        return 2
     print(f"wrote {path}: docker compose -f {path} up --build")
     return 0
 

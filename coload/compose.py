@@ -17,8 +17,8 @@ ROUTER_PORT = 7447
 def compose_spec(n: int, scenario: str, run: str = "compose", image: str = "coload:latest",
                  runs_dir: str = "./runs") -> dict[str, Any]:
     """The compose document as plain data. ``scenario`` is a path inside the image (or a mounted one)."""
-    if n < 1:
-        raise ValueError("--agents must be at least 1")
+    if n < 2:
+        raise ValueError(f"--agents must be at least 2, a team (got {n})")
     endpoint = f"tcp/router:{ROUTER_PORT}"
 
     def alive(role: str, ident: int) -> dict[str, Any]:

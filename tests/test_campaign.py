@@ -189,6 +189,10 @@ def test_campaign_table_plots_and_resume(tmp_path):
     longer = cp.plan(_base(duration=16.0), out, seed0=1, **GRID)
     res4 = cp.run_campaign(longer[:1], out, jobs=1, plots=False)
     assert (res4.reused, res4.ran) == (0, 1)
+    # ... and the table still has the run this invocation did not plan (a subset never shrinks it)
+    after = _read_rows(out / cp.CSV_NAME)
+    assert [r["n"] for r in after] == [r["n"] for r in rows] and len(res4.rows) == 2
+    assert _without(after[1], timings) == _without(rows[1], timings)  # the unplanned run, unchanged
 
 
 def test_cli_killed_campaign_leaves_a_valid_table_and_resumes(tmp_path):

@@ -36,6 +36,15 @@ def test_compose_file_parses_and_is_explicit(tmp_path):
     assert services["sim"]["healthcheck"]["test"][-1] == "coload/c1/alive/sim/0"
 
 
+def test_compose_needs_a_team(tmp_path, capsys):
+    from coload.cli import main
+
+    for bad in ("0", "1"):
+        assert main(["compose", "--agents", bad, "--out", str(tmp_path / "c.yaml")]) == 2
+        assert "--agents must be at least 2" in capsys.readouterr().err
+    assert not (tmp_path / "c.yaml").exists()
+
+
 def test_dockerfile_copies_every_package():
     """Every package pyproject.toml installs is in the image (else `pip install .` skips it quietly)."""
     import tomllib
