@@ -588,15 +588,18 @@ def _value(x: np.ndarray) -> float | list[float]:
 
 # --- the diagnosis --------------------------------------------------------------------------------
 def diagnose(samples: np.ndarray, n: int, dt: float, *, options: DiagnoseOptions | None = None,
-             truth: dict[str, float] | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:  # fmt: skip
+             truth: dict[str, float] | None = None, progress: Callable[[str], None] | None = None,
+             clock: Callable[[], float] | None = None) -> Diagnosis:  # fmt: skip
     """Diagnose one recording: ``samples`` (T, n, 5) [vx, vy, fx, fy, tau] per tick and agent (NaN velocity =
-    not measured). ``truth`` ({"m", "J"}) is used only to report errors. Raises :class:`DiagnoseError`."""
+    not measured). ``truth`` ({"m", "J"}) is used only to report errors. ``clock`` (e.g.
+    ``time.perf_counter``) times the diagnosis into ``wall_s``; without it ``wall_s`` is 0 and the
+    result depends on the data alone. Raises :class:`DiagnoseError`."""
     opt = options or DiagnoseOptions()
     unknown = [c for c in opt.candidates if c not in CANDIDATES]
     if unknown:
         raise DiagnoseError(f"unknown candidate effect(s) {unknown}; known: {list(CANDIDATES)}")
     say = progress or (lambda msg: None)
-    t_start = time.perf_counter()
+    t_start = clock() if clock is not None else 0.0
     try:
         s, warns = _check_input(samples, n, dt)
     except BatchFitError as exc:
@@ -727,7 +730,7 @@ def diagnose(samples: np.ndarray, n: int, dt: float, *, options: DiagnoseOptions
     return Diagnosis(
         nominal=nominal_rep, augmented=aug_rep, effects=effects, unexplained=unexplained, warnings=warns,
         candidates=list(table.values()), signatures=signatures, ambiguous=ambiguous,
-        noise_sigma=math.sqrt(floor2), wall_s=time.perf_counter() - t_start, truth=truth,
+        noise_sigma=math.sqrt(floor2), wall_s=clock() - t_start if clock is not None else 0.0, truth=truth,
         modes_nominal=block_average(_modes(d, nominal), block), modes_augmented=block_average(_modes(d, final), block),
         block_s=block * dt, lags=opt.lags,
     )  # fmt: skip
@@ -778,7 +781,7 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                  progress: Callable[[str], None] | None = None) -> Diagnosis:  # fmt: skip
     """Read a recording directory and diagnose it (see :func:`diagnose`)."""
     samples, n, dt, truth, warns = read_recording(path)
-    result = diagnose(samples, n, dt, options=options, truth=truth, progress=progress)
+    result = diagnose(samples, n, dt, options=options, truth=truth, progress=progress, clock=time.perf_counter)
     result.warnings[:0] = warns
     return result
 
