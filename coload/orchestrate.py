@@ -173,12 +173,14 @@ def watch_simulator(
     with zenoh.open(conf) as session:
         session.declare_subscriber(control_key, on_control)
         deadline = time.monotonic() + budget
+        said: set[str] = set()  # crashed members already reported: each is said once
         while sim.poll() is None:
             if progressed.wait(0.5):
                 progressed.clear()
                 bar(state["tick"], ticks)
-            bad = children.crashed()
+            bad = [name for name in children.crashed() if name not in said]
             if bad:
+                said.update(bad)
                 print(f"{cmd}: {', '.join(bad)} exited with an error (logs in {run_dir / 'logs'})", file=sys.stderr)
                 if "sim" in bad:
                     return False
