@@ -124,7 +124,8 @@ class RunData:
     name: str = ""
 
     def truth_index(self, times: np.ndarray) -> np.ndarray:
-        """Index of the truth row nearest to each of ``times``; truth is recorded every tick, so this is exact."""
+        """Index of the truth row nearest to each of ``times`` (truth is kept every ``record.every_ticks``
+        ticks, like the estimates, so an estimate's tick has its own truth row)."""
         if self.truth is None:
             raise RunFormatError(f"{self.path / TRUTH_CSV}: no truth recorded in this run")
         tt = self.truth.t

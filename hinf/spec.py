@@ -295,12 +295,12 @@ def load_spec(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> 
     if not isinstance(data, dict):
         raise SpecError(f"{path}: top level must be a table/object")
     if overrides:
-        from config.loader import deep_merge, parse_overrides
+        from config.loader import ScenarioError, deep_merge, parse_overrides
 
         try:
             deep_merge(data, parse_overrides(overrides))
-        except ValueError as exc:
-            raise SpecError(f"{path}: --set: {exc}") from None
+        except ScenarioError as exc:
+            raise SpecError(f"{path}: {exc}") from None
     return parse_spec(data, str(path))
 
 

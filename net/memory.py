@@ -1,6 +1,6 @@
 """In-process transport: a bus shared by endpoints on one asyncio loop.
 
-For fast tests and Monte Carlo campaigns: no sockets, no threads, yet the same contract as Zenoh
+For fast tests of the daemons (campaigns use ``coload.engine`` instead, without daemons): no sockets, no threads, yet the same contract as Zenoh
 (delivery later on the loop, never inside ``publish``; ``*``/``**`` key expressions; liveliness with
 history, and tokens withdrawn when their endpoint closes, which is how a crash looks to the others).
 All methods must be called on the bus's loop thread.

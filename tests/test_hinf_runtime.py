@@ -328,3 +328,17 @@ def test_finish_run_round_trips_the_trace(design, tmp_path):
     s = finish_run(tmp_path, su, tr, info, draw=False)
     _equal(tr, load_trace(tmp_path))
     assert json.loads((tmp_path / "summary.json").read_text())["ticks"] == s["ticks"] == 50
+
+
+def test_cli_bad_set_and_bad_run_dir_are_one_line(tmp_path, capsys):
+    from coload.cli import main
+
+    assert main(["hinf", "run", str(EXAMPLE), "--out", str(tmp_path / "o"), "--set", "run.duration"]) == 2
+    assert "--set run.duration: expected key=value" in capsys.readouterr().err
+    assert main(["hinf", "agent", "--id", "0", str(tmp_path / "nope"), "--run", "x"]) == 2
+    err = capsys.readouterr().err
+    assert "spec.json: cannot read it" in err and "prepared by `coload hinf run`" in err
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "spec.json").write_text("{\n  oops\n}")
+    assert main(["hinf", "sim", str(tmp_path / "d"), "--run", "x"]) == 2
+    assert "spec.json, line 2, column 3: not JSON" in capsys.readouterr().err
