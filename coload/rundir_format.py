@@ -184,9 +184,12 @@ def read_config(path: Path) -> dict[str, Any]:
     if not path.exists():
         raise RunFormatError(f"{path}: missing (every run directory needs {RUN_TOML})")
     try:
-        config = tomllib.loads(path.read_text())
+        config = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except tomllib.TOMLDecodeError as exc:
         raise RunFormatError(f"{path}: invalid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        line = path.read_bytes()[: exc.start].count(b"\n") + 1
+        raise RunFormatError(f"{path}:{line}: not UTF-8 text (TOML must be UTF-8)") from None
     for key in ("n", "dt", "edges"):
         if key not in config:
             raise RunFormatError(f"{path}: missing top-level key '{key}'")
@@ -261,9 +264,9 @@ class _Csv:
         assert self.lines is not None
         where = f"{self.path}:{self.lines[r]}: column '{name}'"
         if not cell:
-            if allow_empty:
+            if allow_empty and not integer:  # an integer column (agent) has no "not measured"
                 return math.nan
-            raise RunFormatError(f"{where}: empty cell")
+            raise RunFormatError(f"{where}: empty cell" + (", expected an integer" if integer else ""))
         try:
             value = float(cell)
         except ValueError:
@@ -280,7 +283,7 @@ class _Csv:
 def _load_fast(path: Path, required: Sequence[str]) -> _Csv | None:
     """All-numeric, well-formed file in one C-speed ``np.loadtxt``; None if anything is unusual."""
     try:
-        with path.open(newline="") as fh:
+        with path.open(newline="", encoding="utf-8-sig", errors="replace") as fh:
             header = [h.strip() for h in next(csv.reader(fh))]
     except (OSError, StopIteration, csv.Error):
         return None
@@ -289,8 +292,9 @@ def _load_fast(path: Path, required: Sequence[str]) -> _Csv | None:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "input contained no data": header only
-            matrix = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=float, comments=None)
-    except ValueError:
+            matrix = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=float, comments=None,
+                                encoding="utf-8")
+    except ValueError:  # also UnicodeDecodeError: a text column in another encoding -> the line reader
         return None
     if matrix.size == 0:
         matrix = np.empty((0, len(header)))
@@ -311,8 +315,11 @@ def _read(path: Path, required: Sequence[str], build: Callable[[_Csv], T]) -> T:
 
 
 def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
+    # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first column's name;
+    # errors="replace": text in another encoding in an extra column is ignored as the format allows,
+    # and in a numeric column it is a located "not a number"
     try:
-        fh = path.open(newline="")
+        fh = path.open(newline="", encoding="utf-8-sig", errors="replace")
     except OSError as exc:
         raise RunFormatError(f"{path}: cannot open: {exc.strerror}") from exc
     with fh:

@@ -350,3 +350,13 @@ def test_scenario_by_bundled_name_run_dir_or_path(tmp_path, monkeypatch):
     assert {"paper-fig4", "paper-fig5", "paper-fig9", "quick"} <= set(bundled_scenario_names())
     with pytest.raises(ScenarioError, match="bundled scenarios: .*paper-fig4"):
         load_scenario("no-such-scenario")
+
+
+def test_encoding_a_byte_order_mark_is_fine_other_encodings_are_located(tmp_path):
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + b'name = "bom"\nn = 5\n')
+    assert load_scenario(path).name == "bom"
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b'n = 5\nname = "r\xe9glage"\n')
+    err = error_of(path)
+    assert err.line == 2 and "not UTF-8" in err.message

@@ -195,3 +195,37 @@ def test_fast_and_line_tracking_readers_agree(tmp_path):
     for k in a.pairs.zij:
         assert np.array_equal(a.pairs.zij[k], b.pairs.zij[k], equal_nan=True)
     assert np.array_equal(a.truth.zi, b.truth.zi)
+
+
+def test_a_lab_export_with_a_bom_and_a_latin1_text_column_is_read(run_dir):
+    """Spreadsheet exports: a byte-order mark before the header, and a free-text column in another
+    encoding (allowed and ignored): the numbers are read as they are."""
+    path = run_dir / rf.SAMPLES_CSV
+    want = rf.read_run(run_dir).samples.columns["vx"]
+    lines = path.read_text().splitlines()
+    text = [lines[0] + ",note"] + [line + ",Kraftmessung " for line in lines[1:]]
+    path.write_bytes(b"\xef\xbb\xbf" + "\n".join(text).encode("latin-1") + b"\xe4\n")
+    got = rf.read_run(run_dir).samples
+    assert np.array_equal(got.columns["vx"], want, equal_nan=True)
+    assert "note" not in got.columns
+
+
+def test_an_empty_agent_cell_is_located(run_dir):
+    path = run_dir / rf.SAMPLES_CSV
+    lines = path.read_text().splitlines()
+    head = lines[0].split(",")
+    row = lines[5].split(",")
+    row[head.index("agent")] = ""
+    lines[5] = ",".join(row)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(rf.RunFormatError, match=r"samples\.csv:6: column 'agent': empty cell, expected an integer"):
+        rf.read_run(run_dir)
+
+
+def test_run_toml_that_is_not_utf8_is_located(run_dir):
+    path = run_dir / rf.RUN_TOML
+    text = path.read_bytes().split(b"\n")
+    text[2] = b'# r\xe9glage'
+    path.write_bytes(b"\n".join(text))
+    with pytest.raises(rf.RunFormatError, match=r"run\.toml:3: not UTF-8"):
+        rf.read_run(run_dir)
