@@ -487,8 +487,11 @@ def run_campaign(
                     finished, _ = wait(pending, return_when=FIRST_COMPLETED)
                     for fut in finished:
                         finish(pending.pop(fut), fut.result)
-            except BaseException:
+            except BaseException:  # Ctrl-C, SIGTERM (coload.cli): the runs under way are dropped, not awaited
+                workers = list(getattr(pool, "_processes", {}).values())
                 pool.shutdown(wait=False, cancel_futures=True)
+                for proc in workers:
+                    proc.terminate()
                 raise
     result = CampaignResult(rows=sorted(rows.values(), key=lambda r: (r["n"], r["sigma"], r["run"])),
                             planned=len(runs), reused=reused, ran=done - len(failed), failed=failed,

@@ -9,6 +9,7 @@ import logging
 import os
 import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -588,18 +589,36 @@ COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_ro
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from coload.orchestrate import Terminated, terminate_on_sigterm
+
+    parent = os.environ.pop("COLOAD_PARENT_PID", None)  # popped: not inherited by our own children
+    if parent is not None:
+        from coload.orchestrate import die_with_parent
+
+        die_with_parent(int(parent))
     args = build_parser().parse_args(argv)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
-    if args.command in ("sim", "agent", "router") or getattr(args, "hinf_command", None) in ("sim", "agent"):
+    daemon = args.command in ("sim", "agent", "router") or getattr(args, "hinf_command", None) in ("sim", "agent")
+    if daemon:
         level = min(level, logging.INFO)
     logging.basicConfig(level=level, format=f"%(asctime)s {args.command}[{os.getpid()}] %(levelname)s %(message)s")
+    previous = None
+    if not daemon and threading.current_thread() is threading.main_thread():
+        previous = terminate_on_sigterm()  # daemons handle SIGTERM in their own loops
     try:
         return COMMANDS[args.command](args)
     except ScenarioError as exc:
         print(f"coload {args.command}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
+        print(f"coload {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"coload {args.command}: terminated (SIGTERM)", file=sys.stderr)
+        return 143
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":
