@@ -351,6 +351,11 @@ def cmd_report(args: argparse.Namespace) -> int:
     else:
         print(table)
         print(f"report: {path}")
+    stopped = args.run_dir / "interrupted.json"
+    if stopped.exists():
+        info = json.loads(stopped.read_text(encoding="utf-8"))
+        print(f"coload report: this run was stopped at t = {info.get('t', '?')} s of {info.get('duration', '?')} s "
+              f"({info.get('reason', '?')}); its tables end there", file=sys.stderr)
     from coload.diagnose import DiagnoseError, stderr_progress
     from coload.report import residual_figure, write_diagnosis
 

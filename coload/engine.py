@@ -145,53 +145,58 @@ def run_inproc(
     clock = time.perf_counter
     wall0 = clock()
     report_every = max(1, ticks // 100)
-    for k in range(ticks):
-        if stop is not None and k >= stop.end:
-            break
-        if pace:
-            lag = wall0 + k * dt - time.perf_counter()
-            if lag > 0:
-                time.sleep(lag)
-        meas = plant.measure(rng)
-        # only recorded ticks need the truth and the (lazily built) estimates
-        keep = keeps is not None and keeps(k)
-        watch = stop is not None and k % every == 0  # the agents' stages, on the recording grid
-        if keep:
-            rec.truth(plant.truth())  # type: ignore[union-attr]
-        wrenches = []
-        k1 = k + 1
-        if ring is not None:
-            now = k % span
-            due = (k1 + delay) % span
-        for i in range(n):
-            vx, vy = meas[i]
-            if ring is not None:
-                mine = ring[i]
-                inbox = mine[now]
-                mine[now] = []
-            else:
-                inbox = pops[i](k)
-            c0 = clock()
-            res = agents[i].step(k, vx, vy, inbox)
-            step_s += clock() - c0
-            w = res.wrench
-            wr = (w.fx, w.fy, w.tau)
-            wrenches.append(wr)
-            state = res.state
-            if ring is not None:
-                for r in nbr_rings[i]:
-                    r[due].append(state)
-            else:
-                send(i, k, state)
+    try:
+        for k in range(ticks):
+            if stop is not None and k >= stop.end:
+                break
+            if pace:
+                lag = wall0 + k * dt - time.perf_counter()
+                if lag > 0:
+                    time.sleep(lag)
+            meas = plant.measure(rng)
+            # only recorded ticks need the truth and the (lazily built) estimates
+            keep = keeps is not None and keeps(k)
+            watch = stop is not None and k % every == 0  # the agents' stages, on the recording grid
             if keep:
-                rec.estimate(res.estimate)  # type: ignore[union-attr]
-            if watch:
-                stop.see(k, i, res.estimate.values["phase"])  # type: ignore[union-attr]
+                rec.truth(plant.truth())  # type: ignore[union-attr]
+            wrenches = []
+            k1 = k + 1
+            if ring is not None:
+                now = k % span
+                due = (k1 + delay) % span
+            for i in range(n):
+                vx, vy = meas[i]
+                if ring is not None:
+                    mine = ring[i]
+                    inbox = mine[now]
+                    mine[now] = []
+                else:
+                    inbox = pops[i](k)
+                c0 = clock()
+                res = agents[i].step(k, vx, vy, inbox)
+                step_s += clock() - c0
+                w = res.wrench
+                wr = (w.fx, w.fy, w.tau)
+                wrenches.append(wr)
+                state = res.state
+                if ring is not None:
+                    for r in nbr_rings[i]:
+                        r[due].append(state)
+                else:
+                    send(i, k, state)
+                if keep:
+                    rec.estimate(res.estimate)  # type: ignore[union-attr]
+                if watch:
+                    stop.see(k, i, res.estimate.values["phase"])  # type: ignore[union-attr]
+            if rec is not None:
+                rec.samples(k, meas, wrenches)
+            plant.apply_and_step(wrenches)
+            if progress is not None and (k % report_every == 0 or k == ticks - 1):
+                progress(k + 1, ticks)
+    except BaseException as exc:  # Ctrl-C, SIGTERM, an error: keep what was recorded, say where it stopped
         if rec is not None:
-            rec.samples(k, meas, wrenches)
-        plant.apply_and_step(wrenches)
-        if progress is not None and (k % report_every == 0 or k == ticks - 1):
-            progress(k + 1, ticks)
+            rec.abort(type(exc).__name__)
+        raise
     wall = time.perf_counter() - wall0
     if stop is not None:
         ticks = stop.end  # ticks run (fewer than the scenario's if it stopped after done)

@@ -57,12 +57,16 @@ class Recorder:
         self.dt = scenario.dt
         self.every = scenario.record.every_ticks
         self.estimate_names = estimate_names
+        for name in fmt.DERIVED_FILES:  # a previous run's, in a re-used directory
+            (self.run_dir / name).unlink(missing_ok=True)
         (self.run_dir / fmt.RUN_TOML).write_text(dump_scenario(scenario), encoding="utf-8")
         self._samples = _Table(self.run_dir / fmt.SAMPLES_CSV, fmt.SAMPLES_HEADER)
         self._estimates = _Table(self.run_dir / fmt.ESTIMATES_CSV, ["t", "agent", *estimate_names])
         self._pairs = _Table(self.run_dir / fmt.PAIRS_CSV, fmt.PAIRS_HEADER)
         self._truth = _Table(self.run_dir / fmt.TRUTH_CSV, fmt.truth_header(scenario.n))
         self.estimates_recorded = 0
+        self._closed = False
+        self.ticks_done = 0  # ticks whose samples are recorded
 
     def keeps(self, tick: int) -> bool:
         return tick % self.every == 0
@@ -71,6 +75,7 @@ class Recorder:
         self, tick: int, velocities: Sequence[tuple[float, float]], wrenches: Sequence[tuple[float, float, float]]
     ) -> None:
         """One tick of measured data: every agent's measured velocity and applied wrench (Python floats)."""
+        self.ticks_done = tick + 1
         t = repr(tick * self.dt)
         add = self._samples.add
         for agent, ((vx, vy), (fx, fy, tau)) in enumerate(zip(velocities, wrenches)):
@@ -108,8 +113,23 @@ class Recorder:
         for table in (self._samples, self._estimates, self._pairs, self._truth):
             table.flush()
 
+    def abort(self, reason: str) -> None:
+        """The run stops before its end: the tables keep every tick so far (flushed, closed) and
+        ``interrupted.json`` says where (the first tick without samples) and why; no summary.json,
+        so nothing reads it as finished."""
+        tick = self.ticks_done
+        if self._closed:
+            return
+        self._closed = True
+        for table in (self._samples, self._estimates, self._pairs, self._truth):
+            table.close()
+        (self.run_dir / fmt.INTERRUPTED_JSON).write_text(json.dumps(
+            {"tick": tick, "t": tick * self.dt, "reason": reason, "duration": self.scenario.duration}, indent=1) + "\n",
+            encoding="utf-8")
+
     def close(self, summary: dict[str, Any]) -> dict[str, Any]:
         """Closes the tables, adds the error metrics to ``summary`` and writes summary.json."""
+        self._closed = True
         for table in (self._samples, self._estimates, self._pairs, self._truth):
             table.close()
         from coload.metrics import final_errors

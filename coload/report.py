@@ -23,7 +23,7 @@ from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
-from coload import metrics  # noqa: E402
+from coload import metrics, rundir_format  # noqa: E402
 from coload.rundir_format import REPORT_PNG, RunData, read_run  # noqa: E402
 
 WINDOW_S = 20.0
@@ -366,10 +366,8 @@ def centralized_lines(summary: dict[str, Any] | None) -> list[str]:
     return lines
 
 
-DIAGNOSIS_JSON = "diagnosis.json"
-"""A run directory's diagnosis (``coload diagnose RUN_DIR --json RUN_DIR/diagnosis.json`` or
-``coload report RUN_DIR --diagnose``); when present, the report adds :data:`RESIDUAL_PNG`."""
-RESIDUAL_PNG = "residual.png"
+DIAGNOSIS_JSON = rundir_format.DIAGNOSIS_JSON
+RESIDUAL_PNG = rundir_format.RESIDUAL_PNG
 
 
 def write_diagnosis(run_dir: str | Path, progress: Callable[[str], None] | None = None) -> Path:

@@ -36,6 +36,16 @@ TRUTH_CSV = "truth.csv"
 SUMMARY_JSON = "summary.json"
 LOGS_DIR = "logs"
 REPORT_PNG = "report.png"
+DIAGNOSIS_JSON = "diagnosis.json"
+"""A run directory's diagnosis (``coload diagnose RUN_DIR --json RUN_DIR/diagnosis.json`` or
+``coload report RUN_DIR --diagnose``); when present, the report adds :data:`RESIDUAL_PNG`."""
+RESIDUAL_PNG = "residual.png"
+INTERRUPTED_JSON = "interrupted.json"
+"""Written instead of summary.json by a run that was stopped (Ctrl-C, SIGTERM, an error): the tick
+it reached and why. Its tables hold every tick up to there."""
+DERIVED_FILES = (SUMMARY_JSON, INTERRUPTED_JSON, REPORT_PNG, DIAGNOSIS_JSON, RESIDUAL_PNG)
+"""What a run writes besides its tables: a new run in the same directory removes the old ones, so
+that nothing of a previous run is read as this one's."""
 
 # --- headers -----------------------------------------------------------------------------------
 SAMPLES_HEADER: tuple[str, ...] = ("t", "agent", "vx", "vy", "fx", "fy", "tau")

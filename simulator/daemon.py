@@ -368,6 +368,9 @@ class SimDaemon:
             summary = await self._run()
             completed = True
             return summary
+        except BaseException as exc:  # cancelled (SIGTERM, Ctrl-C) or failed: keep the tables, say so
+            self.recorder.abort(type(exc).__name__)
+            raise
         finally:
             for s in reversed(self._subs):
                 s.close()

@@ -101,3 +101,35 @@ def test_a_sigkilled_supervisor_takes_its_daemons_with_it(started_run):
     proc.kill()
     proc.wait(timeout=10)
     _wait(lambda: not any(_alive(k) for k in kids), 30, "the daemons to exit after their parent died")
+
+
+def test_an_interrupted_run_keeps_its_tables_and_says_where_it_stopped(tmp_path, capsys):
+    """Ctrl-C at tick 250 of an in-process run: every tick up to there is on disk and readable, no
+    summary.json (nothing mistakes it for a finished run), interrupted.json says where and why; a
+    new run in the same directory removes that marker."""
+    import json
+
+    from coload import rundir_format as rf
+    from coload.cli import main as cli_main
+    from coload.engine import run_inproc
+    from config.loader import load_scenario
+
+    scenario = load_scenario("quick", ["duration=20"])
+    out = tmp_path / "run"
+
+    def progress(done: int, total: int) -> None:
+        if done > 250:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_inproc(scenario, out, progress=progress)
+    stopped = json.loads((out / rf.INTERRUPTED_JSON).read_text())
+    assert stopped["reason"] == "KeyboardInterrupt" and 250 < stopped["tick"] <= 300
+    assert not (out / rf.SUMMARY_JSON).exists()
+    run = rf.read_run(out)
+    assert len(run.samples.t) == stopped["tick"]  # every tick before the stop, samples at full rate
+    assert run.truth.t[-1] == pytest.approx((stopped["tick"] - 1) // 10 * 10 * scenario.dt)  # every 10 ticks
+    assert cli_main(["report", str(out)]) == 0
+    assert f"stopped at t = {stopped['t']} s of 20.0 s (KeyboardInterrupt)" in capsys.readouterr().err
+    run_inproc(load_scenario("quick", ["duration=1"]), out)
+    assert (out / rf.SUMMARY_JSON).exists() and not (out / rf.INTERRUPTED_JSON).exists()
