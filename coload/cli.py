@@ -561,12 +561,19 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from coload.orchestrate import default_run_dir, run_inproc_cli, run_processes
+    from coload.orchestrate import default_run_dir, prepare_run_dir, run_inproc_cli, run_processes
 
     # the batch-fit yardstick (record.batch_fit) is on for every `coload run` unless --no-batch-fit
     args.overrides = ["record.batch_fit=true", *args.overrides, *(["record.batch_fit=false"] if args.no_batch_fit else [])]
     scenario = _scenario(args)
     run_dir = args.out or default_run_dir(scenario)
+    try:
+        note = prepare_run_dir(run_dir)
+    except ValueError as exc:
+        print(f"coload run: {exc}", file=sys.stderr)
+        return 2
+    if note:
+        print(f"coload run: {note}", file=sys.stderr)
     if args.engine == "inproc":
         summary = run_inproc_cli(scenario, run_dir, quiet=args.quiet)
     else:

@@ -55,8 +55,32 @@ class ProgressBar:
 
 
 def default_run_dir(scenario: Scenario) -> Path:
+    """runs/NAME-seedS-DATE, with -2, -3, ... if two runs start in the same second."""
     stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-    return Path("runs") / f"{scenario.name}-seed{scenario.seed}-{stamp}"
+    base = Path("runs") / f"{scenario.name}-seed{scenario.seed}-{stamp}"
+    path, k = base, 1
+    while path.exists():
+        k += 1
+        path = base.with_name(f"{base.name}-{k}")
+    return path
+
+
+def prepare_run_dir(run_dir: Path) -> str | None:
+    """Checks that ``run_dir`` can hold a run; returns a note if it holds a previous one (which the
+    new run replaces), raises ValueError naming the problem if it cannot be used."""
+    from coload import rundir_format as fmt
+
+    run_dir = Path(run_dir)
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"--out {run_dir}: exists and is not a directory")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {run_dir}: cannot create it ({exc.strerror})") from None
+    if not os.access(run_dir, os.W_OK):
+        raise ValueError(f"--out {run_dir}: not writable")
+    held = [name for name in (fmt.SUMMARY_JSON, fmt.INTERRUPTED_JSON, fmt.SAMPLES_CSV) if (run_dir / name).exists()]
+    return f"{run_dir} held a previous run ({', '.join(held)}): replacing it" if held else None
 
 
 def run_name_for(run_dir: Path) -> str:

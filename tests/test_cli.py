@@ -88,3 +88,17 @@ def test_bad_scenario_is_reported_with_file_line_and_field(tmp_path, capsys):
 def test_report_on_missing_directory_is_an_error(tmp_path, capsys):
     assert main(["report", str(tmp_path / "nope")]) == 2
     assert "not a directory" in capsys.readouterr().err
+
+
+def test_run_output_directory_problems_are_said(tmp_path, capsys):
+    afile = tmp_path / "file"
+    afile.write_text("x")
+    assert main(["run", "quick", "--engine", "inproc", "--out", str(afile)]) == 2
+    assert "exists and is not a directory" in capsys.readouterr().err
+    out = tmp_path / "run"
+    args = ["run", "quick", "--engine", "inproc", "--out", str(out), "--no-report", "--no-batch-fit",
+            "--set", "duration=0.5", "--quiet"]
+    assert main(args) == 0
+    assert "held a previous run" not in capsys.readouterr().err
+    assert main(args) == 0
+    assert f"{out} held a previous run (summary.json, samples.csv): replacing it" in capsys.readouterr().err
