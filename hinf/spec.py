@@ -48,7 +48,7 @@ def _mat(value: Matrix, field: str) -> np.ndarray:
 class AgentSpec(BaseModel):
     """One agent k of (1)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     name: str = Field(description="agent id used in the edge list")
     A: Matrix = Field(description="A_k: n_k x n_k state matrix")
     B: Matrix | None = Field(None, description="B_k: n_k x m_k control input matrix (needed for sync)")
@@ -95,7 +95,7 @@ class AgentSpec(BaseModel):
 class SyncSpec(BaseModel):
     """Synchronization design of Theorem 3 (internal model (10), controller (11))."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     S: Matrix = Field(description="S: nu x nu internal-model (exosystem) matrix, sigma(S) on the imaginary axis")
     Gamma: Matrix = Field(description="Gamma: r x nu output map of the exosystem, C_k Pi_k = Gamma")
     mu: float = Field(gt=0, description="mu: disturbance attenuation level in the Riccati equation (14)")
@@ -115,7 +115,7 @@ class SyncSpec(BaseModel):
 class DisturbanceSpec(BaseModel):
     """Disturbances xi_k and eta_kj of a run (coload hinf run); drawn from the run seed, held over a tick."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: Literal["none", "white", "worst"] = Field(
         "none", description="none: xi = eta = 0; white: Gaussian samples held over each tick; worst: the "
         "input direction (and frequency) at which the designed error network's gain peaks, as a sinusoid")
@@ -129,7 +129,7 @@ class DisturbanceSpec(BaseModel):
 class HinfTimingSpec(BaseModel):
     """Waits of the hinf daemons; a timeout is counted in summary.json, never fatal."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     startup_timeout_s: float = Field(30.0, gt=0, description="the simulator waits this long for every estimator")
     input_timeout_s: float = Field(2.0, gt=0, description="lockstep: the simulator waits this long for u_k "
                                    "(then holds the last one)")
@@ -140,7 +140,7 @@ class HinfTimingSpec(BaseModel):
 class RunSection(BaseModel):
     """How `coload hinf run` simulates the spec: tick, length, seed, initial states, disturbances, links."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     dt: float = Field(0.01, gt=0, description="tick (s): the plant is discretised exactly for it, the "
                       "estimators sample z_kj once per tick")
     duration: float = Field(30.0, gt=0, description="simulated time (s)")
@@ -160,6 +160,12 @@ class RunSection(BaseModel):
                            "(agents numbered 0..N-1 in spec order)")
     timing: HinfTimingSpec = Field(HinfTimingSpec(), description="daemon waits")
 
+    @model_validator(mode="after")
+    def _at_least_one_tick(self) -> RunSection:
+        if round(self.duration / self.dt) < 1:
+            raise ValueError(f"duration {self.duration} s is shorter than one tick dt = {self.dt} s")
+        return self
+
     @property
     def ticks(self) -> int:
         return round(self.duration / self.dt)
@@ -168,7 +174,7 @@ class RunSection(BaseModel):
 class HinfSpec(BaseModel):
     """Whole design problem: agents, directed graph, and the design constants of (6)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     name: str = Field("hinf", description="label of the design and of its runs")
     omega: float = Field(gt=0, description="omega: weight of the measurement noise eta in z_kj")
     alpha: float = Field(0.0, ge=0, description="alpha: guaranteed decay rate, V' <= -alpha V without disturbance")

@@ -61,8 +61,8 @@ def _is_chunk(s: str) -> bool:
 
 def _parse_id(s: str) -> int | None:
     """Canonical non-negative decimal -> int; anything else (``07``, ``+1``, non-ASCII digits) -> None."""
-    if not s.isascii() or not s.isdigit() or (len(s) > 1 and s[0] == "0"):
-        return None
+    if len(s) > 9 or not s.isascii() or not s.isdigit() or (len(s) > 1 and s[0] == "0"):
+        return None  # > 9 digits: no agent id is that large (and int() refuses > 4300 digits)
     return int(s)
 
 

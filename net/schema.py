@@ -48,9 +48,9 @@ MAX_PAIRS: Final = 1024
 MAX_PAIR_LEN: Final = 24
 """Most floats in one ``StateMsg.pair`` value (the dynamical phase with the augmented model sends 4 + 13)."""
 MAX_COUNT: Final = 2**63 - 1
+"""Largest counter in an ``AgentReport``."""
 MAX_VEC: Final = 1024
 """Most floats in one vector of a paper-003 message (``HinfMeas.z``, ``HinfState.xhat``, ...)."""
-"""Largest counter in an ``AgentReport``."""
 CONTROL_KINDS: Final = ("start", "progress", "stop", "done")
 
 REASONS: Final = (

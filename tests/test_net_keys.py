@@ -138,3 +138,23 @@ def test_bad_ids_roles_and_kinds_are_refused() -> None:
 )
 def test_key_matches(expr: str, key: str, expected: bool) -> None:
     assert keys.key_matches(expr, key) is expected
+
+
+ids_text = st.one_of(st.text(max_size=12), st.from_regex(r"\A[0-9]{1,6000}\Z"), st.just("0" * 5000 + "1"))
+
+
+@given(st.lists(st.one_of(st.text(max_size=12), ids_text, st.sampled_from(["coload", "agent", "alive", "hinf",
+                                                                            "wrench", "sim", "r1"])),
+                max_size=7))
+def test_parsers_return_none_for_any_foreign_key(chunks: list[str]) -> None:
+    """Whatever arrives on a wildcard subscription (a digit run longer than int() takes included),
+    the parsers answer a key or None, never raise."""
+    key = "/".join(chunks)
+    for parse in (keys.parse_agent_key, keys.parse_alive, keys.parse_hinf_key):
+        out = parse(key)
+        assert out is None or isinstance(out, tuple)
+
+
+def test_an_over_long_agent_id_is_foreign() -> None:
+    assert keys.parse_agent_key("coload/r1/agent/" + "9" * 5000 + "/wrench") is None
+    assert keys.parse_agent_key("coload/r1/agent/123456789/wrench") is not None

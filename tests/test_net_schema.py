@@ -10,6 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from net.hinf_messages import HinfInput, HinfMeas, HinfState
 from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
 from net.schema import (
     KIND,
@@ -27,7 +28,7 @@ from net.schema import (
     is_finite_message,
 )
 
-TYPES = [Measurement, Wrench, StateMsg, Estimate, Control, AgentReport]
+TYPES = [Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, HinfMeas, HinfState, HinfInput]
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 ticks = st.integers(0, MAX_TICK)
@@ -63,7 +64,11 @@ reports = st.builds(
     timeouts=counts,
     ticks=ticks,
 )
-messages = st.one_of(measurements, wrenches, states, estimates, controls, reports)
+vectors = st.lists(finite, max_size=8).map(tuple)
+hinf_meas = st.builds(HinfMeas, tick=ticks, agent=ids, z=vectors)
+hinf_states = st.builds(HinfState, tick=ticks, sender=ids, xhat=vectors, u=vectors, zeta=vectors)
+hinf_inputs = st.builds(HinfInput, tick=ticks, agent=ids, u=vectors, xhat=vectors, zeta=vectors)
+messages = st.one_of(measurements, wrenches, states, estimates, controls, reports, hinf_meas, hinf_states, hinf_inputs)
 
 
 def _same(a: object, b: object) -> bool:
@@ -130,6 +135,9 @@ GOOD = {
     Control: {"kind": "progress", "tick": 5, "ticks": 100},
     AgentReport: {"agent": 2, "links": {1: {"sent": 3, "dropped": 1}}, "drops": {"stale": 2}, "timeouts": 0,
                   "ticks": 100},
+    HinfMeas: {"tick": 1, "agent": 2, "z": (0.1, -0.2)},
+    HinfState: {"tick": 1, "sender": 2, "xhat": (1.0, 2.0), "u": (0.5,), "zeta": ()},
+    HinfInput: {"tick": 1, "agent": 2, "u": (0.5,), "xhat": (1.0, 2.0), "zeta": (0.1,)},
 }
 
 
@@ -323,7 +331,8 @@ msgpack_values = st.recursive(
 @settings(max_examples=100, suppress_health_check=[HealthCheck.too_slow])
 @given(body=st.dictionaries(st.sampled_from(["tick", "agent", "sender", "vx", "vy", "fx", "fy", "tau", "phase",
                                               "shared", "pair", "values", "pairs", "kind", "ticks",
-                                              "links", "drops", "timeouts", "x"]), msgpack_values))
+                                              "links", "drops", "timeouts", "z", "xhat", "u", "zeta", "x"]),
+                                msgpack_values))
 def test_fuzz_structured_bodies_raise_only_decode_error(typ: type, body: dict) -> None:
     """Well-formed envelopes with arbitrary bodies: valid or DecodeError, nothing else."""
     try:
