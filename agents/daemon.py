@@ -88,6 +88,8 @@ class AgentDaemon:
         self.max_age_ticks = scenario.timing.max_age_s / scenario.dt
         self.sim_alive = False
         self._sim_lost = False  # the simulator's token went away after the run started; cleared by a measurement
+        self._lost_timer: asyncio.TimerHandle | None = None  # gives up on a simulator gone too long
+        self.gave_up = False  # ended because the simulator never came back
         self._resend: dict[str, bytes] = {}  # key -> last wrench / estimate published, re-sent to a returning simulator
 
     # ---- lifecycle -------------------------------------------------------------------------
@@ -110,7 +112,7 @@ class AgentDaemon:
         return self.report()
 
     def stop(self) -> None:
-        for timer in (self._timer, self._jump_timer):
+        for timer in (self._timer, self._jump_timer, self._lost_timer):
             if timer is not None:
                 timer.cancel()
         self._finish.cancel()
@@ -153,8 +155,14 @@ class AgentDaemon:
             if self.done.is_set() or not (self.seen_start or self.ticks_stepped):
                 return  # the run is over, or has not started
             self._sim_lost = True
-            log.warning("agent %d: the simulator is gone (next tick %d); waiting for it", self.id, self.next_tick)
+            wait = self.scenario.timing.sim_lost_timeout_s
+            log.warning("agent %d: the simulator is gone (next tick %d); waiting %g s for it", self.id,
+                        self.next_tick, wait)
+            self._lost_timer = asyncio.get_running_loop().call_later(wait, self._give_up)
             return
+        if self._lost_timer is not None:
+            self._lost_timer.cancel()
+            self._lost_timer = None
         if self._sim_lost:
             log.info("agent %d: the simulator is back; re-sending the last wrench and estimate", self.id)
             for key, payload in self._resend.items():
@@ -174,6 +182,16 @@ class AgentDaemon:
             self.seen_start = True
         elif msg.kind == "done":
             self._finish.begin(msg.tick, self.last_from, self.expect)
+
+    def _give_up(self) -> None:
+        """The simulator stayed away for timing.sim_lost_timeout_s: report what this agent saw and end."""
+        self._lost_timer = None
+        if self.done.is_set():
+            return
+        log.error("agent %d: the simulator did not come back in %g s; giving up at tick %d", self.id,
+                  self.scenario.timing.sim_lost_timeout_s, self.next_tick)
+        self.gave_up = True
+        self._report_and_end()
 
     def _report_and_end(self) -> None:
         self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))

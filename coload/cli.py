@@ -305,8 +305,16 @@ def cmd_agent(args: argparse.Namespace) -> int:
         print(f"coload agent: --id {args.id} is not an agent of {scenario.name} (0..{scenario.n - 1})",
               file=sys.stderr)
         return 2
-    report = _run_daemon("agent", args, lambda t: AgentDaemon(scenario, args.id, t, args.run).run())
-    return 0 if report is not None else 130
+    daemon: list[AgentDaemon] = []
+
+    def build(t):
+        daemon.append(AgentDaemon(scenario, args.id, t, args.run))
+        return daemon[0].run()
+
+    report = _run_daemon("agent", args, build)
+    if report is None:
+        return 130
+    return 1 if daemon[0].gave_up else 0
 
 
 def cmd_sim(args: argparse.Namespace) -> int:

@@ -184,6 +184,11 @@ class TimingSpec(_Strict):
         description="a restarted simulator (resuming from its journal) waits this long for the agents that were "
                     "alive before it died; those still missing are recorded as agent_down",
     )
+    sim_lost_timeout_s: float = Field(
+        300.0, gt=0,
+        description="an agent daemon whose simulator went away mid-run waits this long (wall-clock s) for it to "
+                    "come back (a restart resumes the run), then sends its report and exits with status 1",
+    )
 
 
 class RecordSpec(_Strict):

@@ -67,3 +67,44 @@ def test_crashed_agent_is_replaced_and_the_run_completes(tmp_path):
     assert errors["zi_err_per_agent"][CRASHED] is not None
     assert errors["eerd_ratio_per_agent"][CRASHED] < 0.05
     assert max(errors["zi_err_per_agent"]) < 0.2
+
+
+async def _sim_dies(tmp_path):
+    sc = load_scenario(SCENARIOS / "quick.toml", ["timing.sim_lost_timeout_s=1.0"])
+    loop = asyncio.get_running_loop()
+    bus, run = MemoryBus(), "simdies"
+    transports = {i: MemoryTransport(bus, loop) for i in range(sc.n)}
+    daemons = {i: AgentDaemon(sc, i, transports[i], run) for i in range(sc.n)}
+    tasks = {i: asyncio.ensure_future(d.run()) for i, d in daemons.items()}
+    observer = MemoryTransport(bus, loop)
+    reached = loop.create_future()
+    reports: list[int] = []
+    observer.subscribe(keys.sim_control(run), lambda _k, p: (decode(p, Control).tick >= 100 and not reached.done()
+                                                             and reached.set_result(True)))
+    observer.subscribe(keys.agent_all(run, "report"), lambda key, _p: reports.append(keys.parse_agent_key(key).agent))
+    sim_t = MemoryTransport(bus, loop)
+    sim = asyncio.ensure_future(SimDaemon(sc, sim_t, run, tmp_path / "run", engine="memory").run())
+    try:
+        await asyncio.wait_for(reached, 60)
+        sim.cancel()  # the simulator's process dies and nobody restarts it
+        sim_t.close()
+        t0 = loop.time()
+        done = await asyncio.wait_for(asyncio.gather(*tasks.values()), 30)
+        waited = loop.time() - t0
+    finally:
+        for t in [*tasks.values(), sim]:
+            t.cancel()
+        for t in [*transports.values(), observer]:
+            t.close()
+    return sc, daemons, done, reports, waited
+
+
+def test_agents_give_up_on_a_simulator_that_never_comes_back(tmp_path):
+    """Without a simulator the agents wait timing.sim_lost_timeout_s (a restart would resume the
+    run), then each sends its report and ends, marked as having given up; none hangs."""
+    sc, daemons, done, reports, waited = asyncio.run(_sim_dies(tmp_path))
+    assert all(d.gave_up for d in daemons.values())
+    assert sorted(r.agent for r in done) == sorted(reports) == list(range(sc.n))
+    assert all(r.ticks >= 100 for r in done)
+    assert 1.0 <= waited < 10.0
+    assert (tmp_path / "run" / "interrupted.json").exists()  # the cancelled simulator kept its tables
