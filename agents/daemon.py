@@ -26,6 +26,10 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
+#: Real time: a measurement may be ahead of the last one by at most twice the wall-clock time since
+#: it, plus this many ticks (a simulator cannot run faster than the clock; a forgery far ahead would
+#: otherwise make every genuine measurement after it stale).
+REALTIME_LEAD_SLACK = 50
 
 # Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
 # consumes a link-model draw). The simulator publishes measurements tick after tick on one key, and a
@@ -65,6 +69,7 @@ class AgentDaemon:
         self.timeouts = 0
         self.next_tick = 0  # the tick the core steps next
         self.last_meas = -1  # tick of the last accepted measurement
+        self._last_meas_wall = 0.0  # loop time it arrived (real time: bounds how far the next may jump)
         self.seen_start = False  # the simulator's start notice arrived: we are in from tick 0
         self.pending_meas: dict[int, Measurement] = {}
         self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
@@ -215,6 +220,13 @@ class AgentDaemon:
         if m.tick > self.next_tick + MAX_TICK_LEAD:
             self.drops["future"] += 1
             return
+        if self.mode == "realtime":
+            now = self.transport.loop.time()
+            if self.last_meas >= 0 and m.tick - self.last_meas > (
+                    2.0 * (now - self._last_meas_wall) / self.scenario.dt + REALTIME_LEAD_SLACK):
+                self.drops["future"] += 1
+                return
+            self._last_meas_wall = now
         if self.mode == "lockstep" and m.tick != self.last_meas + 1:
             if self._sim_lost and self.sim_alive:
                 # cut off from the simulator and back: the run went on meanwhile, this is its tick

@@ -157,7 +157,16 @@ class SimDaemon:
             self.drops["spoofed_sender"] += 1
             return
         if self.scenario.mode == "realtime":
+            # the newest wrench holds; an older one (a replay, a reordered copy) or one from a tick
+            # not yet simulated (a forgery) must not replace it
+            if w.tick <= self.last_wrench[i]:
+                self.drops["duplicate" if w.tick == self.last_wrench[i] else "stale"] += 1
+                return
+            if w.tick > self.tick + 1:
+                self.drops["future"] += 1
+                return
             self.latest[i] = (w.fx, w.fy, w.tau)
+            self.last_wrench[i] = w.tick
             return
         if w.tick != self.tick:
             if w.tick == self.last_wrench[i] or w.tick == self.resumed_at - 1:
