@@ -277,6 +277,8 @@ class HinfAgentDaemon:
         self.last_meas = -1
         self.last_z: tuple[float, ...] | None = None
         self.pending: dict[int, tuple[float, ...]] = {}
+        self._held: HinfMeas | None = None  # lockstep: a measurement past a gap, until the next confirms it
+        self.rejoins = 0  # lockstep gaps this estimator came back from
         self.last_from = {j: -1 for j in self.nbrs}
         self.expect = set(self.nbrs)
         self.done = asyncio.Event()
@@ -316,6 +318,8 @@ class HinfAgentDaemon:
     def report(self) -> AgentReport:
         drops = dict(self.drops)
         drops["_held"] = self.core.held  # ticks stepped with some neighbour's data held (not a drop)
+        if self.rejoins:
+            drops["_rejoined"] = self.rejoins  # gaps in the measurements this estimator came back from
         return AgentReport(self.id, {j: s.as_dict() for j, s in self.stats.items()}, drops, self.timeouts,
                            self.ticks_stepped)
 
@@ -357,9 +361,24 @@ class HinfAgentDaemon:
         if m.tick <= self.last_meas or m.tick < self.next_tick:
             self.drops["stale"] += 1
             return
-        if m.tick > self.next_tick + MAX_TICK_LEAD or (self.mode == "lockstep" and m.tick != self.last_meas + 1):
-            self.drops["future"] += 1  # the lockstep simulator never skips a tick
+        if m.tick > self.next_tick + MAX_TICK_LEAD:
+            self.drops["future"] += 1
             return
+        if self.mode == "lockstep" and m.tick != self.last_meas + 1:
+            # the lockstep simulator never skips a tick: either the run went on without this estimator
+            # (a lost connection, a restart) or the message is forged. Hold it; the next measurement
+            # right after it confirms the gap, and the estimator rejoins the run there
+            held = self._held
+            if held is None or m.tick != held.tick + 1:
+                if held is not None:
+                    self.drops["future"] += 1  # the one held before was not confirmed
+                self._held = m
+                return
+            self._held = None
+            self._rejoin(held)
+        elif self._held is not None and self._held.tick <= m.tick:
+            self.drops["future"] += 1  # the stream went on without a gap: the held one was not ours
+            self._held = None
         self.last_meas = m.tick
         if self.mode == "realtime":
             # act on the newest data: the ticks we never got are stepped with the last z held
@@ -368,6 +387,19 @@ class HinfAgentDaemon:
                 self._step(t, z_hold, publish=False)
         self.pending[m.tick] = m.z
         self._try_step()
+
+    def _rejoin(self, m: HinfMeas) -> None:
+        """Come back at ``m.tick`` after a gap: the missed ticks are stepped with the last z held (as in
+        real time, nothing published: the simulator has moved on), then ``m`` is this tick's data."""
+        log.warning("estimator %d: measurements %d..%d missed; rejoining the run at tick %d", self.id,
+                    self.last_meas + 1, m.tick - 1, m.tick)
+        self.rejoins += 1
+        self.pending.clear()
+        z_hold = self.last_z if self.last_z is not None else m.z
+        for t in range(self.next_tick, m.tick):
+            self._step(t, z_hold, publish=False)
+        self.last_meas = m.tick
+        self.pending[m.tick] = m.z
 
     def _on_state(self, key: str, payload: bytes) -> None:
         sender = self._state_keys.get(key)
@@ -389,7 +421,9 @@ class HinfAgentDaemon:
         if msg.tick <= last:
             self.drops["stale"] += 1
             return
-        if msg.tick > self.next_tick + MAX_TICK_LEAD or (self.mode == "lockstep" and msg.tick != last + 1):
+        if msg.tick > self.next_tick + MAX_TICK_LEAD or (
+                self.mode == "lockstep" and msg.tick != last + 1 and msg.tick > self.next_tick):
+            # lockstep: a neighbour that skipped ticks is back only at a tick this estimator has reached
             self.drops["future"] += 1
             return
         self.last_from[sender] = msg.tick
