@@ -89,6 +89,7 @@ class SimDaemon:
         # ticks the run lasts: the scenario's, or fewer once every agent is done (stop_after_done_s)
         self._stop = done_stop(scenario)
         self.ended = False  # 'done' published: reports are expected from now on
+        self.started = False  # 'start' published: agents that come and go from now on are events
         self.wrenches: dict[int, tuple[float, float, float]] = {}  # of self.tick; emptied after each step
         self.latest: list[tuple[float, float, float]] = [ZERO_WRENCH] * self.n
         self._subs: list = []
@@ -130,7 +131,7 @@ class SimDaemon:
         i = parsed[2]
         was = i in self.alive
         (self.alive.add if alive else self.alive.discard)(i)
-        if was != alive and 0 < self.tick and not self.ended:  # not start-up, not shutdown
+        if was != alive and (self.started or self.resumed_at >= 0) and not self.ended:  # not start-up, not shutdown
             if alive and i in self._expected_alive:
                 self._expected_alive.discard(i)  # alive before the restart: found again, not an event
             else:
@@ -397,6 +398,7 @@ class SimDaemon:
                 self._event("start_without", agents=missing)
             self._write_journal({"alive": sorted(self.alive)})
             self._publish_control("start", 0)
+            self.started = True  # from here an agent that appears (also during tick 0) is an event
         else:
             expected = set(self._expected_alive)
             if not await self._wait_for(lambda: not self._expected_alive, sc.timing.sim_restart_wait_s):
