@@ -94,6 +94,7 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "c_local",  # this agent's own c, before the averaging consensus (N m s)
 )
 _DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
+_KINEMATIC = dynamic.KINEMATIC  # the dynamical phase's stage while the team waits for kinematic readiness
 _NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)
 
 _HOLD_MAX = 16  # longest wait for a reordered velocity sample (ticks); well inside history_ticks
@@ -262,6 +263,8 @@ class AgentCore:
         "_vbuf",
         "_vtick",
         "_wr",
+        "_boost_tick",
+        "_boost_target",
         "_omdot",
         "_held",
         "_asum",
@@ -302,6 +305,9 @@ class AgentCore:
         self._ctl = ctl = KinematicControl(control, dt)
         # the control law's constants, for the inlined KinematicControl.wrench (negation is exact)
         self._wr = (ctl._switch, ctl._fx, ctl._fy, -ctl._fx, -ctl._fy, ctl._spin, ctl._target, ctl._k, ctl._tmax)
+        # the target while the team waits for a late pair (ControlSpec.omega_boost; dynamical phase only)
+        self._boost_tick = round(control.boost_after_s / dt) if control.omega_boost > 0 else -1
+        self._boost_target = (1.0 if ctl._spin >= 0.0 else -1.0) * control.omega_boost
         nb_ids = sorted(set(int(j) for j in neighbours))
         self._nbrs: dict[int, _Nbr] = {}
         for j in nb_ids:
@@ -673,6 +679,11 @@ class AgentCore:
         else:
             fx, fy = cfx, cfy
         if om_init:  # omega_hat exists: stop spinning up, regulate on it
+            if dyn is not None and 0 <= self._boost_tick <= tick and dyn.stage == _KINEMATIC \
+                    and dyn.barrier.mask != dyn.barrier.full:
+                # the team is late: some pair has no circle fit yet. Spin faster until every agent is
+                # ready (the flooded readiness mask is full): the same rule at every agent, no message
+                target = self._boost_target
             tau = k_om * (target - om_new)
             if tau > tmax:
                 tau = tmax

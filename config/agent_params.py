@@ -97,6 +97,16 @@ class ControlSpec(_Strict):
                     "200 ms link delay (omega_hat lags by the delay plus the consensus filter)",
     )
     torque_max: float = Field(5.0, ge=0, description="saturation of the regulation torque per agent (N m)")
+    omega_boost: float = Field(
+        2.5, ge=0,
+        description="with the dynamical phase: |omega| held instead of omega_target while the team is still in "
+                    "the kinematic stage boost_after_s after the start (some pair has no circle fit yet: at high "
+                    "noise a short pair's tangential speed |omega| |z_ij| is too small for it); back to "
+                    "omega_target once every agent is ready. 0: off (rad/s)",
+    )
+    boost_after_s: float = Field(
+        30.0, ge=0, description="when omega_boost starts if the team is not ready yet (simulated s)"
+    )
 
 
 class DynamicsSpec(_Strict):
