@@ -71,6 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="zenoh: an embedded router, the simulator and one daemon per agent as separate OS "
                         "processes; inproc: everything in this process with the in-memory link model")
     p.add_argument("--out", type=Path, help="run directory (default: runs/NAME-seedS-DATE)")
+    p.add_argument("--listen", metavar="ENDPOINT",
+                   help="zenoh engine: the embedded router's endpoint, for clients that watch or join the run "
+                        "(docs/wire.md), e.g. tcp/127.0.0.1:7447 (default: a free loopback port; printed)")
     p.add_argument("--no-report", action="store_true", help="do not draw report.png at the end")
     p.add_argument("--no-batch-fit", action="store_true",
                    help="skip the centralized batch fit of samples.csv at the end (summary.json then has no "
@@ -575,6 +578,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     args.overrides = ["record.batch_fit=true", *args.overrides, *(["record.batch_fit=false"] if args.no_batch_fit else [])]
     scenario = _scenario(args)
     run_dir = args.out or default_run_dir(scenario)
+    if args.listen and args.engine != "zenoh":
+        print("coload run: --listen is for --engine zenoh (the in-process engine has no router)", file=sys.stderr)
+        return 2
     try:
         note = prepare_run_dir(run_dir)
     except ValueError as exc:
@@ -585,7 +591,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.engine == "inproc":
         summary = run_inproc_cli(scenario, run_dir, quiet=args.quiet)
     else:
-        summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose)
+        summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen)
     if summary is None:
         return 1
     if not args.no_report:

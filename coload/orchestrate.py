@@ -281,30 +281,34 @@ def watch_simulator(
     return True
 
 
-def process_run(run_dir: Path, verbose: int = 0) -> tuple[str, str, list[str], _Children]:
-    """What every multi-process run starts from: ``run_dir/logs``, a free loopback endpoint for the
-    embedded router, the run name (the key-expression namespace), the command that starts a ``coload``
-    child process and the supervisor of the children."""
+def process_run(run_dir: Path, verbose: int = 0, listen: str | None = None) -> tuple[str, str, list[str], _Children]:
+    """What every multi-process run starts from: ``run_dir/logs``, the embedded router's endpoint
+    (``listen``, or a free loopback port), the run name (the key-expression namespace), the command
+    that starts a ``coload`` child process and the supervisor of the children."""
     from net.zenoh_transport import free_tcp_port
 
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    endpoint = listen or f"tcp/127.0.0.1:{free_tcp_port()}"
     py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)
     return endpoint, run_name_for(run_dir), py, _Children(run_dir / "logs")
 
 
-def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0) -> dict[str, Any] | None:
-    """The real thing: an embedded Zenoh router, the simulator and n agent daemons, each its own process."""
+def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0,
+                  listen: str | None = None) -> dict[str, Any] | None:
+    """The real thing: an embedded Zenoh router, the simulator and n agent daemons, each its own process.
+    ``listen``: the router's endpoint, for clients of the run (docs/wire.md); default a free loopback port."""
     from net import keys
 
     run_dir = Path(run_dir)
-    endpoint, run, py, children = process_run(run_dir, verbose)
+    endpoint, run, py, children = process_run(run_dir, verbose, listen)
     toml = run_dir / "run.toml"
     toml.write_text(dump_scenario(scenario), encoding="utf-8")
     bar = ProgressBar(f"{scenario.name} (zenoh, {scenario.n} agents)", quiet)
     try:
         if not start_router(children, py, endpoint, run_dir, "coload run"):
             return None
+        # what a client of the run needs (docs/wire.md): the router and the key space
+        print(f"coload run: router {endpoint}, keys coload/{run}/**", file=sys.stderr, flush=True)
         common = [str(toml), "--connect", endpoint, "--run", run]
         sim = children.start("sim", [*py, "sim", *common, "--out", str(run_dir)])
         for i in range(scenario.n):
