@@ -48,7 +48,8 @@ def _add_zenoh_args(p: argparse.ArgumentParser, router: bool = False) -> None:
                            if router else ""))
     if not router:
         g.add_argument("--zenoh-mode", choices=["client", "peer", "router"],
-                       help="Zenoh session mode (default: client, or the --zenoh-config file's mode)")
+                       help="Zenoh session mode (default: client, or a mode other than peer that the "
+                            "--zenoh-config file sets)")
     g.add_argument("--zenoh-config", type=Path, metavar="FILE",
                    help="a Zenoh JSON5 config file (TLS, lease, ...); its mode and endpoints are kept unless "
                         "given here; multicast scouting stays off")
@@ -250,8 +251,8 @@ def _scenario(args: argparse.Namespace):
 def _zenoh_conf(args: argparse.Namespace):
     from net.zenoh_transport import zenoh_config
 
-    mode = args.zenoh_mode or (None if args.zenoh_config else "client")
-    return zenoh_config(mode=mode, connect=args.connect, listen=args.listen, config_file=args.zenoh_config)
+    return zenoh_config(mode=args.zenoh_mode, connect=args.connect, listen=args.listen,
+                        config_file=args.zenoh_config, mode_if_unset="client")
 
 
 class DaemonStartError(Exception):

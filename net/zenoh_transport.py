@@ -154,6 +154,7 @@ def zenoh_config(
     scouting: bool = False,
     lease_ms: int | None = None,
     config_file: str | Path | None = None,
+    mode_if_unset: Mode = "peer",
 ) -> zenoh.Config:
     """Build a session config with explicit endpoints and, unless asked, no multicast scouting.
 
@@ -161,8 +162,10 @@ def zenoh_config(
     session listens nowhere (Zenoh's default would be every interface). ``lease_ms`` shortens the
     lease after which a silent (hung, partitioned) session is declared dead; default 10 s.
     ``config_file`` (a Zenoh JSON5 config) is the base: its mode and endpoints stay unless ``mode``,
-    ``connect`` or ``listen`` are given (``None``); without a file they default to a peer that
-    connects to and listens on nothing. Multicast scouting is set either way (off unless
+    ``connect`` or ``listen`` are given (``None``); without a file they default to a
+    ``mode_if_unset`` session that connects to and listens on nothing; a file that does not set the
+    mode (Zenoh's own default, peer, counts as unset) gets ``mode_if_unset`` too. Multicast scouting
+    is set either way (off unless
     ``scouting``): a daemon must not find peers its operator did not name.
     Clients and peers retry a lost connection after 200 ms, then every 1 s at most (:data:`RETRY`),
     unless the config file sets ``connect/retry`` itself.
@@ -171,7 +174,7 @@ def zenoh_config(
         raise ValueError(f"mode must be peer, client or router: {mode!r}")
     if config_file is None:
         conf = zenoh.Config()
-        mode, connect, listen = mode or "peer", connect or (), listen or ()
+        mode, connect, listen = mode or mode_if_unset, connect or (), listen or ()
     else:
         try:
             conf = zenoh.Config.from_file(str(config_file))
@@ -179,6 +182,8 @@ def zenoh_config(
             raise ValueError(f"{config_file}: not a usable Zenoh config ({str(exc).split(' at /')[0]})") from None
         if listen is None and _is_default(conf, "listen/endpoints"):
             listen = ()  # a file without listen endpoints: listen nowhere, not on every interface
+        if mode is None and _is_default(conf, "mode"):
+            mode = mode_if_unset
     if mode is not None:
         conf.insert_json5("mode", json.dumps(mode))
     if connect is not None:

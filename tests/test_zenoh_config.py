@@ -108,3 +108,13 @@ def test_daemons_that_cannot_start_say_why(tmp_path, endpoint, capsys):
     f = _write(tmp_path / "z.json5", "{}")
     assert main(["router", "--zenoh-config", str(f)]) == 2
     assert "needs at least one listen endpoint" in capsys.readouterr().err
+
+
+def test_a_file_that_only_tunes_the_link_leaves_the_daemon_a_client(tmp_path):
+    """The usual file sets a lease and nothing else: the daemon stays what the command line makes it
+    (a client), not Zenoh's default peer."""
+    f = _write(tmp_path / "z.json5", "{ transport: { link: { tx: { lease: 1000, keep_alive: 4 } } } }")
+    conf = zenoh_config(connect=["tcp/127.0.0.1:7447"], config_file=f, mode_if_unset="client")
+    assert _get(conf, "mode") == "client" and _get(conf, "transport/link/tx/lease") == 1000
+    assert _get(zenoh_config(config_file=_write(tmp_path / "r.json5", '{mode: "router"}'),
+                             mode_if_unset="client"), "mode") == "router"
