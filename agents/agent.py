@@ -307,7 +307,7 @@ class AgentCore:
         self._wr = (ctl._switch, ctl._fx, ctl._fy, -ctl._fx, -ctl._fy, ctl._spin, ctl._target, ctl._k, ctl._tmax)
         # the target while the team waits for a late pair (ControlSpec.omega_boost; dynamical phase only)
         self._boost_tick = round(control.boost_after_s / dt) if control.omega_boost > 0 else -1
-        self._boost_target = (1.0 if ctl._spin >= 0.0 else -1.0) * control.omega_boost
+        self._boost_target = (1.0 if ctl._spin >= 0.0 else -1.0) * max(control.omega_boost, control.omega_target)
         nb_ids = sorted(set(int(j) for j in neighbours))
         self._nbrs: dict[int, _Nbr] = {}
         for j in nb_ids:

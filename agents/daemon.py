@@ -26,9 +26,11 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
-#: Real time: a measurement may be ahead of the last one by at most twice the wall-clock time since
-#: it, plus this many ticks (a simulator cannot run faster than the clock; a forgery far ahead would
-#: otherwise make every genuine measurement after it stale).
+#: Real time: a measurement may be ahead of this agent's first one by at most twice the wall-clock
+#: time since it, plus this many ticks (a simulator cannot run faster than the clock; a forgery far
+#: ahead would otherwise make every genuine measurement after it stale). The anchor never moves, so a
+#: burst of forgeries cannot walk it forward; the first measurement itself is trusted (keeping forged
+#: publishers out altogether is Zenoh access control's job).
 REALTIME_LEAD_SLACK = 50
 
 # Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
@@ -69,7 +71,7 @@ class AgentDaemon:
         self.timeouts = 0
         self.next_tick = 0  # the tick the core steps next
         self.last_meas = -1  # tick of the last accepted measurement
-        self._last_meas_wall = 0.0  # loop time it arrived (real time: bounds how far the next may jump)
+        self._anchor: tuple[int, float] | None = None  # real time: (tick, loop time) of the first measurement
         self.seen_start = False  # the simulator's start notice arrived: we are in from tick 0
         self.pending_meas: dict[int, Measurement] = {}
         self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
@@ -222,11 +224,11 @@ class AgentDaemon:
             return
         if self.mode == "realtime":
             now = self.transport.loop.time()
-            if self.last_meas >= 0 and m.tick - self.last_meas > (
-                    2.0 * (now - self._last_meas_wall) / self.scenario.dt + REALTIME_LEAD_SLACK):
+            if self._anchor is None:
+                self._anchor = (m.tick, now)
+            elif m.tick - self._anchor[0] > 2.0 * (now - self._anchor[1]) / self.scenario.dt + REALTIME_LEAD_SLACK:
                 self.drops["future"] += 1
                 return
-            self._last_meas_wall = now
         if self.mode == "lockstep" and m.tick != self.last_meas + 1:
             if self._sim_lost and self.sim_alive:
                 # cut off from the simulator and back: the run went on meanwhile, this is its tick

@@ -295,8 +295,12 @@ def _run_daemon(name: str, args: argparse.Namespace, coro_factory):
 
     try:
         conf = _zenoh_conf(args)
+    except ValueError as exc:  # a bad --zenoh-config file
+        print(f"coload {name}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    try:
         return asyncio.run(_serve(coro_factory, lambda loop: ZenohTransport(conf, loop)))
-    except (DaemonStartError, ValueError) as exc:
+    except DaemonStartError as exc:  # only what failed before the daemon ran; later errors keep their traceback
         print(f"coload {name}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
 
@@ -365,7 +369,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         print(f"report: {path}")
     stopped = args.run_dir / "interrupted.json"
     if stopped.exists():
-        info = json.loads(stopped.read_text(encoding="utf-8"))
+        try:
+            info = json.loads(stopped.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            info = {}
         print(f"coload report: this run was stopped at t = {info.get('t', '?')} s of {info.get('duration', '?')} s "
               f"({info.get('reason', '?')}); its tables end there", file=sys.stderr)
     from coload.diagnose import DiagnoseError, stderr_progress
@@ -616,7 +623,7 @@ COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_ro
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from coload.orchestrate import Terminated, terminate_on_sigterm
+    from coload.orchestrate import Terminated, check_terminated, terminate_on_sigterm
 
     parent = os.environ.pop("COLOAD_PARENT_PID", None)  # popped: not inherited by our own children
     if parent is not None:
@@ -633,7 +640,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not daemon and threading.current_thread() is threading.main_thread():
         previous = terminate_on_sigterm()  # daemons handle SIGTERM in their own loops
     try:
-        return COMMANDS[args.command](args)
+        code = COMMANDS[args.command](args)
+        if previous is not None:
+            check_terminated()  # a SIGTERM that a library call swallowed: still a stop
+        return code
     except ScenarioError as exc:
         print(f"coload {args.command}: {exc}", file=sys.stderr)
         return 2

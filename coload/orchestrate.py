@@ -66,8 +66,10 @@ def default_run_dir(scenario: Scenario) -> Path:
 
 
 def prepare_run_dir(run_dir: Path) -> str | None:
-    """Checks that ``run_dir`` can hold a run; returns a note if it holds a previous one (which the
-    new run replaces), raises ValueError naming the problem if it cannot be used."""
+    """Checks that ``run_dir`` can hold a run and clears a previous run's files from it (its tables,
+    summary, report, diagnosis, restart journal: nothing of it may be read as the new run's, even if
+    the new one fails before writing anything); returns a note saying so, or None. Raises ValueError
+    naming the problem if the directory cannot be used."""
     from coload import rundir_format as fmt
 
     run_dir = Path(run_dir)
@@ -80,7 +82,11 @@ def prepare_run_dir(run_dir: Path) -> str | None:
     if not os.access(run_dir, os.W_OK):
         raise ValueError(f"--out {run_dir}: not writable")
     held = [name for name in (fmt.SUMMARY_JSON, fmt.INTERRUPTED_JSON, fmt.SAMPLES_CSV) if (run_dir / name).exists()]
-    return f"{run_dir} held a previous run ({', '.join(held)}): replacing it" if held else None
+    if not held:
+        return None
+    for name in (*fmt.DERIVED_FILES, fmt.SAMPLES_CSV, fmt.ESTIMATES_CSV, fmt.PAIRS_CSV, fmt.TRUTH_CSV, "sim.journal"):
+        (run_dir / name).unlink(missing_ok=True)
+    return f"{run_dir} held a previous run ({', '.join(held)}): replaced"
 
 
 def run_name_for(run_dir: Path) -> str:
@@ -141,6 +147,8 @@ def check_terminated() -> None:
 
 def terminate_on_sigterm() -> Any:
     """Make SIGTERM raise :class:`Terminated` in the main thread; returns the previous handler."""
+    global _pending, _terminated
+    _pending = _terminated = False  # a fresh command (several may run in one process, e.g. tests)
     return signal.signal(signal.SIGTERM, _on_sigterm)
 
 
@@ -318,6 +326,7 @@ def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbos
         if not watch_simulator(children, sim, endpoint, keys.sim_control(run), scenario.ticks, budget, bar,
                                run_dir, "coload run"):
             return None
+        check_terminated()  # a SIGTERM whose raise zenoh swallowed as the watch ended
         if sim.returncode != 0:
             print(f"coload run: the simulator failed (see {run_dir / 'logs' / 'sim.log'})", file=sys.stderr)
             return None

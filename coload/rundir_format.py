@@ -198,7 +198,7 @@ def read_config(path: Path) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as exc:
         raise RunFormatError(f"{path}: invalid TOML: {exc}") from exc
     except UnicodeDecodeError as exc:
-        line = path.read_bytes()[: exc.start].count(b"\n") + 1
+        line = exc.object[: exc.start].count(b"\n") + 1
         raise RunFormatError(f"{path}:{line}: not UTF-8 text (TOML must be UTF-8)") from None
     for key in ("n", "dt", "edges"):
         if key not in config:

@@ -102,7 +102,7 @@ class ControlSpec(_Strict):
         description="with the dynamical phase: |omega| held instead of omega_target while the team is still in "
                     "the kinematic stage boost_after_s after the start (some pair has no circle fit yet: at high "
                     "noise a short pair's tangential speed |omega| |z_ij| is too small for it); back to "
-                    "omega_target once every agent is ready. 0: off (rad/s)",
+                    "omega_target once every agent is ready; never below omega_target. 0: off (rad/s)",
     )
     boost_after_s: float = Field(
         30.0, ge=0, description="when omega_boost starts if the team is not ready yet (simulated s)"

@@ -311,7 +311,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     try:
         text = Path(path).read_text(encoding="utf-8-sig")  # -sig: an editor's byte-order mark is not TOML
     except UnicodeDecodeError as exc:
-        line = Path(path).read_bytes()[: exc.start].count(b"\n") + 1
+        line = exc.object[: exc.start].count(b"\n") + 1
         raise ScenarioError(file, line, "", f"not UTF-8 text (byte {exc.object[exc.start]:#04x}); "
                                             f"TOML files must be UTF-8") from None
     except OSError as exc:

@@ -243,14 +243,18 @@ class HinfSimDaemon:
         drops: Counter[str] = Counter({f"sim:{r}": c for r, c in self.drops.items()})
         timeouts = 0
         held = {}
+        rejoined = {}  # estimators that came back from a gap in their measurements (count of gaps)
         for k, rep in sorted(self.reports.items()):
             for j, c in sorted(rep.links.items()):
                 links[f"{j}->{k}"] = dict(c)
             held[str(k)] = rep.drops.get("_held", 0)
+            if rep.drops.get("_rejoined"):
+                rejoined[str(k)] = rep.drops["_rejoined"]
             drops.update({f"{k}:{r}": c for r, c in rep.drops.items() if not r.startswith("_")})
             timeouts += rep.timeouts
         return {"links": dict(sorted(links.items())), "drops": dict(sorted(drops.items())),
                 "timeouts": {"input": self.input_timeouts, "neighbour": timeouts}, "held": held,
+                "rejoined": rejoined,
                 "stale_u": self.stale_u, "late_inputs": self.late_inputs,
                 "events": events, "agents_reported": sorted(self.reports), "wall_s": self.wall_s}
 
@@ -361,8 +365,8 @@ class HinfAgentDaemon:
         if m.tick <= self.last_meas or m.tick < self.next_tick:
             self.drops["stale"] += 1
             return
-        if m.tick > self.next_tick + MAX_TICK_LEAD:
-            self.drops["future"] += 1
+        if self.last_meas >= 0 and m.tick > self.next_tick + MAX_TICK_LEAD:
+            self.drops["future"] += 1  # (a restarted estimator's first measurement may be far ahead)
             return
         if self.mode == "lockstep" and m.tick != self.last_meas + 1:
             # the lockstep simulator never skips a tick: either the run went on without this estimator
@@ -390,7 +394,8 @@ class HinfAgentDaemon:
 
     def _rejoin(self, m: HinfMeas) -> None:
         """Come back at ``m.tick`` after a gap: the missed ticks are stepped with the last z held (as in
-        real time, nothing published: the simulator has moved on), then ``m`` is this tick's data."""
+        real time; neither inputs nor states are published for them: the run has moved on), then
+        ``m`` is this tick's data."""
         log.warning("estimator %d: measurements %d..%d missed; rejoining the run at tick %d", self.id,
                     self.last_meas + 1, m.tick - 1, m.tick)
         self.rejoins += 1
@@ -468,7 +473,8 @@ class HinfAgentDaemon:
         if publish and inp.tick < self.setup.ticks:
             pub(self._k_input, encode(inp))  # first: the simulator waits for it
             self.sent_input = inp.tick
-        pub(self._k_state, encode(st))
+        if publish:  # a re-stepped (skipped) tick's state is history the neighbours have no use for
+            pub(self._k_state, encode(st))
         self.next_tick = t + 1
         self.ticks_stepped += 1
 

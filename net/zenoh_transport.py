@@ -25,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import signal
 import socket
 import stat
@@ -163,10 +164,10 @@ def zenoh_config(
     lease after which a silent (hung, partitioned) session is declared dead; default 10 s.
     ``config_file`` (a Zenoh JSON5 config) is the base: its mode and endpoints stay unless ``mode``,
     ``connect`` or ``listen`` are given (``None``); without a file they default to a
-    ``mode_if_unset`` session that connects to and listens on nothing; a file that does not set the
-    mode (Zenoh's own default, peer, counts as unset) gets ``mode_if_unset`` too. Multicast scouting
-    is set either way (off unless
-    ``scouting``): a daemon must not find peers its operator did not name.
+    ``mode_if_unset`` session that connects to and listens on nothing; a file that does not name a
+    mode gets ``mode_if_unset`` too, and one without listen endpoints listens nowhere. Multicast
+    scouting is set either way (off unless ``scouting``): a daemon must not find peers its operator
+    did not name.
     Clients and peers retry a lost connection after 200 ms, then every 1 s at most (:data:`RETRY`),
     unless the config file sets ``connect/retry`` itself.
     """
@@ -180,9 +181,10 @@ def zenoh_config(
             conf = zenoh.Config.from_file(str(config_file))
         except Exception as exc:  # zenoh.ZError: the file is missing or not a valid config
             raise ValueError(f"{config_file}: not a usable Zenoh config ({str(exc).split(' at /')[0]})") from None
-        if listen is None and _is_default(conf, "listen/endpoints"):
+        text = Path(config_file).read_text(encoding="utf-8", errors="replace")
+        if listen is None and not _file_sets(text, "listen"):
             listen = ()  # a file without listen endpoints: listen nowhere, not on every interface
-        if mode is None and _is_default(conf, "mode"):
+        if mode is None and not _file_sets(text, "mode"):
             mode = mode_if_unset
     if mode is not None:
         conf.insert_json5("mode", json.dumps(mode))
@@ -200,9 +202,10 @@ def zenoh_config(
     return conf
 
 
-def _is_default(conf: zenoh.Config, key: str) -> bool:
-    """Whether ``key`` of ``conf`` is Zenoh's built-in value (a config file that does not set it)."""
-    return bool(conf.get_json(key) == zenoh.Config().get_json(key))
+def _file_sets(text: str, key: str) -> bool:
+    """Whether a JSON5 config text names ``key`` (quoted or not) anywhere: a file that writes
+    ``mode: "peer"`` sets the mode, even to Zenoh's default."""
+    return re.search(r"""(^|[{,\s])["']?%s["']?\s*:""" % re.escape(key), text) is not None
 
 
 def router_config(
@@ -255,12 +258,12 @@ def run_router(
     SIGINT close the router cleanly.
     """
     conf = router_config(listen, lease_ms, config_file, connect)
+    session = open_session(conf)  # first: a router that cannot listen leaves the signal handlers alone
     if stop is None:
         stop = threading.Event()
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGINT):
                 signal.signal(sig, lambda *_: stop.set())
-    session = open_session(conf)
     try:
         (on_ready or (lambda: _print_ready(router_endpoints(conf))))()
         while not stop.wait(1.0):  # a timed wait keeps the main thread responsive to signals

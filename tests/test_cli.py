@@ -101,4 +101,8 @@ def test_run_output_directory_problems_are_said(tmp_path, capsys):
     assert main(args) == 0
     assert "held a previous run" not in capsys.readouterr().err
     assert main(args) == 0
-    assert f"{out} held a previous run (summary.json, samples.csv): replacing it" in capsys.readouterr().err
+    assert f"{out} held a previous run (summary.json, samples.csv): replaced" in capsys.readouterr().err
+    (out / "report.png").write_bytes(b"old")
+    assert main([*args, "--set", "duration=abc"]) == 2  # fails before running
+    assert main(["run", str(tmp_path / "nope.toml"), "--engine", "inproc", "--out", str(out)]) == 2
+    assert (out / "summary.json").exists()  # a run that never started replaced nothing

@@ -61,7 +61,7 @@ def started_run(tmp_path):
         return kids if len(kids) == N + 2 else None
 
     kids = _wait(all_started, 60, "router, sim and agents")
-    # the run is under way once the simulator has recorded ticks
+    # every daemon is forked; the SIGTERM may land anywhere in start-up or the run, both must be clean
     _wait(lambda: (tmp_path / "run" / "logs" / "sim.log").exists(), 60, "the simulator's log")
     yield proc, kids
     try:

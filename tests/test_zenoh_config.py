@@ -118,3 +118,6 @@ def test_a_file_that_only_tunes_the_link_leaves_the_daemon_a_client(tmp_path):
     assert _get(conf, "mode") == "client" and _get(conf, "transport/link/tx/lease") == 1000
     assert _get(zenoh_config(config_file=_write(tmp_path / "r.json5", '{mode: "router"}'),
                              mode_if_unset="client"), "mode") == "router"
+    # a file that names Zenoh's default mode means it
+    assert _get(zenoh_config(config_file=_write(tmp_path / "p.json5", '{"mode": "peer"}'),
+                             mode_if_unset="client"), "mode") == "peer"
