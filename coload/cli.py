@@ -71,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--engine", choices=["zenoh", "inproc"], default="zenoh",
                    help="zenoh: an embedded router, the simulator and one daemon per agent as separate OS "
                         "processes; inproc: everything in this process with the in-memory link model")
-    p.add_argument("--out", type=Path, help="run directory (default: runs/NAME-seedS-DATE)")
+    p.add_argument("--out", type=Path,
+                   help="run directory (default: runs/NAME-seedS-DATE); a previous run in it is replaced, and said")
     p.add_argument("--listen", metavar="ENDPOINT",
                    help="zenoh engine: the embedded router's endpoint, for clients that watch or join the run "
                         "(docs/wire.md), e.g. tcp/127.0.0.1:7447 (default: a free loopback port; printed)")
