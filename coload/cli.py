@@ -263,11 +263,13 @@ class DaemonStartError(Exception):
 async def _serve(coro_factory, transport_factory):
     """Runs a daemon until it finishes or SIGINT/SIGTERM arrive. What fails before the daemon runs
     (opening the session, building the daemon) is a :class:`DaemonStartError`, not a traceback."""
+    from net.zenoh_transport import zenoh_error_text
+
     loop = asyncio.get_running_loop()
     try:
         transport = transport_factory(loop)
     except Exception as exc:  # zenoh.ZError: nothing listens at the endpoint, a bad locator, ...
-        raise DaemonStartError(f"cannot open the Zenoh session ({_first_line(exc)}); is the router "
+        raise DaemonStartError(f"cannot open the Zenoh session ({zenoh_error_text(exc)}); is the router "
                                f"running and --connect its endpoint?") from None
     try:
         coro = coro_factory(transport)
@@ -283,11 +285,6 @@ async def _serve(coro_factory, transport_factory):
         return None
     finally:
         transport.close()
-
-
-def _first_line(exc: BaseException) -> str:
-    """A library error without its source location (zenoh appends ``at /path/file.rs:N``)."""
-    return str(exc).splitlines()[0].split(" at /")[0] if str(exc) else type(exc).__name__
 
 
 def _run_daemon(name: str, args: argparse.Namespace, coro_factory):
@@ -338,7 +335,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from net.zenoh_transport import run_router
+    from net.zenoh_transport import run_router, zenoh_error_text
 
     listen = args.listen or (None if args.zenoh_config else ["tcp/127.0.0.1:7447"])
     try:
@@ -348,12 +345,13 @@ def cmd_router(args: argparse.Namespace) -> int:
         return 2
     except Exception as exc:  # zenoh.ZError: the port is taken, a bad locator
         print(f"coload router: cannot listen on {' '.join(listen or ['the config file endpoints'])} "
-              f"({_first_line(exc)})", file=sys.stderr)
+              f"({zenoh_error_text(exc)})", file=sys.stderr)
         return 2
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from coload.report import make_report
+    from coload.rundir_format import INTERRUPTED_JSON
 
     if not args.run_dir.is_dir():
         print(f"coload report: {args.run_dir}: not a directory", file=sys.stderr)
@@ -368,7 +366,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     else:
         print(table)
         print(f"report: {path}")
-    stopped = args.run_dir / "interrupted.json"
+    stopped = args.run_dir / INTERRUPTED_JSON
     if stopped.exists():
         try:
             info = json.loads(stopped.read_text(encoding="utf-8"))

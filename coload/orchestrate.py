@@ -84,7 +84,7 @@ def prepare_run_dir(run_dir: Path) -> str | None:
     held = [name for name in (fmt.SUMMARY_JSON, fmt.INTERRUPTED_JSON, fmt.SAMPLES_CSV) if (run_dir / name).exists()]
     if not held:
         return None
-    for name in (*fmt.DERIVED_FILES, fmt.SAMPLES_CSV, fmt.ESTIMATES_CSV, fmt.PAIRS_CSV, fmt.TRUTH_CSV, "sim.journal"):
+    for name in (*fmt.DERIVED_FILES, fmt.SAMPLES_CSV, fmt.ESTIMATES_CSV, fmt.PAIRS_CSV, fmt.TRUTH_CSV, fmt.JOURNAL):
         (run_dir / name).unlink(missing_ok=True)
     return f"{run_dir} held a previous run ({', '.join(held)}): replaced"
 

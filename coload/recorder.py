@@ -64,6 +64,7 @@ class Recorder:
         self._estimates = _Table(self.run_dir / fmt.ESTIMATES_CSV, ["t", "agent", *estimate_names])
         self._pairs = _Table(self.run_dir / fmt.PAIRS_CSV, fmt.PAIRS_HEADER)
         self._truth = _Table(self.run_dir / fmt.TRUTH_CSV, fmt.truth_header(scenario.n))
+        self._tables = (self._samples, self._estimates, self._pairs, self._truth)
         self.estimates_recorded = 0
         self._closed = False
         self.ticks_done = 0  # ticks whose samples are recorded
@@ -110,18 +111,18 @@ class Recorder:
         self.estimates_recorded += 1
 
     def flush(self) -> None:
-        for table in (self._samples, self._estimates, self._pairs, self._truth):
+        for table in self._tables:
             table.flush()
 
     def abort(self, reason: str) -> None:
         """The run stops before its end: the tables keep every tick so far (flushed, closed) and
         ``interrupted.json`` says where (the first tick without samples) and why; no summary.json,
         so nothing reads it as finished."""
-        tick = self.ticks_done
         if self._closed:
             return
         self._closed = True
-        for table in (self._samples, self._estimates, self._pairs, self._truth):
+        tick = self.ticks_done
+        for table in self._tables:
             table.close()
         (self.run_dir / fmt.INTERRUPTED_JSON).write_text(json.dumps(
             {"tick": tick, "t": tick * self.dt, "reason": reason, "duration": self.scenario.duration}, indent=1) + "\n",
@@ -130,7 +131,7 @@ class Recorder:
     def close(self, summary: dict[str, Any]) -> dict[str, Any]:
         """Closes the tables, adds the error metrics to ``summary`` and writes summary.json."""
         self._closed = True
-        for table in (self._samples, self._estimates, self._pairs, self._truth):
+        for table in self._tables:
             table.close()
         from coload.metrics import final_errors
 

@@ -40,6 +40,8 @@ DIAGNOSIS_JSON = "diagnosis.json"
 """A run directory's diagnosis (``coload diagnose RUN_DIR --json RUN_DIR/diagnosis.json`` or
 ``coload report RUN_DIR --diagnose``); when present, the report adds :data:`RESIDUAL_PNG`."""
 RESIDUAL_PNG = "residual.png"
+JOURNAL = "sim.journal"
+"""The simulator daemon's restart journal (deleted at the end of a completed run)."""
 INTERRUPTED_JSON = "interrupted.json"
 """Written instead of summary.json by a run that was stopped (Ctrl-C, SIGTERM, an error): the tick
 it reached and why. Its tables hold every tick up to there."""

@@ -385,10 +385,7 @@ class HinfAgentDaemon:
             self._held = None
         self.last_meas = m.tick
         if self.mode == "realtime":
-            # act on the newest data: the ticks we never got are stepped with the last z held
-            z_hold = self.last_z if self.last_z is not None else m.z
-            for t in range(self.next_tick, m.tick):
-                self._step(t, z_hold, publish=False)
+            self._skip_to(m)  # act on the newest data
         self.pending[m.tick] = m.z
         self._try_step()
 
@@ -400,11 +397,16 @@ class HinfAgentDaemon:
                     self.last_meas + 1, m.tick - 1, m.tick)
         self.rejoins += 1
         self.pending.clear()
+        self._skip_to(m)
+        self.last_meas = m.tick
+        self.pending[m.tick] = m.z
+
+    def _skip_to(self, m: HinfMeas) -> None:
+        """Step the ticks before ``m.tick`` that never got a measurement with the last z held (``m.z``
+        if there is none yet), publishing nothing for them."""
         z_hold = self.last_z if self.last_z is not None else m.z
         for t in range(self.next_tick, m.tick):
             self._step(t, z_hold, publish=False)
-        self.last_meas = m.tick
-        self.pending[m.tick] = m.z
 
     def _on_state(self, key: str, payload: bytes) -> None:
         sender = self._state_keys.get(key)

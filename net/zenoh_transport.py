@@ -180,7 +180,7 @@ def zenoh_config(
         try:
             conf = zenoh.Config.from_file(str(config_file))
         except Exception as exc:  # zenoh.ZError: the file is missing or not a valid config
-            raise ValueError(f"{config_file}: not a usable Zenoh config ({str(exc).split(' at /')[0]})") from None
+            raise ValueError(f"{config_file}: not a usable Zenoh config ({zenoh_error_text(exc)})") from None
         text = Path(config_file).read_text(encoding="utf-8", errors="replace")
         if listen is None and not _file_sets(text, "listen"):
             listen = ()  # a file without listen endpoints: listen nowhere, not on every interface
@@ -200,6 +200,11 @@ def zenoh_config(
     if json.loads(conf.get_json("mode")) != "router" and json.loads(conf.get_json("connect/retry")) is None:
         conf.insert_json5("connect/retry", json.dumps(RETRY))
     return conf
+
+
+def zenoh_error_text(exc: BaseException) -> str:
+    """A zenoh error's first line without its source location (zenoh appends ``at /path/file.rs:N``)."""
+    return str(exc).splitlines()[0].split(" at /")[0] if str(exc) else type(exc).__name__
 
 
 def _file_sets(text: str, key: str) -> bool:

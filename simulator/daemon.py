@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.agent import ESTIMATE_NAMES
+from coload import rundir_format as fmt
 from coload.recorder import Recorder
 from config.loader import dump_scenario
 from config.scenario import Scenario
@@ -47,8 +48,7 @@ log = logging.getLogger("coload.sim")
 
 ZERO_WRENCH = (0.0, 0.0, 0.0)
 
-#: The restart journal in the run directory (deleted at the end of a completed run).
-JOURNAL = "sim.journal"
+JOURNAL = fmt.JOURNAL  # the restart journal in the run directory
 _JOURNAL_VERSION = 1
 
 
