@@ -56,7 +56,7 @@ initialised else 0.0, "ph": phi_i (rad), "yx", "yy": y_i (m)}``,
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import fields
 from math import cos, sin
 from operator import attrgetter, itemgetter
@@ -64,6 +64,7 @@ from operator import attrgetter, itemgetter
 from agents import dynamic
 from agents.control import KinematicControl
 from agents.kinematic import PairEstimator
+from agents.laws import LawInput
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
 
@@ -293,7 +294,9 @@ class AgentCore:
         estimator: EstimatorSpec,
         control: ControlSpec,
         dynamics: DynamicsSpec | None = None,
+        law: Callable[[LawInput], Sequence[float]] | None = None,
     ) -> None:
+        """``law``: a control law of the user's (agents/laws.py), called where the dynamical phase allows."""
         if agent_id in neighbours:
             raise ValueError("an agent cannot be its own neighbour")
         self.id = int(agent_id)
@@ -350,7 +353,10 @@ class AgentCore:
         self._abuf_t = [-1] * hist
         self._dyn = None
         if dynamics is not None and dynamics.algorithm != "none":
-            self._dyn = dynamic.DynamicPhase(self.id, nb_ids, self.n, self.dt, sig, dynamics, hist)
+            self._dyn = dynamic.DynamicPhase(self.id, nb_ids, self.n, self.dt, sig, dynamics, hist,
+                                             law=law, law_ref=control.law)
+        elif law is not None:
+            raise ValueError("a control law needs the dynamical phase (dynamics.algorithm sequential or background)")
 
     @property
     def x(self) -> complex:
@@ -646,7 +652,9 @@ class AgentCore:
             ta = tick % hist
             self._abuf[ta] = asum
             self._abuf_t[ta] = tick
-        if nlist:
+        if nlist and (dyn is None or dyn.q_held is None):
+            # (held, like the dynamical phase's q_i, once done under a law or braking that may stop the
+            # rotation: z_i is observable only while the load turns)
             self.y = y = -sflow  # y_i = -sum_j F_ij
         if adopt:
             ph += accp / cnt  # join the neighbours' body frame (y is still 0 then)

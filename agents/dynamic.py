@@ -44,12 +44,13 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from math import cos, isfinite, sin
 from operator import itemgetter
 
 import numpy as np
 
+from agents.laws import LawInput, checked_wrench
 from config.agent_params import DynamicsSpec
 
 # Stages (the StateMsg ``phase`` field and the ``phase`` estimate)
@@ -335,6 +336,26 @@ class RigidEKF:
         P[6, 6] = var
         self.P = P
 
+    def hold_shape(self) -> None:
+        """From here on q is known (held: it only turns with omega) and the pooled rate u measures omega
+        without an error of its own (b = 0, pinned). For a load that may stop turning (done under a law or
+        braking): at rest q is not observable from v_Ci = v_C + omega q^perp, the q random walk inflated its
+        variance until the updates moved it (|q| 1.39 -> 1.05 m in 25 s), and b swallowed the slow part of
+        u, which at rest is the only measurement of omega's drift (u = omega cos(delta): no pair-angle bias
+        at omega = 0); measured: omega_hat off by 0.015 rad/s, the load turning unseen."""
+        ib = self.ib
+        P = self.P.copy()
+        for k in (2, 3, ib):
+            P[k, :] = 0.0
+            P[:, k] = 0.0
+        s = self.s.copy()
+        s[ib] = 0.0
+        self.s = s
+        self.P = P
+        self.qb = 0.0
+        qv, _, qm, qo, qi = self.Qd
+        self.Qd = (qv, 0.0, qm, qo, qi)
+
     def set_omega_walk(self, walk: float) -> None:
         """Process noise of omega (rad/s/sqrt(s)): small where the torque is known exactly (the J stage)."""
         qv, qa, qm, _, qi = self.Qd
@@ -495,8 +516,12 @@ class DynamicPhase:
     """One agent's dynamical phase (see module docstring). Driven by AgentCore.step."""
 
     def __init__(self, agent_id: int, nbr_ids: Sequence[int], n: int, dt: float, sigma_v: float,
-                 spec: DynamicsSpec, hist: int = 64) -> None:
+                 spec: DynamicsSpec, hist: int = 64, law: Callable[[LawInput], Sequence[float]] | None = None,
+                 law_ref: str = "") -> None:
         self.id = agent_id
+        self.law = law  # the user's control law (agents/laws.py): done stage of Algorithm 1, Algorithm 2
+        self.law_ref = law_ref
+        self.q_held: complex | None = None  # q_i in the shared body frame, held from done on (see step)
         # delayed eq. (9) samples (RigidEKF.update): cumulative dt T and dt omega of the filter's
         # predictions up to each of the last ``hist`` state ticks, and this tick's |z|^2-weighted sums
         # over the late samples (note_late)
@@ -728,6 +753,15 @@ class DynamicPhase:
         else:
             q = zi
         zc = complex(x[CH_ZX], x[CH_ZY]) * rot  # z_C, world (the consensus runs in the shared body frame)
+        held = self.q_held
+        if held is None and stage == DONE and kf.ready and (self.law is not None or spec.brake > 0.0):
+            # the user's law or Prop. 7 braking may stop the rotation, and q_i (so z_C) is observable only
+            # while the load turns (v_Ci = v_C + omega q_i^perp): from done on, q_i is held in the shared
+            # body frame (measured without: |q_i| 1.39 -> 1.05 m in 25 s of a load stopped by a law)
+            held = self.q_held = q * rot.conjugate()
+            kf.hold_shape()
+        if held is not None:
+            q = held * rot
 
         # --- control -------------------------------------------------------------------------------
         fx, fy, tau = wrench
@@ -750,7 +784,10 @@ class DynamicPhase:
             jstage = True
         elif stage == DONE and spec.brake > 0.0:
             fx, fy, tau = -spec.brake * v.real, -spec.brake * v.imag, 0.0
-        if stage == BACKGROUND:  # Prop. 6 (above) + the regulation torque + a dither for J
+        if self.law is not None and (stage == DONE or stage == BACKGROUND):
+            fx, fy, tau = self._law_wrench(tick, stage, v, q, zc, (fx, fy, tau))
+        if stage == BACKGROUND:  # Prop. 6 (above; or the user's law) + the regulation torque + a dither for J
+            k = tick - self.stage_tick
             tau += spec.dither_torque * sin(2.0 * math.pi * k / self.dither_ticks)
 
         # --- consensus inputs for this tick ---------------------------------------------------------
@@ -768,7 +805,7 @@ class DynamicPhase:
             # g_i = q_i x (J-stage f_i / s) with this tick's q_i and z_C, exactly as the force is built
             au[CH_JG] = spec.k_z * (q.real * (q.real - zc.real) + q.imag * (q.imag - zc.imag))
         if kf.ready:
-            qp = q * rot.conjugate()  # q_i in the shared body frame; their mean is z_C
+            qp = q * rot.conjugate() if held is None else held  # q_i in the shared body frame; their mean is z_C
             au[CH_ZX] = qp.real
             au[CH_ZY] = qp.imag
         take_m = stage == BACKGROUND or (stage == M_AVERAGE and not self.frozen_m)
@@ -824,6 +861,30 @@ class DynamicPhase:
         self.cum_t[i], self.cum_c[i], self.cum_w[i] = tick + 1, self.cc, self.cw
         self.late_z = self.late_c = self.late_w = 0.0
         return fx, fy, tau
+
+    def _law_wrench(self, tick: int, stage: int, v: complex, q: complex, zc: complex,
+                    default: tuple[float, float, float]) -> tuple[float, float, float]:
+        """The user's law with this tick's estimates (agents/laws.py); its output is checked here, at the edge."""
+        x = self.avg.x
+        kf = self.kf
+        li = LawInput()
+        li.tick = tick
+        li.t = tick * self.dt
+        li.stage = "done" if stage == DONE else "background"
+        li.m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else math.nan
+        li.J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else math.nan
+        if kf.ready:
+            vc = kf.vc
+            li.omega = kf.omega
+            li.vc = (vc.real, vc.imag)
+            li.q = (q.real, q.imag)
+        else:
+            li.omega = math.nan
+            li.vc = li.q = (math.nan, math.nan)
+        li.zc = (zc.real, zc.imag)
+        li.v = (v.real, v.imag)
+        li.default = default
+        return checked_wrench(self.law(li), self.law_ref, tick)
 
     # ------------------------------------------------------------------ outputs
     def shared(self, out: dict[str, float]) -> None:

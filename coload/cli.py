@@ -246,7 +246,17 @@ def _scenario(args: argparse.Namespace):
         overrides.append(f"seed={args.seed}")
     if args.mode is not None:
         overrides.append(f'mode="{args.mode}"')
-    return load_scenario(args.scenario, overrides)
+    scenario = load_scenario(args.scenario, overrides)
+    if scenario.control.law:  # the user's control law: import and build it once here, before any process starts
+        from agents.laws import ControlLawError
+        from coload.world import build_law
+
+        try:
+            build_law(scenario, 0)
+        except ControlLawError as exc:
+            raise ScenarioError(str(args.scenario), None, "control.law",
+                                str(exc).removeprefix("control.law ")) from None
+    return scenario
 
 
 def _zenoh_conf(args: argparse.Namespace):

@@ -8,9 +8,13 @@ config package importing the algorithms. Defaults are tuned for the reference sc
 from __future__ import annotations
 
 import math
-from typing import Literal
+import re
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+# control.law: "package.module:factory" or "some/file.py:factory" (the attribute may be dotted)
+LAW_REF = re.compile(r"(?P<target>[^:]+?\.py|[A-Za-z_][\w]*(?:\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)")
 
 
 class _Strict(BaseModel):
@@ -107,6 +111,23 @@ class ControlSpec(_Strict):
     boost_after_s: float = Field(
         30.0, ge=0, description="when omega_boost starts if the team is not ready yet (simulated s)"
     )
+    law: str = Field(
+        "", description="a control law of yours where the algorithm allows one (Algorithm 1 once done, Algorithm "
+                        "2 from its background stage on; agents/laws.py, docs/control-laws.md): "
+                        "'package.module:factory' or 'path/to/file.py:factory' (a relative path from the "
+                        "scenario file's directory, or from the working directory when given with --set); "
+                        "empty: the built-in schedule",
+    )
+    law_params: dict[str, Any] = Field(
+        default_factory=dict, description="keyword arguments of the law's factory (a TOML table)"
+    )
+
+    @field_validator("law")
+    @classmethod
+    def _law_ref(cls, v: str) -> str:
+        if v and not LAW_REF.fullmatch(v):
+            raise ValueError("expected 'package.module:factory' or 'path/to/file.py:factory'")
+        return v
 
 
 class DynamicsSpec(_Strict):

@@ -21,6 +21,7 @@ from typing import Any
 
 from pydantic import BaseModel, ValidationError
 
+from config.agent_params import LAW_REF
 from config.scenario import RecordSpec, Scenario
 
 
@@ -264,6 +265,7 @@ def _validate(data: dict, file: str, lines: dict, origin: dict[tuple[str, ...], 
         scenario = Scenario.model_validate(data)
     except ValidationError as exc:
         raise _convert(exc, file, lines, origin) from None
+    scenario = _law_path_resolved(scenario, file, origin)
     if edges is not None:
         try:
             given = sorted({(min(int(i), int(j)), max(int(i), int(j))) for i, j in edges})
@@ -278,6 +280,20 @@ def _validate(data: dict, file: str, lines: dict, origin: dict[tuple[str, ...], 
                 f"expected {_show([list(e) for e in scenario.edges()])} (got {_show(edges)})",
             )
     return scenario
+
+
+def _law_path_resolved(scenario: Scenario, file: str, origin: dict[tuple[str, ...], str]) -> Scenario:
+    """A law file named by a relative path is made absolute: from the scenario file's directory, or from
+    the working directory when a --set gave it (or when there is no file), so that the run.toml a run
+    writes, and the daemons that read it, find the same file."""
+    ref = scenario.control.law
+    m = LAW_REF.fullmatch(ref) if ref else None
+    if m is None or not m.group("target").endswith(".py") or Path(m.group("target")).is_absolute():
+        return scenario
+    from_set = any(key == ("control", "law")[: len(key)] for key in origin)
+    base = Path.cwd() if from_set or file.startswith("<") else Path(file).resolve().parent
+    law = f"{(base / m.group('target')).resolve()}:{m.group('attr')}"
+    return scenario.model_copy(update={"control": scenario.control.model_copy(update={"law": law})})
 
 
 # --------------------------------------------------------------------------------------------------

@@ -391,6 +391,9 @@ class Scenario(_Strict):
             for i, j in part.cut or ():
                 if (min(i, j), max(i, j)) not in edges:
                     raise ValueError(f"link.partitions: partition {p} cuts [{i}, {j}], not an edge of the graph")
+        if self.control.law and self.dynamics.algorithm == "none":
+            raise ValueError('control.law: a law acts where the dynamical phase allows one: set dynamics.algorithm '
+                             '= "sequential" (from done on) or "background"')
         if self.arms is not None and self.arms.bases is not None and len(self.arms.bases) != self.n:
             raise ValueError(f"arms.bases: must list exactly n = {self.n} bases (got {len(self.arms.bases)})")
         if not _connected(self.n, self.edges()):
