@@ -760,6 +760,7 @@ class DynamicPhase:
             # body frame (measured without: |q_i| 1.39 -> 1.05 m in 25 s of a load stopped by a law)
             held = self.q_held = q * rot.conjugate()
             kf.hold_shape()
+            kf.set_omega_walk(spec.j_omega_walk)
         if held is not None:
             q = held * rot
 

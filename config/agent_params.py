@@ -161,7 +161,8 @@ class DynamicsSpec(_Strict):
     avg_window_s: float = Field(0.5, ge=0, description="... and have done so for this long (s)")
     brake: float = Field(
         0.0, ge=0, description="Prop. 7 braking gain once done, f_i = -brake v_Ci (N s/m); 0 keeps the "
-                               "kinematic control running",
+                               "kinematic control running, so the shape stays observable (a braked load's "
+                               "heading is dead-reckoned: docs/control-laws.md)",
     )
     kf_angle_walk: float = Field(
         0.02, ge=0, description="Kalman filter: angle random walk of q_i, i.e. omega_hat error (rad/sqrt(s))"
