@@ -13,6 +13,7 @@ import asyncio
 import logging
 from collections import Counter
 
+from agents.laws import ControlLawError
 from coload.world import build_agent
 from config.scenario import Scenario
 from net import keys
@@ -97,6 +98,7 @@ class AgentDaemon:
         self._sim_lost = False  # the simulator's token went away after the run started; cleared by a measurement
         self._lost_timer: asyncio.TimerHandle | None = None  # gives up on a simulator gone too long
         self.gave_up = False  # ended because the simulator never came back
+        self.failed: str | None = None  # ended because the user's control law failed (its error)
         self._resend: dict[str, bytes] = {}  # key -> last wrench / estimate published, re-sent to a returning simulator
 
     # ---- lifecycle -------------------------------------------------------------------------
@@ -359,7 +361,16 @@ class AgentDaemon:
         inbox = self.line.pop_due(k)
         if self.mode == "realtime":
             inbox = self._fresh(k, inbox)
-        res = self.core.step(k, m.vx, m.vy, inbox)
+        try:
+            res = self.core.step(k, m.vx, m.vy, inbox)
+        except ControlLawError as exc:
+            # the user's law failed: this agent stops (its liveliness token goes, as for a crash: the team
+            # and the simulator go on without it) and its process exits 1 with the law's one-line error
+            self.failed = str(exc)
+            log.error("agent %d: %s", self.id, exc)
+            self.pending_meas.clear()
+            self.done.set()
+            return
         pub = self.transport.publish
         # the wrench first: the simulator waits for it (critical path), neighbours need the state
         # only for the next tick

@@ -50,7 +50,7 @@ from operator import itemgetter
 
 import numpy as np
 
-from agents.laws import LawInput, checked_wrench
+from agents.laws import ControlLawError, LawInput, checked_wrench
 from config.agent_params import DynamicsSpec
 
 # Stages (the StateMsg ``phase`` field and the ``phase`` estimate)
@@ -885,7 +885,12 @@ class DynamicPhase:
         li.zc = (zc.real, zc.imag)
         li.v = (v.real, v.imag)
         li.default = default
-        return checked_wrench(self.law(li), self.law_ref, tick)
+        try:
+            out = self.law(li)
+        except Exception as exc:  # the user's code: one line naming it, where and when, not a bare traceback
+            raise ControlLawError(f"control.law {self.law_ref!r} raised {type(exc).__name__}: {exc} at tick {tick} "
+                                  f"(agent {self.id})") from exc
+        return checked_wrench(out, self.law_ref, tick, self.id)
 
     # ------------------------------------------------------------------ outputs
     def shared(self, out: dict[str, float]) -> None:

@@ -10,11 +10,13 @@ f_i = k_z z_i^perp and no torques).
 
 A law is named in the scenario, ``control.law = "package.module:factory"`` or
 ``"path/to/file.py:factory"``, with ``control.law_params`` (a TOML table) as the factory's keyword
-arguments. Each agent calls ``factory(setup, **params)`` once (``setup`` a :class:`LawSetup`) and
-then ``law(x)`` every tick where it applies (``x`` a :class:`LawInput`), which returns the agent's
-wrench ``(fx, fy, tau)``: force on its contact point, world frame (N), torque (N m). Return
+arguments. Each agent builds its law with ``factory(setup, **params)`` (``setup`` a :class:`LawSetup`;
+the command line also builds them once beforehand to check them, so a factory should only build)
+and calls ``law(x)`` every tick where it applies (``x`` a :class:`LawInput`), which returns the
+agent's wrench ``(fx, fy, tau)``: force on its contact point, world frame (N), torque (N m). Return
 ``x.default`` to keep the algorithm's own. Like the rest of the core a law gets time and data as
-arguments: no clock, socket or global random state, so runs stay reproducible.
+arguments: no clock, socket, global random state or module-level state (agents share a module in
+one process, not across daemons), so runs stay reproducible and both engines agree.
 """
 
 from __future__ import annotations
@@ -64,16 +66,17 @@ class ControlLawError(ValueError):
     """A law that cannot be loaded or built, or a wrench that is not three finite numbers."""
 
 
-def checked_wrench(out: object, ref: str, tick: int) -> Wrench:
-    """The law's output as (fx, fy, tau) floats; a clear error naming the law and the tick otherwise."""
+def checked_wrench(out: object, ref: str, tick: int, agent: int = -1) -> Wrench:
+    """The law's output as (fx, fy, tau) floats; a clear error naming the law, the agent and the tick otherwise."""
+    who = f" (agent {agent})" if agent >= 0 else ""
     try:
         fx, fy, tau = out  # type: ignore[misc]
         w = (float(fx), float(fy), float(tau))
-    except (TypeError, ValueError):
-        raise ControlLawError(f"control.law {ref!r} returned {out!r} at tick {tick}: "
+    except (TypeError, ValueError, OverflowError):
+        raise ControlLawError(f"control.law {ref!r} returned {out!r} at tick {tick}{who}: "
                               f"expected (fx, fy, tau), three numbers") from None
     if not (math.isfinite(w[0]) and math.isfinite(w[1]) and math.isfinite(w[2])):
-        raise ControlLawError(f"control.law {ref!r} returned {w!r} at tick {tick}: not finite")
+        raise ControlLawError(f"control.law {ref!r} returned {w!r} at tick {tick}{who}: not finite")
     return w
 
 

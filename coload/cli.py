@@ -246,17 +246,22 @@ def _scenario(args: argparse.Namespace):
         overrides.append(f"seed={args.seed}")
     if args.mode is not None:
         overrides.append(f'mode="{args.mode}"')
-    scenario = load_scenario(args.scenario, overrides)
-    if scenario.control.law:  # the user's control law: import and build it once here, before any process starts
-        from agents.laws import ControlLawError
-        from coload.world import build_law
+    return load_scenario(args.scenario, overrides)
 
-        try:
-            build_law(scenario, 0)
-        except ControlLawError as exc:
-            raise ScenarioError(str(args.scenario), None, "control.law",
-                                str(exc).removeprefix("control.law ")) from None
-    return scenario
+
+def _check_law(scenario, source: str, agents: Sequence[int]) -> None:
+    """The user's control law, imported and built for ``agents`` before any process or run starts, so that
+    a bad one is one scenario error (ScenarioError) rather than a failure per daemon or per run."""
+    if not scenario.control.law:
+        return
+    from agents.laws import ControlLawError
+    from coload.world import build_law
+
+    try:
+        for i in agents:
+            build_law(scenario, i)
+    except ControlLawError as exc:
+        raise ScenarioError(str(source), None, "control.law", str(exc).removeprefix("control.law ")) from None
 
 
 def _zenoh_conf(args: argparse.Namespace):
@@ -321,6 +326,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
         print(f"coload agent: --id {args.id} is not an agent of {scenario.name} (0..{scenario.n - 1})",
               file=sys.stderr)
         return 2
+    _check_law(scenario, args.scenario, [args.id])
     daemon: list[AgentDaemon] = []
 
     def build(t):
@@ -328,6 +334,9 @@ def cmd_agent(args: argparse.Namespace) -> int:
         return daemon[0].run()
 
     report = _run_daemon("agent", args, build)
+    if daemon and daemon[0].failed:
+        print(f"coload agent: {daemon[0].failed}", file=sys.stderr)
+        return 1
     if report is None:
         return 130
     return 1 if daemon[0].gave_up else 0
@@ -496,6 +505,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     if args.table:
         return _campaign_table(args.out)
     base = load_scenario(args.scenario or cp.DEFAULT_BASE, overrides)
+    _check_law(base, args.scenario or cp.DEFAULT_BASE, range(base.n))
     try:
         ns = cp.parse_list(args.ns, int, "--n")
         sigmas = cp.parse_list(args.sigmas, float, "--sigma")
@@ -594,6 +604,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     # the batch-fit yardstick (record.batch_fit) is on for every `coload run` unless --no-batch-fit
     args.overrides = ["record.batch_fit=true", *args.overrides, *(["record.batch_fit=false"] if args.no_batch_fit else [])]
     scenario = _scenario(args)
+    _check_law(scenario, args.scenario, range(scenario.n))
     run_dir = args.out or default_run_dir(scenario)
     if args.listen and args.engine != "zenoh":
         print("coload run: --listen is for --engine zenoh (the in-process engine has no router)", file=sys.stderr)
@@ -623,6 +634,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         for line in centralized_lines(summary):
             print(line)
     print(f"run directory: {run_dir}")
+    failed = summary.get("failed_members")
+    if failed:
+        print(f"coload run: {', '.join(failed)} failed during the run and the run went on without them "
+              f"(logs in {run_dir / 'logs'}); first: {next(iter(failed.values()))}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -632,6 +648,7 @@ COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_ro
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from agents.laws import ControlLawError
     from coload.orchestrate import Terminated, check_terminated, terminate_on_sigterm
 
     parent = os.environ.pop("COLOAD_PARENT_PID", None)  # popped: not inherited by our own children
@@ -656,6 +673,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ScenarioError as exc:
         print(f"coload {args.command}: {exc}", file=sys.stderr)
         return 2
+    except ControlLawError as exc:  # the user's law failed while running (it was built and checked before)
+        print(f"coload {args.command}: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"coload {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -333,9 +333,24 @@ def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbos
         agents = [n for n in children.procs if n.startswith("agent-")]
         children.stop(agents, let_finish=10.0)
         summary_path = run_dir / "summary.json"
-        return json.loads(summary_path.read_text())
+        summary = json.loads(summary_path.read_text())
+        # members that ended with an error status of their own (not our stop's signal): the run went on
+        # without them, and the command says so in its exit status (cmd_run)
+        failed = [n for n in agents if (children.procs[n].returncode or 0) > 0]
+        if failed:
+            summary["failed_members"] = {n: _last_line(run_dir / "logs" / f"{n}.log") for n in failed}
+        return summary
     finally:
         children.close()
+
+
+def _last_line(path: Path) -> str:
+    """A member's last log line: its own one-line account of why it ended."""
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").strip().splitlines()
+    except OSError:
+        return ""
+    return lines[-1] if lines else ""
 
 
 async def run_daemons_in_memory(scenario: Scenario, run_dir: Path) -> dict[str, Any]:

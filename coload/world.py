@@ -72,6 +72,9 @@ def load_law_factory(ref: str) -> LawFactory:
             name = "coload_law_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
             module = sys.modules.get(name)
             if module is None:
+                folder = str(path.resolve().parent)
+                if folder not in sys.path:  # as for a script: the law's sibling modules import
+                    sys.path.insert(0, folder)
                 spec = importlib.util.spec_from_file_location(name, path)
                 if spec is None or spec.loader is None:
                     raise ControlLawError(f"control.law {ref!r}: {target} is not a Python file")

@@ -13,8 +13,29 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-# control.law: "package.module:factory" or "some/file.py:factory" (the attribute may be dotted)
-LAW_REF = re.compile(r"(?P<target>[^:]+?\.py|[A-Za-z_][\w]*(?:\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)")
+# control.law: "package.module:factory" or "some/file.py:factory" (the attribute may be dotted; a file
+# path may hold colons: the attribute follows the last one)
+LAW_REF = re.compile(r"(?P<target>.+\.py|[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*):(?P<attr>[A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)")
+_BARE_KEY = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def _check_law_param(value: Any, where: str = "") -> None:
+    """law_params are written back to run.toml for the daemons: plain TOML values under bare keys only."""
+    at = f"{where}: " if where else ""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if not isinstance(k, str) or not _BARE_KEY.fullmatch(k):
+                raise ValueError(f"{at}key {k!r} is not a plain name (letters, digits, _)")
+            _check_law_param(v, f"{where}.{k}" if where else k)
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _check_law_param(v, f"{where}[{i}]")
+    elif isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"{at}{value!r} is not a finite number")
+    elif not isinstance(value, (bool, int, str)):
+        raise ValueError(f"{at}{type(value).__name__} values are not supported (numbers, strings, booleans, "
+                         f"lists and tables are)")
 
 
 class _Strict(BaseModel):
@@ -127,6 +148,12 @@ class ControlSpec(_Strict):
     def _law_ref(cls, v: str) -> str:
         if v and not LAW_REF.fullmatch(v):
             raise ValueError("expected 'package.module:factory' or 'path/to/file.py:factory'")
+        return v
+
+    @field_validator("law_params")
+    @classmethod
+    def _law_params(cls, v: dict[str, Any]) -> dict[str, Any]:
+        _check_law_param(v)
         return v
 
 

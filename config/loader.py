@@ -288,11 +288,17 @@ def _law_path_resolved(scenario: Scenario, file: str, origin: dict[tuple[str, ..
     writes, and the daemons that read it, find the same file."""
     ref = scenario.control.law
     m = LAW_REF.fullmatch(ref) if ref else None
-    if m is None or not m.group("target").endswith(".py") or Path(m.group("target")).is_absolute():
+    if m is None or not m.group("target").endswith(".py"):
         return scenario
-    from_set = any(key == ("control", "law")[: len(key)] for key in origin)
-    base = Path.cwd() if from_set or file.startswith("<") else Path(file).resolve().parent
-    law = f"{(base / m.group('target')).resolve()}:{m.group('attr')}"
+    target = Path(m.group("target")).expanduser()
+    if target.is_absolute():
+        law = f"{target}:{m.group('attr')}"
+    else:
+        from_set = any(key == ("control", "law")[: len(key)] for key in origin)
+        base = Path.cwd() if from_set or file.startswith("<") else Path(file).resolve().parent
+        law = f"{(base / target).resolve()}:{m.group('attr')}"
+    if law == ref:
+        return scenario
     return scenario.model_copy(update={"control": scenario.control.model_copy(update={"law": law})})
 
 

@@ -165,3 +165,70 @@ def test_a_law_drives_algorithm_2_from_its_background_stage_on(tmp_path):
     assert mean("vc_x") == pytest.approx(0.2, abs=0.02) and abs(mean("vc_y")) < 0.02
     assert mean("omega") == pytest.approx(1.0, abs=0.05)
     assert errors["m_rel"] < 0.2 and errors["J_rel"] < 0.2  # still estimates, if coarser
+
+
+FAILING_LAW = '''
+def make(setup):
+    def law(x):
+        if x.stage == "done" and setup.agent == 2:
+            return {}["boom"]
+        return x.default
+    return law
+'''
+
+
+def test_a_law_that_fails_mid_run_stops_its_agent_with_one_line(tmp_path):
+    """Over Zenoh: agent 2's law raises once done; agent 2 exits 1 with the law's error, the others and the
+    simulator go on without it, and `coload run` says which agent failed and why (exit status 1)."""
+    (tmp_path / "laws.py").write_text(FAILING_LAW)
+    out = tmp_path / "run"
+    sets = [f"--set={s}" for s in [*SHORT, "duration=50", "stop_after_done_s=3", f'control.law="{tmp_path / "laws.py"}:make"']]
+    proc = subprocess.run([sys.executable, "-m", "coload", "run", "quick", "--out", str(out), "--no-report",
+                           "--no-batch-fit", "--quiet", *sets], cwd=ROOT, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 1, proc.stderr[-3000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("coload run: agent-2 failed during the run") and "raised KeyError: 'boom' at tick" in last
+    assert "(agent 2)" in last and "Traceback" not in proc.stderr
+    assert (out / "summary.json").exists()  # the run itself finished without agent 2
+    # in process the same failure ends the run, one line, tables kept
+    proc = subprocess.run([sys.executable, "-m", "coload", "run", "quick", "--engine", "inproc", "--out",
+                           str(tmp_path / "inproc"), "--no-report", "--quiet", *sets],
+                          cwd=ROOT, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 1
+    assert proc.stderr.strip().splitlines()[-1].startswith("coload run: control.law") and "Traceback" not in proc.stderr
+    assert (tmp_path / "inproc" / "interrupted.json").exists()
+
+
+def test_a_bad_law_is_one_scenario_error_before_anything_starts(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "coload", "run", "quick", "--out", str(tmp_path / "r"),
+                           *[f"--set={s}" for s in SHORT], "--set=control.law=\"nowhere.py:make\""],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (f"coload run: quick: control.law: '{tmp_path / 'nowhere.py'}:make': "
+                                   f"no such file {tmp_path / 'nowhere.py'}")
+    assert not (tmp_path / "r").exists()  # nothing started
+
+
+def test_law_references_and_params_survive_the_run_toml(tmp_path):
+    """The daemons read run.toml: the law's path (here with a colon in a folder name) and nested params
+    come back as they were; params TOML cannot carry back are refused at load."""
+    from config.loader import dump_scenario
+
+    folder = tmp_path / "a:b"
+    folder.mkdir()
+    (folder / "laws.py").write_text(LAW_FILE)
+    text = (ROOT / "config" / "scenarios" / "quick.toml").read_text()
+    text += ('\n[control]\nlaw = "laws.py:make"\n'
+             'law_params = {push = 0.5, opts = {on = true, name = "x", gains = [1, 2.5]}, empty = {}}\n')
+    (folder / "sc.toml").write_text(text)
+    sc = load_scenario(folder / "sc.toml", SHORT)
+    assert sc.control.law == f"{folder / 'laws.py'}:make"
+    (tmp_path / "run.toml").write_text(dump_scenario(sc))
+    again = load_scenario(tmp_path / "run.toml")
+    assert again.control == sc.control
+    with pytest.raises(ControlLawError, match="unexpected keyword argument 'opts'"):
+        build_law(again, 0)  # make() takes push only: the error names the parameter
+    for bad, why in (('{"a.b" = 1}', "not a plain name"), ("{x = nan}", "not a finite number"),
+                     ("{d = 1979-05-27}", "date values are not supported")):
+        with pytest.raises(ScenarioError, match=why):
+            load_scenario("quick", [*SHORT, 'control.law="agents.laws:TrackVelocity"', f"control.law_params={bad}"])
