@@ -363,11 +363,17 @@ class AgentDaemon:
             inbox = self._fresh(k, inbox)
         try:
             res = self.core.step(k, m.vx, m.vy, inbox)
-        except ControlLawError as exc:
-            # the user's law failed: this agent stops (its liveliness token goes, as for a crash: the team
-            # and the simulator go on without it) and its process exits 1 with the law's one-line error
-            self.failed = str(exc)
-            log.error("agent %d: %s", self.id, exc)
+        except Exception as exc:
+            # the user's law failed (or, a bug, the core): this agent stops, as a crashed robot would (its
+            # liveliness token goes: the team and the simulator go on without it), and its process exits 1
+            # with one line; not left to the transport, which would log it and keep the agent half alive
+            # (a lockstep run then crawled at one neighbour timeout per tick)
+            if isinstance(exc, ControlLawError):
+                self.failed = str(exc)
+                log.error("agent %d: %s", self.id, exc)
+            else:
+                self.failed = f"agent {self.id} failed at tick {k}: {type(exc).__name__}: {exc}"
+                log.exception("agent %d: the step of tick %d failed", self.id, k)
             self.pending_meas.clear()
             self.done.set()
             return

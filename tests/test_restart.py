@@ -108,3 +108,48 @@ def test_agents_give_up_on_a_simulator_that_never_comes_back(tmp_path):
     assert all(r.ticks >= 100 for r in done)
     assert 1.0 <= waited < 10.0
     assert (tmp_path / "run" / "interrupted.json").exists()  # the cancelled simulator kept its tables
+
+
+async def _core_fails(tmp_path):
+    sc = load_scenario(SCENARIOS / "quick.toml", ["duration=5", "timing.wrench_timeout_s=0.5",
+                                                    "timing.neighbour_timeout_s=0.5"])
+    loop = asyncio.get_running_loop()
+    bus, run = MemoryBus(), "fails"
+    transports = {i: MemoryTransport(bus, loop) for i in range(sc.n)}
+    daemons = {i: AgentDaemon(sc, i, transports[i], run) for i in range(sc.n)}
+    class Failing:  # the agent's core, with a bug at tick 200
+        def __init__(self, core):
+            self.core = core
+
+        def step(self, k, *args):
+            if k == 200:
+                raise RuntimeError("a bug")
+            return self.core.step(k, *args)
+
+        def __getattr__(self, name):
+            return getattr(self.core, name)
+
+    daemons[CRASHED].core = Failing(daemons[CRASHED].core)
+    tasks = {i: asyncio.ensure_future(d.run()) for i, d in daemons.items()}
+    sim_t = MemoryTransport(bus, loop)
+    try:
+        summary = await asyncio.wait_for(SimDaemon(sc, sim_t, run, tmp_path / "run", engine="memory").run(), 120)
+        reports = await asyncio.wait_for(asyncio.gather(*tasks.values()), 30)
+    finally:
+        for t in tasks.values():
+            t.cancel()
+        for t in [*transports.values(), sim_t]:
+            t.close()
+    return sc, daemons, summary, reports
+
+
+def test_an_agent_whose_step_fails_leaves_the_run_like_a_crashed_one(tmp_path):
+    """An exception in an agent's core (a bug, or a user's control law) ends that daemon with its one-line
+    cause (its process exits 1), instead of leaving it half alive inside a transport callback, where a
+    lockstep run crawled at one neighbour timeout per tick; the others and the simulator finish."""
+    sc, daemons, summary, reports = asyncio.run(_core_fails(tmp_path))
+    assert daemons[CRASHED].failed == f"agent {CRASHED} failed at tick 200: RuntimeError: a bug"
+    assert all(d.failed is None for i, d in daemons.items() if i != CRASHED)
+    assert summary["sim_s"] == sc.duration - sc.dt or summary["sim_s"] == sc.duration
+    assert reports[CRASHED].ticks == 200
+    assert all(r.ticks == sc.ticks for i, r in enumerate(reports) if i != CRASHED)
