@@ -69,6 +69,7 @@ class _FeedForward:
 
     stage = 1
     om_meas = float("nan")  # no filter omega (DynamicsSpec.filter_omega): omega_hat measures eq. (9)
+    q_held = None  # the shape is not held (no control law, no braking)
 
     def __init__(self) -> None:
         self.alpha = 0.0
