@@ -98,7 +98,7 @@ class AgentDaemon:
         self._sim_lost = False  # the simulator's token went away after the run started; cleared by a measurement
         self._lost_timer: asyncio.TimerHandle | None = None  # gives up on a simulator gone too long
         self.gave_up = False  # ended because the simulator never came back
-        self.failed: str | None = None  # ended because the user's control law failed (its error)
+        self.failed: str | None = None  # ended because its step raised (a control law or a bug): the one-line cause
         self._resend: dict[str, bytes] = {}  # key -> last wrench / estimate published, re-sent to a returning simulator
 
     # ---- lifecycle -------------------------------------------------------------------------
