@@ -93,6 +93,7 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "c",  # rotational damping on omega after the averaging consensus (N m s)
     "b_local",  # this agent's own b, before the averaging consensus (N s/m)
     "c_local",  # this agent's own c, before the averaging consensus (N m s)
+    "filter_restarts",  # restarts of the dynamical phase's filter by its lock check (count; DynamicsSpec.lock_nis)
 )
 _DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
 _KINEMATIC = dynamic.KINEMATIC  # the dynamical phase's stage while the team waits for kinematic readiness

@@ -42,6 +42,7 @@ What each agent runs (symbols as in the paper; z_C = p_G - p_C, q_i = p_Ci - p_C
 
 from __future__ import annotations
 
+import copy
 import functools
 import math
 from collections.abc import Callable, Sequence
@@ -259,11 +260,12 @@ class RigidEKF:
     An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
     """
 
-    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0")
+    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0", "nis")
 
     def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
         self.r = max(sigma_v, 1e-3) ** 2
         self.ready = False
+        self.nis = 2.0  # the last update's normalised innovation squared of the own velocity (2 dof)
         walk_mu = spec.mu_walk if background else 0.0
         walk_iota = spec.iota_walk if background else 0.0
         # per-second process noise intensities; q's angle walk is scaled by |q|^2 at each step
@@ -380,6 +382,9 @@ class RigidEKF:
         s00 = c0[0] - om * c0[3] - qy * c0[5] + r
         s01 = c1[0] - om * c1[3] - qy * c1[5]
         s11 = c1[1] + om * c1[2] + qx * c1[5] + r
+        d2 = s00 * s11 - s01 * s01
+        if d2 > 0.0:  # the lock check's statistic (DynamicPhase): ~2 while the filter explains v_Ci
+            self.nis = (s11 * e0 * e0 - 2.0 * s01 * e0 * e1 + s00 * e1 * e1) / d2
         if u == u and u_var > 0.0:
             ib = self.ib
             c2 = P[:, 5] + P[:, ib]  # ... u = omega + b
@@ -512,6 +517,45 @@ class RigidEKF:
         return float(self.s[8])
 
 
+def fit_rotation(v: np.ndarray, f: np.ndarray, dt: float, omega_max: float) -> tuple[float, complex, float]:
+    """Global fit of the own contact velocity over a window: v(k) = a + mu f(k) + i omega e^{i omega k dt} q0
+    (v_C = a + mu f, f = dt sum of the total force so far; q turning at a constant omega), for the omega in
+    [-omega_max, omega_max] with the least squared residual. Linear in (a, mu, q0) for a given omega, so
+    omega is scanned on a grid (step well inside the residual's dip, whose width is ~2 pi / window) and
+    refined. Returns (omega, q at the window's last sample, residual RMS per component): a restart point for
+    a filter that locked onto a wrong (q_i, omega), from the agent's own data alone."""
+    n = len(v)
+    t = np.arange(n) * dt
+    y = np.concatenate((v.real, v.imag))
+    fc = f - f.mean()  # (a absorbs the mean: better conditioned)
+
+    def scan(om: np.ndarray) -> np.ndarray:
+        e = 1j * om[:, None] * np.exp(1j * om[:, None] * t[None, :])  # (K, n)
+        k = len(om)
+        A = np.empty((k, 2 * n, 5))
+        A[:, :n, 0], A[:, n:, 0] = 1.0, 0.0
+        A[:, :n, 1], A[:, n:, 1] = 0.0, 1.0
+        A[:, :n, 2], A[:, n:, 2] = fc.real, fc.imag
+        A[:, :n, 3], A[:, n:, 3] = e.real, e.imag
+        A[:, :n, 4], A[:, n:, 4] = -e.imag, e.real
+        G = np.einsum("kri,krj->kij", A, A)
+        b = np.einsum("kri,r->ki", A, y)
+        G += np.eye(5) * (1e-9 * np.trace(G, axis1=1, axis2=2))[:, None, None]
+        x = np.linalg.solve(G, b[..., None])[..., 0]
+        return y @ y - np.einsum("ki,ki->k", b, x), x
+
+    step = min(0.25, 0.5 / (n * dt))
+    grid = np.arange(-omega_max, omega_max + step, step)
+    res, _ = scan(grid)
+    best = grid[int(np.argmin(res))]
+    fine = best + np.linspace(-step, step, 41)
+    res, x = scan(fine)
+    i = int(np.argmin(res))
+    om = float(fine[i])
+    q0 = complex(x[i, 3], x[i, 4])
+    return om, q0 * complex(cos(om * t[-1]), sin(om * t[-1])), float(np.sqrt(max(res[i], 0.0) / (2 * n)))
+
+
 class DynamicPhase:
     """One agent's dynamical phase (see module docstring). Driven by AgentCore.step."""
 
@@ -570,6 +614,28 @@ class DynamicPhase:
         self.frozen_m = False
         self.frozen_j = False
         self.restarted = False  # the filter's restart at kinematic readiness is done
+        # lock check (DynamicsSpec.lock_nis): running mean of the filter's velocity NIS from the restart on;
+        # a filter that locked onto a wrong (q_i, omega) is restarted from the neighbours' omega_hat
+        self.lock_thr = spec.lock_nis
+        self.lock_alpha = min(1.0, dt / spec.lock_tau_s)
+        self.lock_hold = ticks(spec.lock_hold_s)
+        self.nis_avg = 2.0
+        self.lock_from = 0  # no judgement before this tick (a fresh start's transient)
+        self.reseeds = 0  # restarts by the lock check
+        self.kf_tick = -1  # tick of the last such restart: excitation before it is not in the weights
+        self.shadow: RigidEKF | None = None  # the filter a restart on trial replaced (see _reseed)
+        self.shadow_nis = 2.0
+        self.trial_tick = -1
+        self.lock_fails = 0  # restarts in a row that did no better than the filter they replaced
+        self.m_start = self.j_start = -1  # first ticks of the m and J excitation stages
+        self.nbr_om: dict[int, float] = {}  # neighbours' omega_hat (their kinematic shared state)
+        # the own contact velocities of the last lock_window_s and v_C's change per unit 1/m up to each
+        # (dt sum of the total force): the restart point of a lost filter is fitted to them (fit_rotation)
+        self.win_n = ticks(spec.lock_window_s)
+        self.win_v = np.zeros(self.win_n, complex)
+        self.win_f = np.zeros(self.win_n, complex)
+        self.win_k = 0
+        self.f_int = 0j
         # omega_hat's measurement for the next tick (AgentCore): the filter's predicted omega once it has
         # restarted at kinematic readiness (``DynamicsSpec.filter_omega``), NaN before (the eq. (9) rate)
         self.om_meas = math.nan
@@ -597,6 +663,9 @@ class DynamicPhase:
         self.nbr_barrier[j] = bar
         if msg_phase >= KINEMATIC:  # its filter (and psi) runs from the kinematic stage on
             self.nbr_psi[j] = (psi, t)
+            om = float(sh["om"])
+            if om - om == 0.0:
+                self.nbr_om[j] = om
 
     def note_late(self, t: int, zz: float) -> None:
         """An eq. (9) sample of tick t with pooling weight zz went into this tick's u (AgentCore, only for
@@ -624,6 +693,10 @@ class DynamicPhase:
             self.kf.release_effects()
         self.stage = stage
         self.stage_tick = tick
+        if stage == M_EXCITE:
+            self.m_start = tick
+        elif stage == J_EXCITE:
+            self.j_start = tick
         self.barrier.reset()
         self.conv_since = -1
         if self.kf.ready and stage == J_EXCITE:
@@ -661,16 +734,72 @@ class DynamicPhase:
         elif st == J_EXCITE and tick >= self.stage_tick + self.j_ticks:
             self._enter(J_AVERAGE, tick)
 
-    def _offer(self, inv: float, var: float, num: int, wch: int) -> float | None:
-        """Hands the local estimate 1/inv (the filter's 1/m or 1/J) to its average channels; None if the
-        filter has no usable value yet. Weight 1 (a plain average over the agents that have one): the
+    def _offer(self, inv: float, var: float, num: int, wch: int, w: float = 1.0) -> float | None:
+        """Hands the local estimate 1/inv (the filter's 1/m or 1/J) to its average channels with weight w;
+        None if the filter has no usable value yet. Weight 1 (a plain average over the agents that have one)
+        unless the lock check restarted the filter during the excitation (:meth:`_clean_share`): the
         filters' variances proved overconfident as inverse-variance weights."""
         if not (inv > 0.0 and var > 0.0):
             return None
         au = self.avg.u
-        au[num] = 1.0 / inv
-        au[wch] = 1.0
-        return au[num]
+        au[num] = w / inv
+        au[wch] = w
+        return 1.0 / inv
+
+    def _clean_share(self, start: int, ticks: int) -> float:
+        """The weight of an estimate learnt over the excitation ticks [start, start + ticks): the share of
+        them since the filter's last restart by the lock check (1 without one), near 0 if the filter is
+        lost now (not 0: a team whose filters are all lost must still reach an average)."""
+        w = 1.0
+        if start >= 0 and self.kf_tick > start:
+            w = max(0.0, (start + ticks - self.kf_tick) / ticks)
+        if self.nis_avg > self.lock_thr > 0.0 or self.shadow is not None:  # lost, or a restart on trial
+            w = 0.0
+        return w if w > 1e-3 else 1e-3
+
+    def _reseed(self, tick: int, v: complex, zi: complex, omega_hat: float, zc: complex) -> None:
+        """Restart, on trial, the filter that seems to have lost lock: (omega, q_i) fitted to the own contact
+        velocities of the last window (:func:`fit_rotation`; before it is full, the neighbours' omega_hat and
+        the kinematic z_i + z_C), 1/m and 1/J forgotten. Measured on grid run n20-s0.8-r20: the neighbours'
+        omega_hat was no seed there (-1.2..+0.8 rad/s with the load at 2.5: half the line had lost lock).
+        The old filter runs beside it until :meth:`_judge` keeps the one whose velocity innovations are the
+        more consistent: a wrong lock is fixed by a restart, an effect the model lacks (sensor lag, friction)
+        raises every filter's NIS and is not, so there the old filter and what it learnt are kept."""
+        if self.win_k >= self.win_n:
+            k = self.win_k % self.win_n  # the oldest sample
+            om_max = max(2.0 * abs(self.kf.omega), 2.0 * abs(omega_hat), *(2.0 * abs(o) for o in self.nbr_om.values()),
+                          self.spec.lock_omega_max)
+            om0, q0, _ = fit_rotation(np.roll(self.win_v, -k), np.roll(self.win_f, -k), self.dt, om_max)
+        else:
+            oms = sorted(self.nbr_om.values())
+            k = len(oms)
+            om0 = omega_hat if k == 0 else (oms[k // 2] if k & 1 else 0.5 * (oms[k // 2 - 1] + oms[k // 2]))
+            q0 = zi + zc if zc == zc else zi
+        kf = self.kf
+        self.shadow = copy.copy(kf)  # its arrays are replaced on every step, never changed in place
+        self.shadow_nis = self.nis_avg
+        kf.start(v, q0, om0)
+        if self.released:
+            kf.release_effects()
+        self.nis_avg = 2.0
+        self.trial_tick = tick
+        self.lock_from = tick + self.lock_hold
+
+    def _judge(self, tick: int) -> None:
+        """End of a restart's trial (see :meth:`_reseed`)."""
+        if self.nis_avg < min(self.lock_thr, 0.5 * self.shadow_nis):
+            # consistent, and clearly better: a fresh filter's wide covariance lowers its NIS for a while,
+            # so a small gain (or one that is still inconsistent) is not evidence of a wrong lock
+            self.kf_tick = self.trial_tick
+            self.reseeds += 1
+            self.lock_fails = 0
+            self.lock_from = tick
+        else:  # the restart did no better: back to the old filter, and wait longer before the next try
+            self.kf = self.shadow
+            self.nis_avg = self.shadow_nis
+            self.lock_fails += 1
+            self.lock_from = tick + (self.lock_hold << min(self.lock_fails, 5))
+        self.shadow = None
 
     def _converged(self, num: int, wch: int, tick: int) -> bool:
         """Local convergence of a weighted average: own value and every neighbour's within tolerance."""
@@ -718,6 +847,7 @@ class DynamicPhase:
                             # the m stage to recover (seed 3: one agent's m off by 5 %, measured)
                             self.restarted = True
                             kf.start(v, zi, omega_hat)
+                            self.lock_from = tick + self.lock_hold
                         self.barrier.set_ready(tick)
                 else:
                     self.kin_since = -1
@@ -744,16 +874,33 @@ class DynamicPhase:
             self.cum_t[i], self.cum_c[i], self.cum_w[i] = tick, self.cc, self.cw
         if kf.ready:
             u_var = spec.u_var_scale * 2.0 * self.sigma_v**2 / u_den if u_den > 0.0 and spec.u_var_scale > 0 else 0.0
+            u_dc = u_dw = 0.0
             if spec.u_delayed and u_var > 0.0:
                 u_dc, u_dw = self._u_age(tick, u_den)
-                kf.update(v, u, u_var, u_dc, u_dw)
-            else:
-                kf.update(v, u, u_var)
+            kf.update(v, u, u_var, u_dc, u_dw)
             q = kf.q
         else:
             q = zi
         zc = complex(x[CH_ZX], x[CH_ZY]) * rot  # z_C, world (the consensus runs in the shared body frame)
         held = self.q_held
+        if self.restarted and held is None and self.lock_thr > 0.0:
+            w = self.win_k % self.win_n
+            self.win_v[w] = v
+            self.win_f[w] = self.f_int
+            self.win_k += 1
+            a = self.lock_alpha
+            self.nis_avg = na = self.nis_avg + a * (kf.nis - self.nis_avg)
+            old = self.shadow
+            if old is not None:  # a restart on trial: the filter it replaced runs beside it
+                old.update(v, u, u_var, u_dc, u_dw)
+                self.shadow_nis += a * (old.nis - self.shadow_nis)
+                if tick >= self.lock_from:
+                    self._judge(tick)
+                    kf = self.kf
+                    q = kf.q
+            elif na > self.lock_thr and tick >= self.lock_from:
+                self._reseed(tick, v, zi, omega_hat, zc)
+                q = kf.q
         if held is None and stage == DONE and kf.ready and (self.law is not None or spec.brake > 0.0):
             # the user's law or Prop. 7 braking may stop the rotation, and q_i (so z_C) is observable only
             # while the load turns (v_Ci = v_C + omega q_i^perp): from done on, q_i is held in the shared
@@ -812,19 +959,23 @@ class DynamicPhase:
         take_m = stage == BACKGROUND or (stage == M_AVERAGE and not self.frozen_m)
         take_j = stage == BACKGROUND or (stage == J_AVERAGE and not self.frozen_j)
         if kf.ready and take_m:
-            m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW)
+            w = 1.0 if stage == BACKGROUND else self._clean_share(self.m_start, self.m_ticks)
+            m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW, w)
             if m_local is not None:
                 self.m_local = m_local
                 self.frozen_m = stage == M_AVERAGE
                 if kf.aug is not None:  # b = beta m, averaged with m's weights
-                    self.b_local = au[CH_BN] = kf.beta * m_local
+                    self.b_local = kf.beta * m_local
+                    au[CH_BN] = w * self.b_local
         if kf.ready and take_j:
-            j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW)
+            w = 1.0 if stage == BACKGROUND else self._clean_share(self.j_start, self.j_ticks)
+            j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w)
             if j_local is not None:
                 self.j_local = j_local
                 self.frozen_j = stage == J_AVERAGE
                 if kf.aug is not None:  # c = gamma J, averaged with J's weights
-                    self.c_local = au[CH_CN] = kf.gamma * j_local
+                    self.c_local = kf.gamma * j_local
+                    au[CH_CN] = w * self.c_local
         self.avg.update()
         x = self.avg.x
 
@@ -845,7 +996,10 @@ class DynamicPhase:
             self.psi += dt * kf.omega  # the body turns by the pre-update omega (semi-implicit Euler)
             self.cc += dt * torque
             self.cw += dt * kf.omega
+            self.f_int += dt * n * fbar
             kf.predict(n * fbar, torque, dt)
+            if self.shadow is not None:
+                self.shadow.predict(n * fbar, torque, dt)
             iota = kf.iota
             # only once 1/J is known to 10 % (or, with j_feedforward, through the whole J stage: its torque
             # is exact and 1/J keeps its pre-stage value when it is forgotten)
@@ -909,12 +1063,12 @@ class DynamicPhase:
         that are recorded or published (the consensus state ``avg.x`` and the filter state ``kf.s`` are
         replaced each tick, never changed in place, so holding them is enough)."""
         return (self.avg.x, self.psi, self.kf.s, self.stage, self.j_local, self.m_local, self.late_switches,
-                self.b_local, self.c_local)
+                self.b_local, self.c_local, self.reseeds)
 
 
 def estimates(snap: tuple) -> dict[str, float]:
     """The dynamical phase's estimate values (``agents.agent.ESTIMATE_NAMES``) from a :meth:`DynamicPhase.snapshot`."""
-    x, psi, s, stage, j_local, m_local, late, b_local, c_local = snap
+    x, psi, s, stage, j_local, m_local, late, b_local, c_local, reseeds = snap
     nan = math.nan
     m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
     J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
@@ -938,4 +1092,5 @@ def estimates(snap: tuple) -> dict[str, float]:
         "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 else nan,
         "b_local": b_local,
         "c_local": c_local,
+        "filter_restarts": float(reseeds),
     }

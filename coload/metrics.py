@@ -352,6 +352,12 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
         done = np.all(est.columns["phase"] == 6.0, axis=1)
         out["finished_s"] = float(s.est_t[int(np.argmax(done))]) if done.any() else None
 
+    if est.has("filter_restarts") and np.isfinite(est.columns["filter_restarts"]).any():
+        # restarts of the dynamical phase's filters by their lock check, summed over the agents (0 in a
+        # run where every filter stayed consistent: agents/dynamic.py, DynamicsSpec.lock_nis)
+        last, _ = last_finite(est.columns["filter_restarts"])
+        out["filter_restarts"] = int(np.nansum(last))
+
     tcol = truth.columns
     ti = s.truth_est_idx
     # J_local/m_local: each agent's own least-squares estimate before the averaging consensus

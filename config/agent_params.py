@@ -235,6 +235,27 @@ class DynamicsSpec(_Strict):
                           "with omega_hat at high noise, fed a lagging omega_hat back to itself until it lost "
                           "lock); false: the eq. (9) rate throughout",
     )
+    lock_nis: float = Field(
+        6.0, ge=0, description="Kalman filter lock check, from its restart at kinematic readiness on: when the "
+                               "running mean of the own velocity's normalised innovation squared (2 for a "
+                               "consistent filter) exceeds this, the filter has locked onto a wrong (q_i, "
+                               "omega) and is restarted, on trial, from a fit of its own contact velocities "
+                               "(measured at sigma 0.8-0.9, n = 20: 11-300 for lost filters, 2.0-2.9 "
+                               "for the others); 0: never",
+    )
+    lock_tau_s: float = Field(2.0, gt=0, description="time constant of that running mean (s)")
+    lock_window_s: float = Field(
+        2.0, gt=0, description="the restart point (omega, q_i) is fitted to the own contact velocities of this "
+                               "last window (agents.dynamic.fit_rotation; the neighbours' omega_hat and the "
+                               "kinematic z_i before the window is full) (s)",
+    )
+    lock_omega_max: float = Field(
+        6.0, gt=0, description="that fit searches omega within +-max(this, twice the largest omega_hat around) "
+                               "(rad/s)",
+    )
+    lock_hold_s: float = Field(
+        4.0, ge=0, description="after a (re)start, how long the lock check waits before it judges again (s)"
+    )
     j_omega_walk: float = Field(
         0.005, ge=0, description="Kalman filter: the same during the J stage, where the torque is known exactly "
                                  "(sum of the agents' own forces' moments); small, so that J rests on the whole "
