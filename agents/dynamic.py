@@ -688,9 +688,11 @@ class DynamicPhase:
 
     # ------------------------------------------------------------------ helpers
     def _enter(self, stage: int, tick: int) -> None:
+        filters = (self.kf,) if self.shadow is None else (self.kf, self.shadow)  # a restart on trial: both
         if stage >= M_EXCITE and self.kf.aug is not None and not self.released:
             self.released = True  # the excitation starts (or we jumped past it): see release_effects
-            self.kf.release_effects()
+            for kf in filters:
+                kf.release_effects()
         self.stage = stage
         self.stage_tick = tick
         if stage == M_EXCITE:
@@ -699,11 +701,12 @@ class DynamicPhase:
             self.j_start = tick
         self.barrier.reset()
         self.conv_since = -1
-        if self.kf.ready and stage == J_EXCITE:
-            self.kf.forget_iota()  # J from the J stage's exactly known torque alone (Result 5)
-            self.kf.set_omega_walk(self.spec.j_omega_walk)
-        elif stage != J_EXCITE:
-            self.kf.set_omega_walk(self.spec.omega_walk)
+        for kf in filters:
+            if kf.ready and stage == J_EXCITE:
+                kf.forget_iota()  # J from the J stage's exactly known torque alone (Result 5)
+                kf.set_omega_walk(self.spec.j_omega_walk)
+            elif stage != J_EXCITE:
+                kf.set_omega_walk(self.spec.omega_walk)
 
     def _advance(self, tick: int) -> None:
         """Stage agreement: neighbours ahead, barrier merges, own readiness, due switches."""
@@ -906,6 +909,7 @@ class DynamicPhase:
             # while the load turns (v_Ci = v_C + omega q_i^perp): from done on, q_i is held in the shared
             # body frame (measured without: |q_i| 1.39 -> 1.05 m in 25 s of a load stopped by a law)
             held = self.q_held = q * rot.conjugate()
+            self.shadow = None  # a restart on trial is kept: no more lock checks from here on
             kf.hold_shape()
             kf.set_omega_walk(spec.j_omega_walk)
         if held is not None:
