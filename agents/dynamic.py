@@ -737,12 +737,13 @@ class DynamicPhase:
         elif st == J_EXCITE and tick >= self.stage_tick + self.j_ticks:
             self._enter(J_AVERAGE, tick)
 
-    def _offer(self, inv: float, var: float, num: int, wch: int, w: float = 1.0) -> float | None:
+    def _offer(self, inv: float, var: float, num: int, wch: int, w: float = 1.0, sure: bool = False) -> float | None:
         """Hands the local estimate 1/inv (the filter's 1/m or 1/J) to its average channels with weight w;
-        None if the filter has no usable value yet. Weight 1 (a plain average over the agents that have one)
+        None if the filter has no usable value yet (with ``sure``, also while its sd is not below the value:
+        a restarted filter's 1/m starts at 0 with sd 1). Weight 1 (a plain average over the agents that have one)
         unless the lock check restarted the filter during the excitation (:meth:`_clean_share`): the
         filters' variances proved overconfident as inverse-variance weights."""
-        if not (inv > 0.0 and var > 0.0):
+        if not (inv > 0.0 and var > 0.0) or (sure and var >= inv * inv):
             return None
         au = self.avg.u
         au[num] = w / inv
@@ -756,7 +757,7 @@ class DynamicPhase:
         w = 1.0
         if start >= 0 and self.kf_tick > start:
             w = max(0.0, (start + ticks - self.kf_tick) / ticks)
-        if self.nis_avg > self.lock_thr > 0.0 or self.shadow is not None:  # lost, or a restart on trial
+        if self.nis_avg > self.lock_thr > 0.0:  # lost
             w = 0.0
         return w if w > 1e-3 else 1e-3
 
@@ -768,23 +769,29 @@ class DynamicPhase:
         The old filter runs beside it until :meth:`_judge` keeps the one whose velocity innovations are the
         more consistent: a wrong lock is fixed by a restart, an effect the model lacks (sensor lag, friction)
         raises every filter's NIS and is not, so there the old filter and what it learnt are kept."""
+        oms = sorted(self.nbr_om.values())
+        k = len(oms)
+        om0 = omega_hat if k == 0 else (oms[k // 2] if k & 1 else 0.5 * (oms[k // 2 - 1] + oms[k // 2]))
+        q0 = zi + zc if zc == zc else zi
         if self.win_k >= self.win_n:
             k = self.win_k % self.win_n  # the oldest sample
-            om_max = max(2.0 * abs(self.kf.omega), 2.0 * abs(omega_hat), *(2.0 * abs(o) for o in self.nbr_om.values()),
-                          self.spec.lock_omega_max)
-            om0, q0, _ = fit_rotation(np.roll(self.win_v, -k), np.roll(self.win_f, -k), self.dt, om_max)
-        else:
-            oms = sorted(self.nbr_om.values())
-            k = len(oms)
-            om0 = omega_hat if k == 0 else (oms[k // 2] if k & 1 else 0.5 * (oms[k // 2 - 1] + oms[k // 2]))
-            q0 = zi + zc if zc == zc else zi
+            lim = self.spec.lock_omega_max
+            # not the lost filter's own omega (it may be anything); capped, so that the scan stays small
+            om_max = min(max(lim, 2.0 * abs(omega_hat), *(2.0 * abs(o) for o in oms)), 5.0 * lim)
+            om_fit, q_fit, _ = fit_rotation(np.roll(self.win_v, -k), np.roll(self.win_f, -k), self.dt, om_max)
+            if abs(om_fit) * self.win_n * self.dt >= 2.0:
+                # the load turned by 2 rad or more in the window: the fit is determined (slower, q is not,
+                # measured: omega 0.3 rad/s fitted as -0.1 with |q| 8.5 m), else the fallback above
+                om0, q0 = om_fit, q_fit
         kf = self.kf
         self.shadow = copy.copy(kf)  # its arrays are replaced on every step, never changed in place
         self.shadow_nis = self.nis_avg
         kf.start(v, q0, om0)
         if self.released:
             kf.release_effects()
-        self.nis_avg = 2.0
+        # the trial's running mean starts at the threshold, not at the consistent 2: what is left of the
+        # start after the trial (13 % at 4 s over 2 s) then leans towards keeping the old filter
+        self.nis_avg = self.lock_thr
         self.trial_tick = tick
         self.lock_from = tick + self.lock_hold
 
@@ -908,8 +915,12 @@ class DynamicPhase:
             # the user's law or Prop. 7 braking may stop the rotation, and q_i (so z_C) is observable only
             # while the load turns (v_Ci = v_C + omega q_i^perp): from done on, q_i is held in the shared
             # body frame (measured without: |q_i| 1.39 -> 1.05 m in 25 s of a load stopped by a law)
+            if self.shadow is not None:  # a restart on trial: judged now, no more lock checks from here on
+                self._judge(tick)
+                kf = self.kf
+                q = kf.q
+                self.shadow = None
             held = self.q_held = q * rot.conjugate()
-            self.shadow = None  # a restart on trial is kept: no more lock checks from here on
             kf.hold_shape()
             kf.set_omega_walk(spec.j_omega_walk)
         if held is not None:
@@ -960,11 +971,15 @@ class DynamicPhase:
             qp = q * rot.conjugate() if held is None else held  # q_i in the shared body frame; their mean is z_C
             au[CH_ZX] = qp.real
             au[CH_ZY] = qp.imag
-        take_m = stage == BACKGROUND or (stage == M_AVERAGE and not self.frozen_m)
-        take_j = stage == BACKGROUND or (stage == J_AVERAGE and not self.frozen_j)
+        # not while a restart is on trial (its 1/m and 1/J start from nothing; the offer waits for the
+        # judgement, at most lock_hold_s): the old filter's last offer stays in the background average
+        take_m = self.shadow is None and (stage == BACKGROUND or (stage == M_AVERAGE and not self.frozen_m))
+        take_j = self.shadow is None and (stage == BACKGROUND or (stage == J_AVERAGE and not self.frozen_j))
+        # after a kept restart, only a determined value (sd below the value) is offered
+        sure = self.kf_tick >= 0
         if kf.ready and take_m:
             w = 1.0 if stage == BACKGROUND else self._clean_share(self.m_start, self.m_ticks)
-            m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW, w)
+            m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW, w, sure)
             if m_local is not None:
                 self.m_local = m_local
                 self.frozen_m = stage == M_AVERAGE
@@ -973,7 +988,7 @@ class DynamicPhase:
                     au[CH_BN] = w * self.b_local
         if kf.ready and take_j:
             w = 1.0 if stage == BACKGROUND else self._clean_share(self.j_start, self.j_ticks)
-            j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w)
+            j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w, sure)
             if j_local is not None:
                 self.j_local = j_local
                 self.frozen_j = stage == J_AVERAGE
