@@ -19,6 +19,11 @@ What each agent runs (symbols as in the paper; z_C = p_G - p_C, q_i = p_Ci - p_C
   so that omega's slow part rests on the rotation of the own contact velocity; and from the filter's
   restart at kinematic readiness on, omega_hat measures this filter's omega instead of u, which cuts
   the loop omega_hat -> pair angles -> u -> omega_hat that lost lock there (docs/high-noise.md).
+* **Lock check** (``DynamicsSpec.lock_nis``, docs/high-noise.md): the filter is nonlinear in (q_i, omega) and
+  at high noise it can lock onto a wrong pair; its own velocity innovations then stop being consistent
+  (normalised innovation squared far above its 2 degrees of freedom). Such a filter is restarted, on
+  trial, from a global fit of its own last contact velocities (:func:`fit_rotation`) and the restart is
+  kept only if clearly better; what it learnt while lost gets no weight in the averages.
 * **Rotation regression** (Result 5 / (11), and the role of (24)): omega(t) = omega_0 + (1/J) C(t),
   C(t) = dt sum_{k<t} T(k), T the total torque about the CoM, T = n (z_C x fbar + mean_i(q_i x df_i +
   tau_i)) (decomposition (12)-(14): df_i = f_i - fbar, so no consensus on rotating per-agent signals).
