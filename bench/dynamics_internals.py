@@ -22,17 +22,16 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from agents import dynamic as D  # noqa: E402
-from coload.world import build_agent  # noqa: E402
+from coload.world import build_agent, team_ticks  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
-from simulator.plant import Plant, sensor_rng  # noqa: E402
+from simulator.plant import Plant  # noqa: E402
 
 
 def run(sc) -> dict[str, np.ndarray]:
     """Steps plant and agents like coload.engine.run_inproc (one-tick links) and records internals."""
     n, T = sc.n, sc.ticks
-    plant, rng = Plant(sc), sensor_rng(sc.seed)
+    plant = Plant(sc)
     agents = [build_agent(sc, i) for i in range(n)]
-    nbrs = sc.neighbours()
     seen: dict[int, float] = {}
     predict = D.RigidEKF.predict
 
@@ -49,28 +48,18 @@ def run(sc) -> dict[str, np.ndarray]:
         rec["q"][k] = np.asarray(t.zi) + np.asarray(t.zc)
         rec["om"][k], rec["vc"][k] = t.omega, t.vc
 
-    inbox: list[list] = [[] for _ in range(n)]
     try:
-        for k in range(T):
-            meas = plant.measure(rng)
+        for k, wr in team_ticks(sc, plant, agents):
             truth(k)
-            nxt: list[list] = [[] for _ in range(n)]
-            wr = []
             for i, a in enumerate(agents):
-                res = a.step(k, meas[i][0], meas[i][1], inbox[i])
-                for j in nbrs[i]:
-                    nxt[j].append(res.state)
-                wr.append((res.wrench.fx, res.wrench.fy, res.wrench.tau))
                 dyn = a._dyn
                 rec["stage"][k, i] = dyn.stage
                 if dyn.kf.ready:
                     rec["s"][k, i] = dyn.kf.s[:7]  # the rigid-body states (not the effects, nor b)
                 rec["tq"][k, i] = seen.pop(id(dyn.kf), np.nan)
-            inbox = nxt
             w = np.asarray(wr)
             q = rec["q"][k]
             rec["true_tq"][k] = float(np.sum(q[:, 0] * w[:, 1] - q[:, 1] * w[:, 0] + w[:, 2]))
-            plant.apply_and_step(wr)
         truth(T)
     finally:
         D.RigidEKF.predict = predict

@@ -391,24 +391,11 @@ def test_algorithm_1_at_high_noise_keeps_omega_locked(tmp_path):
 def _own_masses_at_the_end_of_the_m_stage(sc) -> tuple[list[float], list[int]]:
     """Runs ``sc`` like the in-process engine (one-tick links) until the m stage ends; every agent's own m
     error and its lock-check restarts."""
-    from coload.world import build_agent
-    from simulator.plant import sensor_rng
+    from coload.world import build_agent, team_ticks
 
-    plant, rng = Plant(sc), sensor_rng(sc.seed)
+    plant = Plant(sc)
     agents = [build_agent(sc, i) for i in range(sc.n)]
-    nbrs = sc.neighbours()
-    inbox: list[list] = [[] for _ in range(sc.n)]
-    for k in range(sc.ticks):
-        meas = plant.measure(rng)
-        nxt: list[list] = [[] for _ in range(sc.n)]
-        wr = []
-        for i, a in enumerate(agents):
-            res = a.step(k, meas[i][0], meas[i][1], inbox[i])
-            for j in nbrs[i]:
-                nxt[j].append(res.state)
-            wr.append((res.wrench.fx, res.wrench.fy, res.wrench.tau))
-        inbox = nxt
-        plant.apply_and_step(wr)
+    for _ in team_ticks(sc, plant, agents):
         if agents[0]._dyn.stage == D.M_AVERAGE:
             break
     else:
