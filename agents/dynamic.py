@@ -654,6 +654,8 @@ class DynamicPhase:
         psi = float(psi)
         if psi - psi != 0.0:
             raise ValueError("non-finite")
+        # its omega_hat (the agent's kinematic key in the same dict; the lock check's fallback seed)
+        om = float(sh.get("om", math.nan))
         degj = int(degj)
         if flows is NO_FLOWS:
             flows = avg.no_flows
@@ -668,7 +670,6 @@ class DynamicPhase:
         self.nbr_barrier[j] = bar
         if msg_phase >= KINEMATIC:  # its filter (and psi) runs from the kinematic stage on
             self.nbr_psi[j] = (psi, t)
-            om = float(sh["om"])
             if om - om == 0.0:
                 self.nbr_om[j] = om
 
