@@ -50,6 +50,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+import statistics
 from collections.abc import Callable, Sequence
 from math import cos, isfinite, sin
 from operator import itemgetter
@@ -620,7 +621,7 @@ class DynamicPhase:
         self.frozen_j = False
         self.restarted = False  # the filter's restart at kinematic readiness is done
         # lock check (DynamicsSpec.lock_nis): running mean of the filter's velocity NIS from the restart on;
-        # a filter that locked onto a wrong (q_i, omega) is restarted from the neighbours' omega_hat
+        # a filter that locked onto a wrong (q_i, omega) is restarted on trial (_reseed, _judge)
         self.lock_thr = spec.lock_nis
         self.lock_alpha = min(1.0, dt / spec.lock_tau_s)
         self.lock_hold = ticks(spec.lock_hold_s)
@@ -775,9 +776,8 @@ class DynamicPhase:
         The old filter runs beside it until :meth:`_judge` keeps the one whose velocity innovations are the
         more consistent: a wrong lock is fixed by a restart, an effect the model lacks (sensor lag, friction)
         raises every filter's NIS and is not, so there the old filter and what it learnt are kept."""
-        oms = sorted(self.nbr_om.values())
-        k = len(oms)
-        om0 = omega_hat if k == 0 else (oms[k // 2] if k & 1 else 0.5 * (oms[k // 2 - 1] + oms[k // 2]))
+        oms = list(self.nbr_om.values())
+        om0 = statistics.median(oms) if oms else omega_hat
         q0 = zi + zc if zc == zc else zi
         if self.win_k >= self.win_n:
             k = self.win_k % self.win_n  # the oldest sample
@@ -925,7 +925,6 @@ class DynamicPhase:
                 self._judge(tick)
                 kf = self.kf
                 q = kf.q
-                self.shadow = None
             held = self.q_held = q * rot.conjugate()
             kf.hold_shape()
             kf.set_omega_walk(spec.j_omega_walk)

@@ -246,12 +246,13 @@ class DynamicsSpec(_Strict):
     lock_tau_s: float = Field(2.0, gt=0, description="time constant of that running mean (s)")
     lock_window_s: float = Field(
         2.0, gt=0, description="the restart point (omega, q_i) is fitted to the own contact velocities of this "
-                               "last window (agents.dynamic.fit_rotation; the neighbours' omega_hat and the "
-                               "kinematic z_i before the window is full) (s)",
+                               "last window (agents.dynamic.fit_rotation; the neighbours' median omega_hat and the "
+                               "kinematic z_i + z_C before the window is full, or when the load turned by less "
+                               "than 2 rad in it) (s)",
     )
     lock_omega_max: float = Field(
-        6.0, gt=0, description="that fit searches omega within +-max(this, twice the largest omega_hat around) "
-                               "(rad/s)",
+        6.0, gt=0, description="that fit searches omega within +-max(this, twice the largest omega_hat around), "
+                               "at most +-5 times this (rad/s)",
     )
     lock_hold_s: float = Field(
         4.0, ge=0, description="after a (re)start, how long the lock check waits before it judges again (s)"
