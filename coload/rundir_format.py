@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import tomllib
 import warnings
@@ -26,6 +27,8 @@ from typing import Any, TypeVar
 import numpy as np
 
 from agents.agent import ESTIMATE_NAMES as AGENT_ESTIMATE_NAMES
+
+log = logging.getLogger(__name__)
 
 # --- file names --------------------------------------------------------------------------------
 RUN_TOML = "run.toml"
@@ -348,19 +351,39 @@ def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
             raise RunFormatError(f"{path}:1: duplicate column(s) {', '.join(dup)}")
         rows: list[list[str]] = []
         lines: list[int] = []
+        short: tuple[int, int] | None = None  # (line, fields) of a short row: an error unless it is a cut tail
         try:
             for row in reader:
                 if not row or all(not c.strip() for c in row):
                     continue  # blank line, e.g. trailing newline
-                if len(row) != len(header):
-                    raise RunFormatError(
-                        f"{path}:{reader.line_num}: expected {len(header)} fields, got {len(row)}"
-                    )
+                if short is not None or len(row) > len(header):
+                    line, got = short or (reader.line_num, len(row))
+                    raise RunFormatError(f"{path}:{line}: expected {len(header)} fields, got {got}")
+                if len(row) < len(header):
+                    short = (reader.line_num, len(row))
+                    continue
                 rows.append(row)
                 lines.append(reader.line_num)
         except csv.Error as exc:
             raise RunFormatError(f"{path}:{reader.line_num}: {exc}") from exc
+    if short is not None:
+        if not _ends_cut(path):
+            raise RunFormatError(f"{path}:{short[0]}: expected {len(header)} fields, got {short[1]}")
+        # a recorder killed mid-write leaves its last line short and without a newline: the whole rows are
+        # the recording, so they are read and the cut line is named, not made fatal
+        log.warning("%s:%d: last line cut off (%d of %d fields, no newline): ignored",
+                    path, short[0], short[1], len(header))
     return _Csv(path, header, rows=rows, lines=lines)
+
+
+def _ends_cut(path: Path) -> bool:
+    """Whether the file's last byte is not a line end (the tail of a write that was cut off)."""
+    with path.open("rb") as fh:
+        fh.seek(0, 2)
+        if fh.tell() == 0:
+            return False
+        fh.seek(-1, 2)
+        return fh.read(1) not in (b"\n", b"\r")
 
 
 def _time_grid(csvf: _Csv) -> tuple[np.ndarray, np.ndarray]:

@@ -121,6 +121,33 @@ def test_wrong_field_count(run_dir):
         rf.read_run(run_dir)
 
 
+def test_a_cut_last_line_is_dropped_with_a_warning_and_nothing_else_is_lost(run_dir, caplog):
+    """A recorder killed mid-write: the last line is short and has no newline. The whole rows are the
+    recording; the cut one is named in a warning."""
+    path = run_dir / rf.SAMPLES_CSV
+    whole = rf.read_run(run_dir).samples
+    text = path.read_text()
+    path.write_text(text + "2.5,1,0.12")
+    with caplog.at_level("WARNING", logger="coload.rundir_format"):
+        cut = rf.read_run(run_dir).samples
+    nlines = text.count("\n") + 1
+    assert f"samples.csv:{nlines}: last line cut off (3 of 7 fields, no newline)" in caplog.text
+    assert np.array_equal(cut.t, whole.t)
+    for name, col in whole.columns.items():
+        assert np.array_equal(cut.columns[name], col, equal_nan=True), name
+
+
+@pytest.mark.parametrize("tail", ["2.5,1,0.12\n", "2.5,1,0.12\n2.6,0,1,1,1,1,1\n"])
+def test_a_short_line_that_is_not_a_cut_tail_is_still_an_error(run_dir, tail):
+    """A short line followed by a newline or by more rows is malformed data, not a cut write."""
+    path = run_dir / rf.SAMPLES_CSV
+    text = path.read_text()
+    path.write_text(text + tail)
+    nlines = text.count("\n") + 1
+    with pytest.raises(rf.RunFormatError, match=rf"samples\.csv:{nlines}: expected 7 fields, got 3"):
+        rf.read_run(run_dir)
+
+
 def test_missing_header_column(run_dir):
     path = run_dir / rf.TRUTH_CSV
     lines = path.read_text().splitlines()
