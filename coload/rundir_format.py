@@ -352,13 +352,18 @@ def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
         rows: list[list[str]] = []
         lines: list[int] = []
         short: tuple[int, int] | None = None  # (line, fields) of a short row: an error unless it is a cut tail
+
+        def wrong_count(line: int, got: int) -> RunFormatError:
+            return RunFormatError(f"{path}:{line}: expected {len(header)} fields, got {got}")
+
         try:
             for row in reader:
                 if not row or all(not c.strip() for c in row):
                     continue  # blank line, e.g. trailing newline
-                if short is not None or len(row) > len(header):
-                    line, got = short or (reader.line_num, len(row))
-                    raise RunFormatError(f"{path}:{line}: expected {len(header)} fields, got {got}")
+                if short is not None:  # rows after a short one: it was not the tail of a cut write
+                    raise wrong_count(*short)
+                if len(row) > len(header):
+                    raise wrong_count(reader.line_num, len(row))
                 if len(row) < len(header):
                     short = (reader.line_num, len(row))
                     continue
@@ -368,7 +373,7 @@ def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
             raise RunFormatError(f"{path}:{reader.line_num}: {exc}") from exc
     if short is not None:
         if not _ends_cut(path):
-            raise RunFormatError(f"{path}:{short[0]}: expected {len(header)} fields, got {short[1]}")
+            raise wrong_count(*short)
         # a recorder killed mid-write leaves its last line short and without a newline: the whole rows are
         # the recording, so they are read and the cut line is named, not made fatal
         log.warning("%s:%d: last line cut off (%d of %d fields, no newline): ignored",
