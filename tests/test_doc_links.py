@@ -2,15 +2,16 @@
 in it: the docs are read on GitHub and in editors, where a dead link is the first thing a reader hits."""
 
 import re
+from functools import cache
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
+LINK = re.compile(r"!?\[[^\[\]]*\]\(([^)\s]+)\)")  # link text may wrap lines, but holds no bracket
 FENCED = re.compile(r"```.*?```", re.S)
-CODE = re.compile(r"```.*?```|`[^`\n]*`", re.S)
+CODE = re.compile(FENCED.pattern + r"|`[^`\n]*`", re.S)
 
 
 def _slug(heading: str) -> str:
@@ -20,18 +21,20 @@ def _slug(heading: str) -> str:
     return s.replace(" ", "-")
 
 
+@cache  # a page is linked from many others
 def _anchors(page: Path) -> set[str]:
     text = FENCED.sub("", page.read_text(encoding="utf-8"))  # a heading's `code` is part of its anchor
     return {_slug(m.group(1)) for m in re.finditer(r"^#{1,6}\s+(.+?)\s*#*\s*$", text, re.M)}
 
 
 def _links(page: Path):
-    text = CODE.sub("", page.read_text(encoding="utf-8"))
+    # code is blanked but keeps its newlines, so the line numbers below are the file's
+    text = CODE.sub(lambda c: "\n" * c.group(0).count("\n"), page.read_text(encoding="utf-8"))
     for m in LINK.finditer(text):
         target = m.group(1)
         if re.match(r"[a-z][a-z0-9+.-]*:", target):  # http:, https:, mailto: ...
             continue
-        line = text.count("\n", 0, m.start()) + 1
+        line = text.count("\n", 0, m.start(1)) + 1  # the target's line
         yield line, target
 
 
