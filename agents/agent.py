@@ -67,34 +67,8 @@ from agents.kinematic import PairEstimator
 from agents.laws import LawInput
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
+from net.vocabulary import ESTIMATE_NAMES
 
-ESTIMATE_NAMES: tuple[str, ...] = (
-    "phase",  # stage: 0 spinning up (no omega_hat yet), 1 kinematic (omega regulated); 2.. the
-    # dynamical phase (agents.dynamic.STAGE_NAMES)
-    "omega",  # omega_hat (rad/s), consensus-filtered
-    "omega_local",  # this tick's local pooled eq. (9) value (rad/s; NaN when no sample)
-    "zi_x",  # z_i = p_Ci - p_G estimate, world frame (m)
-    "zi_y",
-    "pairs_ready",  # neighbours whose z_ij is estimated
-    "dropped_unknown",  # messages from senders not in neighbours (count)
-    "dropped_stale",  # duplicates / not newer than already used / from the future / malformed (count)
-    # dynamical phase (agents/dynamic.py; NaN while not estimated, or without it)
-    "J",  # moment of inertia about the CoM after the averaging consensus (kg m^2)
-    "m",  # mass after the averaging consensus (kg)
-    "zc_x",  # z_C = p_G - p_C, world frame (m)
-    "zc_y",
-    "vc_x",  # CoM velocity v_C, world frame (m/s)
-    "vc_y",
-    "J_local",  # this agent's own J estimate, before the averaging consensus (kg m^2)
-    "m_local",  # this agent's own m estimate, before the averaging consensus (kg)
-    "late_switches",  # stage switches this agent learnt of after the agreed tick (count)
-    # augmented model (DynamicsSpec.estimate_effects; NaN without it)
-    "b",  # viscous floor friction on v_C after the averaging consensus (N s/m)
-    "c",  # rotational damping on omega after the averaging consensus (N m s)
-    "b_local",  # this agent's own b, before the averaging consensus (N s/m)
-    "c_local",  # this agent's own c, before the averaging consensus (N m s)
-    "filter_restarts",  # restarts of the dynamical phase's filter by its lock check (count; DynamicsSpec.lock_nis)
-)
 _DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
 _KINEMATIC = dynamic.KINEMATIC  # the dynamical phase's stage while the team waits for kinematic readiness
 _NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)

@@ -44,72 +44,17 @@ from agents.speed_observer import (
     Terms,
     two_link,
 )
+from config.arm_model import ArmModel
 
 Array = np.ndarray
 
 
-@dataclass(frozen=True)
-class ArmModel:
-    """Uniform-rod links: lengths l1, l2 (m), masses m1, m2 (kg); centre of mass mid-link."""
-
-    l1: float
-    l2: float
-    m1: float
-    m2: float
-
-    def __post_init__(self) -> None:
-        if min(self.l1, self.l2, self.m1, self.m2) <= 0:
-            raise ValueError("arm link lengths and masses must be positive")
-
-    @property
-    def inertias(self) -> tuple[float, float]:
-        """Link moments about their centres of mass (kg m^2)."""
-        return self.m1 * self.l1**2 / 12.0, self.m2 * self.l2**2 / 12.0
-
-    @property
-    def constants(self) -> tuple[float, float, float]:
-        """(c1, c2, c3) of M(q) (paper 004 eq. 56) for absolute angles."""
-        i1, i2 = self.inertias
-        lc1, lc2 = 0.5 * self.l1, 0.5 * self.l2
-        return self.m1 * lc1**2 + i1 + self.m2 * self.l1**2, self.m2 * self.l1 * lc2, self.m2 * lc2**2 + i2
-
-    @property
-    def reach(self) -> tuple[float, float]:
-        """Inner and outer radius of the workspace annulus (m)."""
-        return abs(self.l1 - self.l2), self.l1 + self.l2
-
-    def tip(self, q: Array) -> Array:
-        """Contact point relative to the base (m), forward kinematics."""
-        return np.array([self.l1 * math.cos(q[0]) + self.l2 * math.cos(q[1]),
-                         self.l1 * math.sin(q[0]) + self.l2 * math.sin(q[1])])
-
-    def jacobian(self, q: Array) -> Array:
-        """d tip / d q (2 x 2): tip velocity = J q', generalized force of a tip force f = J^T f."""
-        return np.array([[-self.l1 * math.sin(q[0]), -self.l2 * math.sin(q[1])],
-                         [self.l1 * math.cos(q[0]), self.l2 * math.cos(q[1])]])
-
-    def ik(self, p: Sequence[float], elbow: int = 1) -> Array:
-        """Absolute angles that put the tip at ``p`` (relative to the base); ``elbow`` = +1 or -1 picks the branch.
-
-        Raises ValueError outside the open workspace annulus (where the arm is singular or cannot reach).
-        """
-        px, py = float(p[0]), float(p[1])
-        d2 = px * px + py * py
-        c = (d2 - self.l1**2 - self.l2**2) / (2 * self.l1 * self.l2)
-        if not -1.0 < c < 1.0:
-            lo, hi = self.reach
-            raise ValueError(f"point at {math.sqrt(d2):.3f} m from the base is outside the reach ({lo:.3f}, {hi:.3f}) m")
-        g = math.copysign(math.acos(c), elbow)  # elbow angle q2 - q1
-        q1 = math.atan2(py, px) - math.atan2(self.l2 * math.sin(g), self.l1 + self.l2 * math.cos(g))
-        q1 = math.remainder(q1, 2 * math.pi)  # in [-pi, pi]: the encoders start there
-        return np.array([q1, q1 + g])
-
-    def el_model(self) -> ELModel:
-        """The arm as an Euler-Lagrange model for the observer: M, C of paper 004 eq. 56, G = 0 (horizontal)."""
-        c1, c2, c3 = self.constants
-        m = two_link(c1, c2, c3, 0.0, 0.0)
-        # the angles stay within a few rad (fixed base, bounded motion): plain Gauss-Legendre, no periodic split
-        return ELModel(2, m.M, m.C, m.G, m.k_m, m.k_M, m.k_c, m.q_low, m.q_high)
+def el_model(arm: ArmModel) -> ELModel:
+    """The arm as an Euler-Lagrange model for the observer: M, C of paper 004 eq. 56, G = 0 (horizontal)."""
+    c1, c2, c3 = arm.constants
+    m = two_link(c1, c2, c3, 0.0, 0.0)
+    # the angles stay within a few rad (fixed base, bounded motion): plain Gauss-Legendre, no periodic split
+    return ELModel(2, m.M, m.C, m.G, m.k_m, m.k_M, m.k_c, m.q_low, m.q_high)
 
 
 @dataclass(frozen=True)
@@ -311,7 +256,7 @@ class ArmObserver(SpeedObserver):
 
     def __init__(self, arm: ArmModel, gains: Gains, *, nodes: int = 8, seed: int = 0) -> None:
         c = arm.constants
-        super().__init__(arm.el_model(), gains, nodes=nodes, seed=seed, closed_form=two_link_closed_form(*c, gains.k1))
+        super().__init__(el_model(arm), gains, nodes=nodes, seed=seed, closed_form=two_link_closed_form(*c, gains.k1))
         self._c = c
         mask = 1.0 - np.eye(2)[None, :, :]  # [j, i, k]: column i does not depend on e_i
         self._la = (self._a * mask).reshape(-1)
@@ -367,7 +312,8 @@ def make_observer(model: ArmModel, k1: float, k2: float, k3: float, c_r: float, 
     gains = Gains(k1=k1, k2=k2, k3=k3, c_r=c_r)
     if closed_form:
         return ArmObserver(model, gains, nodes=nodes, seed=seed)
-    return SpeedObserver(model.el_model(), gains, nodes=nodes, seed=seed)
+    return SpeedObserver(el_model(model), gains, nodes=nodes, seed=seed)
 
 
-__all__ = ["ArmFrontEnd", "ArmModel", "ArmObserver", "MotionPlan", "Tracking", "make_observer", "two_link_closed_form"]
+__all__ = ["ArmFrontEnd", "ArmModel", "ArmObserver", "MotionPlan", "Tracking", "el_model", "make_observer",
+           "two_link_closed_form"]

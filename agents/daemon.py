@@ -13,8 +13,8 @@ import asyncio
 import logging
 from collections import Counter
 
+from agents.factory import build_agent
 from agents.laws import ControlLawError
-from coload.world import build_agent
 from config.scenario import Scenario
 from net import keys
 from net.finish import FinishGate

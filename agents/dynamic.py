@@ -59,18 +59,17 @@ import numpy as np
 
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from config.agent_params import DynamicsSpec
-
-# Stages (the StateMsg ``phase`` field and the ``phase`` estimate)
-SPINUP = 0  # no omega_hat yet: common spin-up torque
-KINEMATIC = 1  # z_ij, omega, z_i (Sec. IV); omega regulated by torques
-M_EXCITE = 2  # Prop. 6 common force, stronger, switched: mass, q_i (hence z_C) by the Kalman filter
-M_AVERAGE = 3  # averaging consensus of m and z_C until converged
-J_EXCITE = 4  # f_i = k_z s(t) z_i^perp, tau_i = 0: J by the rotation regression (Result 5)
-J_AVERAGE = 5  # averaging consensus of J until converged
-DONE = 6  # every estimate final; Prop. 7 braking (optional)
-BACKGROUND = 7  # Algorithm 2: Prop. 6 + torque dither, background observers with forgetting
-
-STAGE_NAMES = ("spinup", "kinematic", "m_excite", "m_average", "j_excite", "j_average", "done", "background")
+from net.vocabulary import (  # the stage machine speaks in these; re-exported for readers of D.*
+    BACKGROUND,
+    DONE,
+    J_AVERAGE,
+    J_EXCITE,
+    KINEMATIC,
+    M_AVERAGE,
+    M_EXCITE,
+    SPINUP,
+    STAGE_NAMES,  # noqa: F401
+)
 
 # Flow-average channels
 # mean force (FX, FY): world-fixed, so a common force passes through at once. In the J stage the forces turn
@@ -1101,7 +1100,7 @@ class DynamicPhase:
 
 
 def estimates(snap: tuple) -> dict[str, float]:
-    """The dynamical phase's estimate values (``agents.agent.ESTIMATE_NAMES``) from a :meth:`DynamicPhase.snapshot`."""
+    """The dynamical phase's estimate values (``net.vocabulary.ESTIMATE_NAMES``) from a :meth:`DynamicPhase.snapshot`."""
     x, psi, s, stage, j_local, m_local, late, b_local, c_local, reseeds = snap
     nan = math.nan
     m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan

@@ -2,7 +2,7 @@
 
     OPENBLAS_NUM_THREADS=1 python bench/agent_step.py [--n 5 10 20] [--duration S] [--profile N]
 
-Runs the campaign's scenario (``coload.campaign.campaign_scenario`` of paper-fig4, sigma 0.3, seed
+Runs the campaign's scenario (``coload.analysis.campaign.campaign_scenario`` of paper-fig4, sigma 0.3, seed
 12345) on the in-process engine for each team size and prints the engine's own counter of the time
 spent inside ``AgentCore.step`` per agent per tick (us), the wall time of the run and the ratio of the
 per-agent cost at the largest n to the smallest (the graph is a line, so an agent has <= 2 neighbours
@@ -20,8 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from coload.campaign import campaign_scenario
-from coload.engine import run_inproc
+from coload.analysis.campaign import campaign_scenario
+from coload.runs.engine import run_inproc
 from config.loader import load_scenario, resolve_scenario_path
 
 

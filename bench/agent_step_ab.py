@@ -31,14 +31,14 @@ def _load_tree(root: str) -> dict[str, Any]:
     sys.path.insert(0, root)
     try:
         import agents.agent
-        import coload.campaign
-        import coload.engine
-        import coload.world
+        import agents.factory
+        import coload.analysis.campaign
+        import coload.runs.engine
         import config.loader
 
         mods = {
-            "agent": agents.agent, "campaign": coload.campaign, "engine": coload.engine,
-            "world": coload.world, "loader": config.loader,
+            "agent": agents.agent, "campaign": coload.analysis.campaign, "engine": coload.runs.engine,
+            "world": agents.factory, "loader": config.loader,
         }
     finally:
         for k in [k for k in sys.modules if k.split(".")[0] in _PKGS]:

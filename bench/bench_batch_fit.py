@@ -1,4 +1,4 @@
-"""Accuracy and wall time of the centralized batch fit (coload.batch_fit) on engine recordings.
+"""Accuracy and wall time of the centralized batch fit (ident.batch_fit) on engine recordings.
 
 Records paper-fig4 runs with the in-process engine (cached under --cache), fits each one from its
 samples.csv alone, and scores the fit against truth.csv. Prints one line per run and a median row
@@ -21,13 +21,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from coload.batch_fit import FitOptions, fit_run_dir
-from coload.rundir_format import read_run
+from coload.analysis.yardstick import fit_run_dir
+from coload.rundir.format import read_run
+from ident.batch_fit import FitOptions
 
 
 def record(cache: Path, scenario: str, overrides: list[str]) -> Path:
     """Run the engine once per distinct (scenario, overrides); reuse the run directory afterwards."""
-    from coload.engine import run_inproc
+    from coload.runs.engine import run_inproc
     from config.loader import load_scenario
 
     key = hashlib.sha1(repr((scenario, overrides)).encode()).hexdigest()[:12]

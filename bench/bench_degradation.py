@@ -27,7 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from coload.engine import run_inproc  # noqa: E402
+from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 
 KIN = 'dynamics.algorithm="none"'  # --kinematic: the kinematic phase alone

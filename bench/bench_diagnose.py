@@ -20,9 +20,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from coload.diagnose import diagnose_dir  # noqa: E402
-from coload.engine import run_inproc  # noqa: E402
+from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
+from ident.diagnose import diagnose_dir  # noqa: E402
 
 # row label -> (override, named effect expected (None: none), truth value)
 CASES = {

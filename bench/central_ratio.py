@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 
 
 def run(seed: int, out: Path, scenario: str, sets: list[str]) -> Path:
-    from coload.engine import run_inproc
+    from coload.runs.engine import run_inproc
     from config.loader import load_scenario
 
     sc = load_scenario(ROOT / "config" / "scenarios" / f"{scenario}.toml", [f"seed={seed}", "record.batch_fit=true",

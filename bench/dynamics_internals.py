@@ -22,13 +22,14 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from agents import dynamic as D  # noqa: E402
-from coload.world import build_agent, team_ticks  # noqa: E402
+from agents.factory import build_agent  # noqa: E402
+from coload.runs.team import team_ticks  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 from simulator.plant import Plant  # noqa: E402
 
 
 def run(sc) -> dict[str, np.ndarray]:
-    """Steps plant and agents like coload.engine.run_inproc (one-tick links) and records internals."""
+    """Steps plant and agents like coload.runs.engine.run_inproc (one-tick links) and records internals."""
     n, T = sc.n, sc.ticks
     plant = Plant(sc)
     agents = [build_agent(sc, i) for i in range(n)]

@@ -22,7 +22,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from coload.engine import run_inproc  # noqa: E402
+from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 
 KEYS = ("J_rel", "m_rel", "J_local_rel", "m_local_rel", "J_signed_rel", "m_signed_rel", "zC_rms", "vC_rms",

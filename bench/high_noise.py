@@ -20,8 +20,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from coload.campaign import campaign_scenario, run_seed  # noqa: E402
-from coload.engine import run_inproc  # noqa: E402
+from coload.analysis.campaign import campaign_scenario, run_seed  # noqa: E402
+from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 
 KEYS = ("J_rel", "m_rel", "omega_rms", "zi_rms_window", "zi_rms", "finished_s")

@@ -195,7 +195,7 @@ def algorithm2(seed: int, sigma: float, local: bool) -> dict[str, tuple[float, f
 
 def ekf_run(seed: int) -> dict[str, float]:
     """Algorithm 1 with the agents' EKF: the in-process paper-fig4 run's summary errors."""
-    from coload.engine import run_inproc
+    from coload.runs.engine import run_inproc
     from config.loader import load_scenario
 
     sc = load_scenario(ROOT / "config" / "scenarios" / "paper-fig4.toml", ["duration=95", f"seed={seed}"])

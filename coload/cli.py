@@ -254,8 +254,8 @@ def _check_law(scenario, source: str, agents: Sequence[int]) -> None:
     a bad one is one scenario error (ScenarioError) rather than a failure per daemon or per run."""
     if not scenario.control.law:
         return
+    from agents.factory import build_law
     from agents.laws import ControlLawError
-    from coload.world import build_law
 
     try:
         for i in agents:
@@ -343,12 +343,17 @@ def cmd_agent(args: argparse.Namespace) -> int:
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
+    from coload.analysis.summary import complete_summary
+    from coload.rundir.recorder import Recorder
+    from net.vocabulary import ESTIMATE_NAMES
     from simulator.daemon import SimDaemon
 
     scenario = _scenario(args)
-    summary = _run_daemon("sim", args, lambda t: SimDaemon(scenario, t, args.run, args.out).run())
+    summary = _run_daemon("sim", args, lambda t: SimDaemon(
+        scenario, t, args.run, Recorder(args.out, scenario, ESTIMATE_NAMES)).run())
     if summary is None:
         return 130
+    complete_summary(args.out, scenario, summary)
     print(f"run directory: {args.out}")
     return 0
 
@@ -369,8 +374,8 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from coload.report import make_report
-    from coload.rundir_format import INTERRUPTED_JSON
+    from coload.analysis.report import make_report
+    from coload.rundir.format import INTERRUPTED_JSON
 
     if not args.run_dir.is_dir():
         print(f"coload report: {args.run_dir}: not a directory", file=sys.stderr)
@@ -393,8 +398,8 @@ def cmd_report(args: argparse.Namespace) -> int:
             info = {}
         print(f"coload report: this run was stopped at t = {info.get('t', '?')} s of {info.get('duration', '?')} s "
               f"({info.get('reason', '?')}); its tables end there", file=sys.stderr)
-    from coload.diagnose import DiagnoseError, stderr_progress
-    from coload.report import residual_figure, write_diagnosis
+    from coload.analysis.report import residual_figure, write_diagnosis
+    from ident.diagnose import DiagnoseError, stderr_progress
 
     try:
         if args.diagnose:
@@ -409,7 +414,13 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    from coload.diagnose import DiagnoseError, diagnose_dir, format_diagnosis, plot_diagnosis, stderr_progress
+    from ident.diagnose import (
+        DiagnoseError,
+        diagnose_dir,
+        format_diagnosis,
+        plot_diagnosis,
+        stderr_progress,
+    )
 
     try:
         result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress())
@@ -426,7 +437,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 
 def cmd_compose(args: argparse.Namespace) -> int:
-    from coload.compose import write_compose
+    from coload.runs.compose import write_compose
 
     try:
         path = write_compose(args.out, args.agents, args.scenario, args.run)
@@ -438,13 +449,13 @@ def cmd_compose(args: argparse.Namespace) -> int:
 
 
 def cmd_alive(args: argparse.Namespace) -> int:
-    from coload.compose import check_alive
+    from coload.runs.compose import check_alive
 
     return 0 if check_alive(args.connect, args.key, args.timeout) else 1
 
 
 def cmd_observer(args: argparse.Namespace) -> int:
-    from coload.observer_run import ObserverScenarioError, run_observer_cli
+    from coload.runs.observer_run import ObserverScenarioError, run_observer_cli
 
     try:
         summary = run_observer_cli(args.scenario, args.out, list(args.overrides))
@@ -457,7 +468,7 @@ def cmd_observer(args: argparse.Namespace) -> int:
 
 
 def cmd_arms(args: argparse.Namespace) -> int:
-    from coload.arm_run import run_arms_cli
+    from coload.runs.arm_run import run_arms_cli
     from simulator.arms import ArmSetupError
 
     scenario = _scenario(args)
@@ -493,8 +504,8 @@ def cmd_hinf(args: argparse.Namespace) -> int:
 
 
 def cmd_campaign(args: argparse.Namespace) -> int:
-    from coload import campaign as cp
-    from coload.orchestrate import ProgressBar
+    from coload.analysis import campaign as cp
+    from coload.runs.orchestrate import ProgressBar
 
     overrides = list(args.overrides) + ([f"duration={args.duration}"] if args.duration is not None else [])
     overrides += ["record.batch_fit=true"] if args.batch_fit else []
@@ -538,7 +549,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
 
 def _campaign_table(out: Path) -> int:
-    from coload import campaign as cp
+    from coload.analysis import campaign as cp
 
     csv_path = out / cp.CSV_NAME
     try:
@@ -558,7 +569,8 @@ def _campaign_table(out: Path) -> int:
 
 def cmd_hinf_runtime(args: argparse.Namespace) -> int:
     """`coload hinf run|sim|agent`: the paper-003 runtime (hinf.daemon)."""
-    from hinf import SpecError, run_cli
+    from coload.runs.hinf_run import run_cli
+    from hinf import SpecError
     from hinf.design import HinfDesignError
 
     if args.hinf_command == "run":
@@ -599,7 +611,12 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from coload.orchestrate import default_run_dir, prepare_run_dir, run_inproc_cli, run_processes
+    from coload.runs.orchestrate import (
+        default_run_dir,
+        prepare_run_dir,
+        run_inproc_cli,
+        run_processes,
+    )
 
     # the batch-fit yardstick (record.batch_fit) is on for every `coload run` unless --no-batch-fit
     args.overrides = ["record.batch_fit=true", *args.overrides, *(["record.batch_fit=false"] if args.no_batch_fit else [])]
@@ -623,13 +640,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     if summary is None:
         return 1
     if not args.no_report:
-        from coload.report import make_report
+        from coload.analysis.report import make_report
 
         path, table = make_report(run_dir)
         print(table)
         print(f"report: {path}")
     else:
-        from coload.report import centralized_lines
+        from coload.analysis.report import centralized_lines
 
         for line in centralized_lines(summary):
             print(line)
@@ -649,11 +666,15 @@ COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_ro
 
 def main(argv: Sequence[str] | None = None) -> int:
     from agents.laws import ControlLawError
-    from coload.orchestrate import Terminated, check_terminated, terminate_on_sigterm
+    from coload.runs.orchestrate import (
+        Terminated,
+        check_terminated,
+        terminate_on_sigterm,
+    )
 
     parent = os.environ.pop("COLOAD_PARENT_PID", None)  # popped: not inherited by our own children
     if parent is not None:
-        from coload.orchestrate import die_with_parent
+        from coload.runs.orchestrate import die_with_parent
 
         die_with_parent(int(parent))
     args = build_parser().parse_args(argv)

@@ -68,32 +68,3 @@ def design_cli(spec_path: Path, out: Path | None) -> dict:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(json.dumps(result, indent=1) + "\n")
     return result
-
-
-def run_cli(spec_path: Path, out: Path, engine: str = "zenoh", mode: str | None = None,
-            overrides: list[str] | tuple[str, ...] = (), quiet: bool = False, verbose: int = 0) -> dict | None:
-    """Design, then simulate the spec's [run]: ``zenoh`` = router, simulator and one estimator daemon per
-    agent as OS processes; ``inproc`` = the same cores and link models in this process (lockstep only).
-    Writes the run directory (see ``hinf.report``) and returns summary.json's content (None on failure).
-    """
-    from .daemon import run_processes
-    from .report import finish_run, load_run_dir, prepare_run_dir
-    from .runtime import run_inproc
-
-    spec = load_spec(spec_path, overrides)
-    if mode is not None:
-        spec = spec.model_copy(deep=True)
-        spec.run.mode = mode  # type: ignore[assignment]
-    if engine == "inproc" and spec.run.mode != "lockstep":
-        raise SpecError("--engine inproc runs lockstep only; use --engine zenoh for --mode realtime")
-    out = Path(out)
-    prepare_run_dir(out, spec, run_design(spec, clock=time.perf_counter))
-    setup = load_run_dir(out)  # what the daemons read: both engines start from the same floats
-    if engine == "inproc":
-        wall = time.perf_counter()
-        trace, info = run_inproc(setup)
-        info.update({"engine": "inproc", "wall_s": time.perf_counter() - wall})
-        return finish_run(out, setup, trace, info)
-    if not run_processes(setup, out, quiet=quiet, verbose=verbose):
-        return None
-    return json.loads((out / "summary.json").read_text())

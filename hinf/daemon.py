@@ -23,7 +23,6 @@ import logging
 import time
 from collections import Counter
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -503,37 +502,3 @@ async def run_daemons_in_memory(setup: Setup, run: str = "hinf-mem") -> tuple[Tr
         for t in ts:
             t.close()
     return trace, info
-
-
-def run_processes(setup: Setup, run_dir: Path, quiet: bool = False, verbose: int = 0) -> bool:
-    """An embedded Zenoh router, the simulator and one estimator daemon per agent, each its own process.
-
-    ``run_dir`` must already hold spec.json and design.json (``hinf.report.prepare_run_dir``); the
-    simulator writes the rest. Returns True if the simulator finished.
-    """
-    from coload.orchestrate import (
-        ProgressBar,
-        process_run,
-        start_router,
-        watch_simulator,
-    )
-
-    run_dir = Path(run_dir)
-    endpoint, run, py, children = process_run(run_dir, verbose)
-    bar = ProgressBar(f"{setup.spec.name} (zenoh, {setup.N} estimators)", quiet)
-    try:
-        if not start_router(children, py, endpoint, run_dir, "coload hinf run"):
-            return False
-        common = [str(run_dir), "--connect", endpoint, "--run", run]
-        sim = children.start("sim", [*py, "hinf", "sim", *common])
-        for k in range(setup.N):
-            children.start(f"estimator-{k}", [*py, "hinf", "agent", "--id", str(k), *common])
-        run_spec = setup.spec.run
-        budget = 120.0 + run_spec.timing.startup_timeout_s + 50.0 * run_spec.duration
-        if not watch_simulator(children, sim, endpoint, keys.hinf_control(run), setup.ticks, budget, bar,
-                               run_dir, "coload hinf run"):
-            return False
-        children.stop([n for n in children.procs if n.startswith("estimator-")], let_finish=10.0)
-        return sim.returncode == 0
-    finally:
-        children.close()

@@ -1,6 +1,6 @@
 """In-process transport: a bus shared by endpoints on one asyncio loop.
 
-For fast tests of the daemons (campaigns use ``coload.engine`` instead, without daemons): no sockets, no threads, yet the same contract as Zenoh
+For fast tests of the daemons (campaigns use ``coload.runs.engine`` instead, without daemons): no sockets, no threads, yet the same contract as Zenoh
 (delivery later on the loop, never inside ``publish``; ``*``/``**`` key expressions; liveliness with
 history, and tokens withdrawn when their endpoint closes, which is how a crash looks to the others).
 All methods must be called on the bus's loop thread.
@@ -12,7 +12,14 @@ import asyncio
 from collections import defaultdict
 
 from net.keys import key_matches
-from net.transport import OnAliveChange, OnSample, Subscription, Transport, _Closable, _Handles
+from net.transport import (
+    OnAliveChange,
+    OnSample,
+    Subscription,
+    Transport,
+    _Closable,
+    _Handles,
+)
 
 
 class _Sub(_Closable):

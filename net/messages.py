@@ -52,7 +52,7 @@ class StateMsg:
 class Estimate:
     """Agent -> observers: the agent's current estimates.
 
-    ``values`` by name (see ``agents.agent.ESTIMATE_NAMES``); ``pairs`` maps each neighbour j to the
+    ``values`` by name (see ``net.vocabulary.ESTIMATE_NAMES``); ``pairs`` maps each neighbour j to the
     agent's estimate of z_ij = p_Ci - p_Cj (m, world frame).
     """
 

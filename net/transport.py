@@ -3,7 +3,7 @@
 As in httpx, the transport is passed in: a daemon never opens a socket itself, so the same daemon
 code runs over :class:`net.zenoh_transport.ZenohTransport` (real processes) and
 :class:`net.memory.MemoryTransport` (one process: the daemons themselves, in fast tests; campaigns
-use the in-process engine, ``coload.engine``, which calls the agents' cores directly).
+use the in-process engine, ``coload.runs.engine``, which calls the agents' cores directly).
 
 Threading contract, for every implementation: callbacks (``on_sample``, ``on_change``) run on the
 asyncio loop the transport was created with, never on a network thread and never synchronously

@@ -26,7 +26,7 @@ import math
 import numpy as np
 import pymunk
 
-from agents.arm import ArmModel
+from config.arm_model import ArmModel
 from config.scenario import ArmsSpec, Scenario
 from simulator.plant import Plant, contact_points_body
 

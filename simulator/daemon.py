@@ -1,4 +1,4 @@
-"""The simulator daemon: the plant behind a transport, and the run's recorder.
+"""The simulator daemon: the plant behind a transport, writing the run through the recorder it is handed.
 
 Lockstep: the simulator is the clock. It publishes tick k's measurements, waits for the wrench of
 every live agent for tick k (a timeout is counted, the missing wrench taken as zero), then steps.
@@ -29,11 +29,8 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
-from agents.agent import ESTIMATE_NAMES
-from coload import rundir_format as fmt
-from coload.recorder import Recorder
 from config.loader import dump_scenario
 from config.scenario import Scenario
 from net import keys
@@ -48,7 +45,22 @@ log = logging.getLogger("coload.sim")
 
 ZERO_WRENCH = (0.0, 0.0, 0.0)
 
-JOURNAL = fmt.JOURNAL  # the restart journal in the run directory
+
+
+class RunRecorder(Protocol):
+    """What the daemon writes the run through (coload.rundir.recorder.Recorder is the one the
+    application hands in): the tables as the run goes, and where the restart journal lives."""
+
+    journal_path: Path
+
+    def keeps(self, tick: int) -> bool: ...
+    def estimate(self, est: Estimate) -> None: ...
+    def truth(self, row: Any) -> None: ...
+    def samples(self, tick: int, meas: Any, applied: Any) -> None: ...
+    def abort(self, reason: str) -> None: ...
+    def close(self, summary: dict[str, Any]) -> dict[str, Any]: ...
+
+
 _JOURNAL_VERSION = 1
 
 
@@ -63,20 +75,20 @@ class SimDaemon:
         scenario: Scenario,
         transport: Transport,
         run: str,
-        run_dir: Path,
+        recorder: RunRecorder,
         progress: Callable[[int, int], None] | None = None,
         engine: str = "zenoh",
     ) -> None:
         self.scenario = scenario
         self.transport = transport
         self.run_name = run
-        self.run_dir = Path(run_dir)
         self.progress = progress
         self.engine = engine  # what summary.json calls the transport this daemon runs on
         self.n = scenario.n
         self.plant = Plant(scenario)
         self.rng = sensor_rng(scenario.seed)
-        self.recorder = Recorder(self.run_dir, scenario, ESTIMATE_NAMES)
+        self.recorder = recorder
+        self.journal_path = recorder.journal_path
         self.alive: set[int] = set()
         self.drops: Counter[str] = Counter()
         self.wrench_timeouts = 0
@@ -284,7 +296,7 @@ class SimDaemon:
 
     def _read_journal(self) -> list[dict[str, Any]] | None:
         """The records of a journal left by this run (same run name and scenario), else None."""
-        path = self.run_dir / JOURNAL
+        path = self.journal_path
         try:
             raw = path.read_bytes()
         except OSError:
@@ -315,7 +327,7 @@ class SimDaemon:
             if "k" in rec:
                 k = rec["k"]
                 if k != self.tick:
-                    raise RuntimeError(f"{JOURNAL}: tick {k} follows tick {self.tick - 1}")
+                    raise RuntimeError(f"{self.journal_path.name}: tick {k} follows tick {self.tick - 1}")
                 meas = self.plant.measure(self.rng)
                 self.recorder.truth(self.plant.truth())
                 flat = struct.unpack(self._wfmt, bytes.fromhex(rec["w"]))
@@ -341,7 +353,7 @@ class SimDaemon:
         self._partition_events = [e for e in self._partition_events if e not in self.events]
 
     def _open_journal(self, records: list[dict[str, Any]] | None) -> None:
-        path = self.run_dir / JOURNAL
+        path = self.journal_path
         if records is None:
             self._journal = path.open("wb", buffering=0)
             self._write_journal({"journal": _JOURNAL_VERSION, "run": self.run_name, "scenario": self.scenario_hash})
@@ -353,15 +365,15 @@ class SimDaemon:
             self._journal.close()
             self._journal = None
             if completed:
-                (self.run_dir / JOURNAL).unlink(missing_ok=True)
+                (self.journal_path).unlink(missing_ok=True)
 
     async def run(self) -> dict[str, Any]:
         records = self._read_journal()
         down_s = None
         if records is not None:
-            down_s = max(0.0, time.time() - (self.run_dir / JOURNAL).stat().st_mtime)
+            down_s = max(0.0, time.time() - (self.journal_path).stat().st_mtime)
             self._resume(records)  # before subscribing: inputs then meet the resumed tick
-            log.warning("restarted: resuming run %s at tick %d (replayed from %s)", self.run_name, self.tick, JOURNAL)
+            log.warning("restarted: resuming run %s at tick %d (replayed from %s)", self.run_name, self.tick, self.journal_path.name)
         self._open_journal(records)
         if records is not None:
             self._event("sim_restart", replayed_ticks=self.tick, down_s=round(down_s, 3))

@@ -10,8 +10,8 @@ simulator passes that tick (Zenoh) is in long before the end.
 
 from __future__ import annotations
 
-from agents.dynamic import DONE
 from config.scenario import Scenario
+from net.vocabulary import DONE
 
 
 class DoneStop:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coload import rundir_format as rf
+from coload.rundir import format as rf
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from agents.agent import AgentCore, StepResult
-from coload.engine import run_inproc
+from coload.runs.engine import run_inproc
 from config.agent_params import ControlSpec, EstimatorSpec
 from config.loader import load_scenario
 from net.link import LinkModel

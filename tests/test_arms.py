@@ -18,13 +18,14 @@ from agents.arm import (
     ArmModel,
     MotionPlan,
     Tracking,
+    el_model,
     make_observer,
     two_link_closed_form,
 )
 from agents.speed_observer import ELModel, Gains, SpeedObserver, plant_rhs
-from coload.arm_run import run_arms, run_arms_cli
-from coload.metrics import error_series
-from coload.rundir_format import read_run
+from coload.analysis.metrics import error_series
+from coload.rundir.format import read_run
+from coload.runs.arm_run import run_arms, run_arms_cli
 from config.loader import load_scenario
 from simulator.arms import ArmPlant, ArmSetupError, add_arm
 from simulator.plant import contact_points_body
@@ -61,7 +62,7 @@ def test_closed_form_beta_matches_the_quadrature():
     """beta and its partials (paper 004 eqs. 12-15) in closed form vs the observer's periodic-split quadrature."""
     k1 = 20.0
     cf = two_link_closed_form(*ARM.constants, k1)
-    m = ARM.el_model()
+    m = el_model(ARM)
     per = ELModel(2, m.M, m.C, m.G, m.k_m, m.k_M, m.k_c, m.q_low, m.q_high, (2 * math.pi, 2 * math.pi))
     quad = SpeedObserver(per, Gains(k1=k1), nodes=32, lemma2_samples=64)
     rng = np.random.default_rng(4)
@@ -75,7 +76,7 @@ def test_closed_form_beta_matches_the_quadrature():
 
 def test_specialised_observer_equals_the_generic_one():
     fast = make_observer(ARM, 20.0, 8.0, 25.0, 1e-3, 8, seed=0)
-    slow = SpeedObserver(ARM.el_model(), Gains(k1=20.0), nodes=8, seed=0, closed_form=fast.closed_form)
+    slow = SpeedObserver(el_model(ARM), Gains(k1=20.0), nodes=8, seed=0, closed_form=fast.closed_form)
     rng = np.random.default_rng(5)
     for _ in range(50):
         obs = np.r_[rng.normal(0, 5, 2), rng.uniform(-3, 3, 2), rng.normal(0, 5, 2), rng.uniform(0.01, 2)]
@@ -92,7 +93,7 @@ def test_pymunk_arm_follows_its_equations_of_motion():
     (measured 0.04 %), at h = 0.1 ms ten times better, so the error is discretisation, not model.
     """
     q0, u = np.array([0.3, 1.4]), np.array([1.5, -0.8])
-    sol = solve_ivp(lambda t, s: np.concatenate(plant_rhs(ARM.el_model(), s[:2], s[2:], u)), (0, 0.5),
+    sol = solve_ivp(lambda t, s: np.concatenate(plant_rhs(el_model(ARM), s[:2], s[2:], u)), (0, 0.5),
                     np.r_[q0, 0, 0], rtol=1e-10, atol=1e-12)
     w_exact = sol.y[2:, -1]
     errs = []

@@ -1,4 +1,4 @@
-"""The centralized batch fit (coload.batch_fit) against the project's own plant.
+"""The centralized batch fit (ident.batch_fit) against the project's own plant.
 
 Recordings come straight from simulator.plant.Plant (pymunk), driven by a small test controller, so
 the fit is checked against the real integrator, not against a copy of its own model.
@@ -12,14 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coload.batch_fit import (
+from coload.analysis.yardstick import fit_run_dir
+from config.loader import load_scenario
+from ident.batch_fit import (
     BatchFitError,
     FitOptions,
     fit_recording,
-    fit_run_dir,
     samples_array,
 )
-from config.loader import load_scenario
 from simulator.plant import Plant
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -154,8 +154,8 @@ def test_ci_coverage_over_seeds():
 @pytest.mark.slow
 def test_engine_run_dir(tmp_path):
     """A paper-fig4 recording of the real engine (its own controller), fitted from samples.csv alone."""
-    from coload.engine import run_inproc
-    from coload.rundir_format import read_run
+    from coload.rundir.format import read_run
+    from coload.runs.engine import run_inproc
 
     run_dir = tmp_path / "run"
     run_inproc(load_scenario(SCENARIO, ["duration=40", "noise.sigma_v=0.1", "seed=4"]), run_dir)

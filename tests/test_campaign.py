@@ -16,10 +16,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from coload import campaign as cp
-from coload import metrics
+from coload.analysis import campaign as cp
+from coload.analysis import metrics
 from coload.cli import main as cli_main
-from coload.rundir_format import read_run
+from coload.rundir.format import read_run
 from config.loader import load_scenario, scenario_from_dict
 from simulator.plant import Plant, contact_points_body, load_inertia, load_polygon_body
 from tests.conftest import coload_cmd

@@ -9,19 +9,20 @@ errors by rewriting the estimates, so the ratio has an answer in closed form.
 from __future__ import annotations
 
 import dataclasses
-import math
 import json
+import math
 import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from coload import batch_fit, campaign, report
-from coload.batch_fit import CENTRAL_KEYS, centralized_blocks
-from coload.engine import run_inproc
-from coload.rundir_format import AgentTable, read_run
+from coload.analysis import campaign, report, yardstick
+from coload.analysis.yardstick import CENTRAL_KEYS, centralized_blocks
+from coload.rundir.format import AgentTable, read_run
+from coload.runs.engine import run_inproc
 from config.loader import load_scenario
+from ident import batch_fit
 from tests.conftest import coload_cmd
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,7 +86,7 @@ def test_ratio_is_median_agent_error_over_centralized_error(fitted_run):
     assert r["m"] == pytest.approx(0.02 / abs(c["m_rel"]))
     truth = read_run(out).truth.columns
     assert r["J_over_ci95"] == pytest.approx(0.003 / (c["J_ci95"] / truth["inertia"][0]))
-    assert set(r) == set(batch_fit.RATIO_KEYS) and r["reason"] is None
+    assert set(r) == set(yardstick.RATIO_KEYS) and r["reason"] is None
 
 
 def test_a_load_that_changes_is_not_fitted(fitted_run):
@@ -124,7 +125,7 @@ def test_an_unexpected_error_in_the_fit_still_leaves_the_summary(tmp_path, monke
     def boom(run, **kw):
         raise RuntimeError("simulated bug")
 
-    monkeypatch.setattr(batch_fit, "centralized_blocks", boom)
+    monkeypatch.setattr(yardstick, "centralized_blocks", boom)
     summary = run_inproc(load_scenario(QUICK, ["duration=1", "record.batch_fit=true"]), tmp_path / "r")
     assert summary["centralized"]["J"] is None
     assert summary["centralized"]["reason"] == "batch fit not run: RuntimeError: simulated bug"

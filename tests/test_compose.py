@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from coload.compose import check_alive, compose_spec, write_compose
+from coload.runs.compose import check_alive, compose_spec, write_compose
 from net.zenoh_transport import free_tcp_port
 from tests.conftest import ROOT
 

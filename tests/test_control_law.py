@@ -12,9 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from agents.laws import ControlLawError, LawInput, LawSetup, TrackVelocity, checked_wrench
-from coload.engine import run_inproc
-from coload.world import build_law
+from agents.factory import build_law
+from agents.laws import (
+    ControlLawError,
+    LawInput,
+    LawSetup,
+    TrackVelocity,
+    checked_wrench,
+)
+from coload.runs.engine import run_inproc
 from config.loader import ScenarioError, load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -15,8 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coload.diagnose import CANDIDATES, DiagnoseError, diagnose_dir, ljung_box, read_recording
 from config.loader import load_scenario
+from ident.diagnose import (
+    CANDIDATES,
+    DiagnoseError,
+    diagnose_dir,
+    ljung_box,
+    read_recording,
+)
 from tests.conftest import coload_cmd
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,7 +39,7 @@ EFFECTS = {
 
 
 def record(path: Path, *overrides: str) -> Path:
-    from coload.engine import run_inproc
+    from coload.runs.engine import run_inproc
 
     run_inproc(load_scenario(ROOT / "config/scenarios/quick.toml", [*BASE, *overrides]), path)
     return path

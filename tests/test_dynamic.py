@@ -12,14 +12,14 @@ import random
 
 import numpy as np
 import pytest
+from conftest import ROOT as REPO
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from agents import dynamic as D
-from coload.engine import run_inproc
+from coload.runs.engine import run_inproc
 from config.agent_params import DynamicsSpec
 from config.loader import load_scenario
-from conftest import ROOT as REPO
 from simulator.plant import Plant
 
 FIG4 = REPO / "config" / "scenarios" / "paper-fig4.toml"
@@ -369,7 +369,7 @@ def test_algorithm_1_at_high_noise_keeps_omega_locked(tmp_path):
     q_i spun the load up to 14 rad/s (omega RMS 34 rad/s, J off by 1e6 %). With omega_hat measuring the
     filter's omega and the filter modelling the rate's error it finishes: measured J 0.64 %, m 0.44 %,
     omega RMS 0.021 rad/s over the last 20 s."""
-    from coload.campaign import campaign_scenario
+    from coload.analysis.campaign import campaign_scenario
 
     sc = campaign_scenario(load_scenario(FIG4), 5, 1.0, 957995623)
     summary = run_inproc(sc.model_copy(update={"duration": 95.0}), tmp_path)
@@ -391,7 +391,8 @@ def test_algorithm_1_at_high_noise_keeps_omega_locked(tmp_path):
 def _own_masses_at_the_end_of_the_m_stage(sc) -> tuple[list[float], list[int]]:
     """Runs ``sc`` like the in-process engine (one-tick links) until the m stage ends; every agent's own m
     error and its lock-check restarts."""
-    from coload.world import build_agent, team_ticks
+    from agents.factory import build_agent
+    from coload.runs.team import team_ticks
 
     plant = Plant(sc)
     agents = [build_agent(sc, i) for i in range(sc.n)]
@@ -418,7 +419,7 @@ def test_the_lock_check_restarts_a_filter_in_a_wrong_lock(sigma, seed, bad):
     restarts such a filter from a fit of its own last 2 s of contact velocities and keeps the restart
     only if clearly better: every agent's own m comes out as good as a healthy run's (per-agent sd at
     this noise ~1.5 %). ``bad``: the worst own-m error without the check (measured, lock_nis = 0)."""
-    from coload.campaign import campaign_scenario
+    from coload.analysis.campaign import campaign_scenario
 
     sc = campaign_scenario(load_scenario(FIG4, ["control.omega_boost=0"]), 20, sigma, seed)
     own, restarts = _own_masses_at_the_end_of_the_m_stage(sc)

@@ -11,8 +11,8 @@ import json
 
 import pytest
 
-from coload.engine import run_inproc
-from coload.orchestrate import run_daemons_in_memory
+from coload.runs.engine import run_inproc
+from coload.runs.orchestrate import run_daemons_in_memory
 from config.loader import load_scenario
 from tests.conftest import SCENARIOS, max_table_difference
 

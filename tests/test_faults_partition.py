@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from coload.engine import run_inproc
+from coload.runs.engine import run_inproc
 from config.loader import ScenarioError, load_scenario
 from config.scenario import LinkSpec, LossSpec, PartitionSpec
 from net.link import DelayLine, LinkModel, LinkStats, build_in_links, partition_events

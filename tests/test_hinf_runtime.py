@@ -14,6 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import cont2discrete
 
+from coload.runs.hinf_run import run_processes
 from config.scenario import LinkSpec, LossSpec, PartitionSpec
 from hinf import SpecError, load_spec, run_design
 from hinf import design as D
@@ -22,7 +23,6 @@ from hinf.daemon import (
     HinfAgentDaemon,
     HinfSimDaemon,
     run_daemons_in_memory,
-    run_processes,
 )
 from hinf.report import finish_run, load_run_dir, load_trace, prepare_run_dir, summarize
 from net import keys

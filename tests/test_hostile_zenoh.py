@@ -27,7 +27,7 @@ import msgpack
 import pytest
 import zenoh
 
-from coload.engine import run_inproc
+from coload.runs.engine import run_inproc
 from config.loader import load_scenario
 from net import keys
 from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from coload import metrics
-from coload.rundir_format import read_run
+from coload.analysis import metrics
+from coload.rundir.format import read_run
 from tests.synthetic_run import SyntheticSpec, truth_of, write_run
 
 N = 4

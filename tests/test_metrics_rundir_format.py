@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coload import rundir_format as rf
+from coload.rundir import format as rf
 from tests.synthetic_run import SyntheticSpec, truth_of, write_run
 
 
@@ -44,7 +44,7 @@ def test_headers_agree_with_the_docs():
 def test_every_estimate_column_the_agents_write_is_read_strictly(run_dir):
     """A bad cell in any column the agents write (J_local here, which Fig. 8 needs) is an error that
     names file, line and column, not a column that silently vanishes."""
-    from agents.agent import ESTIMATE_NAMES
+    from net.vocabulary import ESTIMATE_NAMES
 
     assert rf.KNOWN_ESTIMATE_NAMES == ESTIMATE_NAMES
     path = run_dir / rf.ESTIMATES_CSV
@@ -128,7 +128,7 @@ def test_a_cut_last_line_is_dropped_with_a_warning_and_nothing_else_is_lost(run_
     whole = rf.read_run(run_dir).samples
     text = path.read_text()
     path.write_text(text + "2.5,1,0.12")
-    with caplog.at_level("WARNING", logger="coload.rundir_format"):
+    with caplog.at_level("WARNING", logger="coload.rundir.format"):
         cut = rf.read_run(run_dir).samples
     nlines = text.count("\n") + 1
     assert f"samples.csv:{nlines}: last line cut off (3 of 7 fields, no newline)" in caplog.text

@@ -9,10 +9,10 @@ import subprocess
 import sys
 
 import pytest
-
-from coload.engine import run_inproc
-from config.loader import load_scenario
 from netns import Hosts, netns_available
+
+from coload.runs.engine import run_inproc
+from config.loader import load_scenario
 from tests.conftest import ROOT, SCENARIOS, control_monitor_cmd, max_table_difference
 
 REASON = netns_available()

@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agents.dynamic import N_CH, N_CH_AUG, FlowAverage, RigidEKF
-from coload.engine import run_inproc
+from coload.runs.engine import run_inproc
 from config.agent_params import DynamicsSpec
 from config.loader import ScenarioError, load_scenario
 from tests.plant_drive import drive, push_and_spin
@@ -116,7 +116,7 @@ def test_extra_channels_never_touch_the_nominal_ones(inputs, losses):
 def test_augmented_state_message_passes_the_wire_schema():
     """With the augmented model a state message's per-neighbour value has 4 + 13 floats: the codec the
     daemons use over Zenoh must carry it unchanged (not drop it as malformed)."""
-    from coload.world import build_agent
+    from agents.factory import build_agent
     from net.messages import StateMsg
     from net.schema import decode, encode
 

@@ -119,8 +119,8 @@ def test_load_change_steps_parameters_keeps_contacts_and_velocity_field():
 
 
 def test_load_change_shows_in_truth_csv(tmp_path, scenarios_dir):
-    from coload.engine import run_inproc
-    from coload.rundir_format import read_run
+    from coload.rundir.format import read_run
+    from coload.runs.engine import run_inproc
 
     sc = load_scenario(scenarios_dir / "quick.toml", [
         "duration=4.0", "record.every_ticks=1",

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from coload.orchestrate import run_processes
+from coload.runs.orchestrate import run_processes
 from config.loader import load_scenario
 from tests.conftest import SCENARIOS
 

@@ -7,8 +7,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from coload import metrics, report
-from coload.rundir_format import PAIRS_CSV, REPORT_PNG, read_run
+from coload.analysis import metrics, report
+from coload.rundir.format import PAIRS_CSV, REPORT_PNG, read_run
 from tests.synthetic_run import SyntheticSpec, write_run
 
 BASE_PANELS = ["eerd", "omega", "eec", "zi_err"]

@@ -15,10 +15,10 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import pytest
 
-from coload import report
-from coload.diagnose import Z95
-from coload.engine import run_inproc
+from coload.analysis import report
+from coload.runs.engine import run_inproc
 from config.loader import load_scenario
+from ident.diagnose import Z95
 from tests.conftest import coload_cmd
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,11 +7,14 @@ from __future__ import annotations
 import asyncio
 
 from agents.daemon import AgentDaemon
+from coload.analysis.summary import complete_summary
+from coload.rundir.recorder import Recorder
 from config.loader import load_scenario
 from net import keys
 from net.memory import MemoryBus, MemoryTransport
 from net.messages import Control
 from net.schema import decode
+from net.vocabulary import ESTIMATE_NAMES
 from simulator.daemon import SimDaemon
 from tests.conftest import SCENARIOS
 
@@ -35,7 +38,7 @@ async def _run(tmp_path):
 
     observer.subscribe(keys.sim_control(run), on_control)
     sim_t = MemoryTransport(bus, loop)
-    sim = asyncio.ensure_future(SimDaemon(sc, sim_t, run, tmp_path / "run", engine="memory").run())
+    sim = asyncio.ensure_future(SimDaemon(sc, sim_t, run, Recorder(tmp_path / "run", sc, ESTIMATE_NAMES), engine="memory").run())
     try:
         await asyncio.wait_for(reached[300], 60)
         tasks[CRASHED].cancel()  # the process dies: its subscriptions and token go with it
@@ -50,7 +53,7 @@ async def _run(tmp_path):
             t.cancel()
         for t in [*transports.values(), observer, sim_t]:
             t.close()
-    return sc, summary, reports
+    return sc, complete_summary(tmp_path / "run", sc, summary), reports
 
 
 def test_crashed_agent_is_replaced_and_the_run_completes(tmp_path):
@@ -83,7 +86,7 @@ async def _sim_dies(tmp_path):
                                                              and reached.set_result(True)))
     observer.subscribe(keys.agent_all(run, "report"), lambda key, _p: reports.append(keys.parse_agent_key(key).agent))
     sim_t = MemoryTransport(bus, loop)
-    sim = asyncio.ensure_future(SimDaemon(sc, sim_t, run, tmp_path / "run", engine="memory").run())
+    sim = asyncio.ensure_future(SimDaemon(sc, sim_t, run, Recorder(tmp_path / "run", sc, ESTIMATE_NAMES), engine="memory").run())
     try:
         await asyncio.wait_for(reached, 60)
         sim.cancel()  # the simulator's process dies and nobody restarts it
@@ -133,7 +136,7 @@ async def _core_fails(tmp_path):
     tasks = {i: asyncio.ensure_future(d.run()) for i, d in daemons.items()}
     sim_t = MemoryTransport(bus, loop)
     try:
-        summary = await asyncio.wait_for(SimDaemon(sc, sim_t, run, tmp_path / "run", engine="memory").run(), 120)
+        summary = await asyncio.wait_for(SimDaemon(sc, sim_t, run, Recorder(tmp_path / "run", sc, ESTIMATE_NAMES), engine="memory").run(), 120)
         reports = await asyncio.wait_for(asyncio.gather(*tasks.values()), 30)
     finally:
         for t in tasks.values():

@@ -10,19 +10,29 @@ import asyncio
 import json
 import signal
 import subprocess
+from types import SimpleNamespace
 
 import pytest
 
 from agents.daemon import AgentDaemon
-from coload.engine import run_inproc
+from coload.rundir.format import JOURNAL
+from coload.rundir.recorder import Recorder
+from coload.runs.engine import run_inproc
 from config.loader import load_scenario
 from net import keys
 from net.memory import MemoryBus, MemoryTransport
 from net.messages import Control
 from net.schema import decode
+from net.vocabulary import ESTIMATE_NAMES
 from net.zenoh_transport import free_tcp_port
-from simulator.daemon import JOURNAL, SimDaemon
-from tests.conftest import ROOT, SCENARIOS, coload_cmd, control_monitor_cmd, max_table_difference
+from simulator.daemon import SimDaemon
+from tests.conftest import (
+    ROOT,
+    SCENARIOS,
+    coload_cmd,
+    control_monitor_cmd,
+    max_table_difference,
+)
 
 SETS = ["duration=5.0", "record.every_ticks=5", "timing.wrench_timeout_s=5.0", "timing.neighbour_timeout_s=5.0"]
 
@@ -61,7 +71,7 @@ async def _memory_run(tmp_path, sc, kill_at: int):
 
     observer.subscribe(keys.sim_control(run), on_control)
     sim_t = MemoryTransport(bus, loop)
-    sim = asyncio.ensure_future(SimDaemon(sc, sim_t, run, run_dir, engine="memory").run())
+    sim = asyncio.ensure_future(SimDaemon(sc, sim_t, run, Recorder(run_dir, sc, ESTIMATE_NAMES), engine="memory").run())
     try:
         await asyncio.wait_for(reached, 60)
         sim.cancel()  # the process dies: its subscriptions and token go with it
@@ -69,7 +79,7 @@ async def _memory_run(tmp_path, sc, kill_at: int):
         await asyncio.gather(sim, return_exceptions=True)
         assert (run_dir / JOURNAL).exists()
         sim_t = MemoryTransport(bus, loop)
-        summary = await asyncio.wait_for(SimDaemon(sc, sim_t, run, run_dir, engine="memory").run(), 120)
+        summary = await asyncio.wait_for(SimDaemon(sc, sim_t, run, Recorder(run_dir, sc, ESTIMATE_NAMES), engine="memory").run(), 120)
         await asyncio.wait_for(asyncio.gather(*agents), 30)
     finally:
         for t in [*agents, sim]:
@@ -97,7 +107,7 @@ def test_journal_of_another_run_is_not_resumed(tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     (run_dir / JOURNAL).write_text('{"journal":1,"run":"other","scenario":"x"}\n{"k":0,"w":[]}\n')
-    sim = SimDaemon(sc, None, "this", run_dir)  # transport unused: only reading the journal
+    sim = SimDaemon(sc, None, "this", SimpleNamespace(journal_path=run_dir / JOURNAL))  # only reads the journal
     assert sim._read_journal() is None
 
 

@@ -10,8 +10,16 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from agents.speed_observer import (ClosedForm, ELModel, Gains, PropertyViolation, SpeedObserver, check_properties,
-                                   plant_rhs, two_link)
+from agents.speed_observer import (
+    ClosedForm,
+    ELModel,
+    Gains,
+    PropertyViolation,
+    SpeedObserver,
+    check_properties,
+    plant_rhs,
+    two_link,
+)
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = dict(c1=0.9698, c2=0.1575, c3=0.264, c4=1.74, c5=0.44)
@@ -203,7 +211,7 @@ def test_property_residuals_of_the_two_link_model():
 
 
 def test_bundled_scenario_loads_with_tables_i_ii_and_rejects_unknown_keys():
-    from coload.observer_run import ObserverScenarioError, load_observer_scenario
+    from coload.runs.observer_run import ObserverScenarioError, load_observer_scenario
 
     sc = load_observer_scenario(ROOT / "config/observers/ii-two-link.toml")
     assert sc.observer.k1 == 40 and sc.observer.k2 == 8 and sc.observer.k3 == 25 and sc.observer.c_r == 0.001
@@ -217,7 +225,7 @@ def test_bundled_scenario_loads_with_tables_i_ii_and_rejects_unknown_keys():
 
 
 def test_run_observer_cli_writes_png_and_summary(tmp_path):
-    from coload.observer_run import run_observer_cli
+    from coload.runs.observer_run import run_observer_cli
 
     s = run_observer_cli(ROOT / "config/observers/ii-two-link.toml", tmp_path,
                          ["run.t_end=0.3", "run.samples=61", "run.rtol=1e-6", "observer.nodes=8"])

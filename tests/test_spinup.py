@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from coload.campaign import campaign_scenario, run_seed
-from coload.engine import run_inproc
+from coload.analysis.campaign import campaign_scenario, run_seed
+from coload.runs.engine import run_inproc
 from config.loader import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 
 from agents.daemon import AgentDaemon
-from coload.world import build_agent
+from agents.factory import build_agent
 from config.loader import load_scenario
 from net import keys
 from net.memory import MemoryBus, MemoryTransport
@@ -81,7 +81,7 @@ def test_a_generous_bound_keeps_them():
 
 
 def _realtime_run(tmp_path, max_age_s: float) -> dict:
-    from coload.orchestrate import run_daemons_in_memory
+    from coload.runs.orchestrate import run_daemons_in_memory
 
     # real time over the in-memory daemons: every neighbour state arrives 0.3 s after it was sent
     sc = load_scenario(SCENARIOS / "quick.toml", ['mode="realtime"', "duration=1.5", "link.delay_s=0.3",

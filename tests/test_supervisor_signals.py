@@ -109,9 +109,9 @@ def test_an_interrupted_run_keeps_its_tables_and_says_where_it_stopped(tmp_path,
     new run in the same directory removes that marker."""
     import json
 
-    from coload import rundir_format as rf
     from coload.cli import main as cli_main
-    from coload.engine import run_inproc
+    from coload.rundir import format as rf
+    from coload.runs.engine import run_inproc
     from config.loader import load_scenario
 
     scenario = load_scenario("quick", ["duration=20"])

@@ -15,8 +15,8 @@ import threading
 import pytest
 import zenoh
 
-from coload.engine import run_inproc
-from coload.orchestrate import run_processes
+from coload.runs.engine import run_inproc
+from coload.runs.orchestrate import run_processes
 from config.loader import load_scenario
 from net import keys
 from net.messages import Control

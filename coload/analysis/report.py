@@ -3,7 +3,7 @@
 The figure stacks panels sharing the time axis, as paper 000's Fig. 4 does: EERD, omega, EEC, the
 z_i errors, then J, z_C, v_C and m when the run's estimates carry them. It is drawn with the Agg
 backend so that it works headless (CI, docker). Numbers in the table come from
-:func:`coload.metrics.final_errors`, the same block summary.json holds, so the two never disagree.
+:func:`coload.analysis.metrics.final_errors`, the same block summary.json holds, so the two never disagree.
 """
 
 from __future__ import annotations
@@ -23,8 +23,9 @@ from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
-from coload import metrics, rundir_format  # noqa: E402
-from coload.rundir_format import REPORT_PNG, RunData, read_run  # noqa: E402
+from coload.analysis import metrics  # noqa: E402
+from coload.rundir import format as rundir_format  # noqa: E402
+from coload.rundir.format import REPORT_PNG, RunData, read_run  # noqa: E402
 
 WINDOW_S = 20.0
 """Window (s) of the windowed RMS errors in the table: the last 20 s, as in the task's metrics."""
@@ -371,10 +372,10 @@ RESIDUAL_PNG = rundir_format.RESIDUAL_PNG
 
 
 def write_diagnosis(run_dir: str | Path, progress: Callable[[str], None] | None = None) -> Path:
-    """Diagnoses the run's recording (coload.diagnose) and writes ``RUN_DIR/diagnosis.json``."""
+    """Diagnoses the run's recording (ident.diagnose) and writes ``RUN_DIR/diagnosis.json``."""
     import json
 
-    from coload.diagnose import diagnose_dir
+    from ident.diagnose import diagnose_dir
 
     result = diagnose_dir(run_dir, progress=progress)
     path = Path(run_dir) / DIAGNOSIS_JSON
@@ -383,7 +384,7 @@ def write_diagnosis(run_dir: str | Path, progress: Callable[[str], None] | None 
 
 
 def residual_panels_of(run_dir: str | Path) -> dict[str, Any] | None:
-    """The ``residual`` data of ``RUN_DIR/diagnosis.json`` (coload.diagnose.residual_panels); None when the
+    """The ``residual`` data of ``RUN_DIR/diagnosis.json`` (ident.diagnose.residual_panels); None when the
     run carries no diagnosis; ValueError when its diagnosis.json lacks the residual data."""
     import json
 
@@ -401,8 +402,8 @@ def residual_panels_of(run_dir: str | Path) -> dict[str, Any] | None:
 
 
 def build_residual_figure(panels: dict[str, Any]) -> Figure:
-    """The residual figure (coload.diagnose.draw_residuals) of :func:`residual_panels_of`, unsaved."""
-    from coload.diagnose import draw_residuals
+    """The residual figure (ident.diagnose.draw_residuals) of :func:`residual_panels_of`, unsaved."""
+    from ident.diagnose import draw_residuals
 
     fig = plt.figure(figsize=(12, 8), layout="constrained")
     draw_residuals(fig, panels)

@@ -12,7 +12,6 @@ The scenario model lives here (not in config/scenario.py, which describes load-p
 from __future__ import annotations
 
 import json
-import sys
 import time
 import tomllib
 from pathlib import Path
@@ -244,14 +243,3 @@ def run_observer_cli(scenario_path: Path, out_dir: Path, overrides: list[str]) -
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     summary["png"] = str(out_dir / "observer.png")
     return summary
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m coload.observer_run ARGS`` is ``coload observer run ARGS`` (one entry point)."""
-    from coload.cli import main as cli_main
-
-    return cli_main(["observer", "run", *(sys.argv[1:] if argv is None else argv)])
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -16,7 +16,7 @@ error, the kinematic estimates of paper 000 (z_ij via EERD, z_i, omega) and, fro
 samples.csv, the centralized batch fit's m and J (the agents' own dynamical phase is not in AgentCore yet).
 
 Messages between agents go through the link model of ``net/link.py`` exactly as in
-``coload.engine.run_inproc`` (its ``LinkNetwork``: a DelayLine per receiver).
+``coload.runs.engine.run_inproc`` (its ``LinkNetwork``: a DelayLine per receiver).
 """
 
 from __future__ import annotations
@@ -30,12 +30,13 @@ from typing import Any
 
 import numpy as np
 
-from agents.agent import ESTIMATE_NAMES
 from agents.arm import ArmFrontEnd, MotionPlan, Tracking, make_observer
-from coload.engine import LinkNetwork, base_summary
-from coload.recorder import Recorder
-from coload.world import build_agent
+from agents.factory import build_agent
+from coload.analysis.summary import complete_summary
+from coload.rundir.recorder import Recorder
+from coload.runs.engine import LinkNetwork, base_summary
 from config.scenario import Scenario
+from net.vocabulary import ESTIMATE_NAMES
 from simulator.arms import ArmPlant
 from simulator.plant import sensor_rng
 
@@ -183,7 +184,7 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
     if rec is not None:
         assert run_dir is not None
         (Path(run_dir) / ARMS_CSV).write_text(",".join(ARMS_HEADER) + "\n" + "\n".join(arms_rows) + "\n", encoding="utf-8")
-        summary = rec.close(summary)
+        summary = complete_summary(run_dir, scenario, rec.close(summary))
     summary["_err_series"] = (t, err)  # for the comparison plot; dropped before anything is written
     return summary
 
@@ -194,8 +195,9 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
 
 def _batch(run_dir: Path) -> dict[str, Any]:
     """m and J from the centralized batch fit of the run's samples.csv, with relative errors."""
-    from coload.batch_fit import BatchFitError, fit_run_dir
-    from coload.rundir_format import read_run
+    from coload.analysis.yardstick import fit_run_dir
+    from coload.rundir.format import read_run
+    from ident.batch_fit import BatchFitError
 
     try:
         fit = fit_run_dir(run_dir)
@@ -283,8 +285,8 @@ def comparison_figure(out: Path, err_series: dict[str, tuple[np.ndarray, np.ndar
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from coload.metrics import error_series
-    from coload.rundir_format import read_run
+    from coload.analysis.metrics import error_series
+    from coload.rundir.format import read_run
 
     fig, axes = plt.subplots(2, 2, figsize=(13, 8.5), constrained_layout=True)
     colors = {"observer": "tab:blue", "velocity": "tab:orange"}
@@ -322,7 +324,7 @@ def comparison_figure(out: Path, err_series: dict[str, tuple[np.ndarray, np.ndar
 def run_arms_cli(scenario: Scenario, out: Path, *, batch_fit: bool = True, quiet: bool = False,
                  sensings: tuple[str, ...] = SENSINGS) -> tuple[dict[str, Any], str]:
     """Both runs into ``out/observer`` and ``out/velocity``, then comparison.json/png; returns (comparison, table)."""
-    from coload.orchestrate import ProgressBar
+    from coload.runs.orchestrate import ProgressBar
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -12,9 +12,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from agents.agent import ESTIMATE_NAMES
-from coload.recorder import Recorder
-from coload.world import build_agent
+from agents.factory import build_agent
+from coload.analysis.summary import complete_summary
+from coload.rundir.recorder import Recorder
 from config.scenario import Scenario
 from net.link import (
     DelayLine,
@@ -23,6 +23,7 @@ from net.link import (
     deliver_tick,
     partition_events,
 )
+from net.vocabulary import ESTIMATE_NAMES
 from simulator.plant import Plant, sensor_rng
 from simulator.stop import done_stop
 
@@ -204,5 +205,5 @@ def run_inproc(
     summary = base_summary("inproc", scenario, mode, ticks, wall, net.close(ticks))
     summary["agent_step_us"] = 1e6 * step_s / max(1, ticks * n)
     if rec is not None:
-        summary = rec.close(summary)
+        summary = complete_summary(run_dir, scenario, rec.close(summary))
     return summary

@@ -70,7 +70,7 @@ def prepare_run_dir(run_dir: Path) -> str | None:
     summary, report, diagnosis, restart journal: nothing of it may be read as the new run's, even if
     the new one fails before writing anything); returns a note saying so, or None. Raises ValueError
     naming the problem if the directory cannot be used."""
-    from coload import rundir_format as fmt
+    from coload.rundir import format as fmt
 
     run_dir = Path(run_dir)
     if run_dir.exists() and not run_dir.is_dir():
@@ -96,7 +96,7 @@ def run_name_for(run_dir: Path) -> str:
 
 
 def run_inproc_cli(scenario: Scenario, run_dir: Path, quiet: bool = False) -> dict[str, Any]:
-    from coload.engine import run_inproc
+    from coload.runs.engine import run_inproc
 
     return run_inproc(scenario, run_dir, progress=ProgressBar(f"{scenario.name} (inproc)", quiet))
 
@@ -362,7 +362,10 @@ async def run_daemons_in_memory(scenario: Scenario, run_dir: Path) -> dict[str, 
     import asyncio
 
     from agents.daemon import AgentDaemon
+    from coload.analysis.summary import complete_summary
+    from coload.rundir.recorder import Recorder
     from net.memory import MemoryBus, MemoryTransport
+    from net.vocabulary import ESTIMATE_NAMES
     from simulator.daemon import SimDaemon
 
     loop = asyncio.get_running_loop()
@@ -372,11 +375,12 @@ async def run_daemons_in_memory(scenario: Scenario, run_dir: Path) -> dict[str, 
     agents = [AgentDaemon(scenario, i, transports[i], run) for i in range(scenario.n)]
     agent_tasks = [asyncio.ensure_future(a.run()) for a in agents]
     try:
-        summary = await SimDaemon(scenario, transports[-1], run, run_dir, engine="memory").run()
+        recorder = Recorder(run_dir, scenario, ESTIMATE_NAMES)
+        summary = await SimDaemon(scenario, transports[-1], run, recorder, engine="memory").run()
         await asyncio.wait_for(asyncio.gather(*agent_tasks), 10.0)
     finally:
         for t in agent_tasks:
             t.cancel()
         for t in transports:
             t.close()
-    return summary
+    return complete_summary(run_dir, scenario, summary)

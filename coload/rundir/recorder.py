@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from coload import rundir_format as fmt
+from coload.rundir import format as fmt
 from config.loader import dump_scenario
 from config.scenario import Scenario
 from net.messages import Estimate
@@ -128,39 +128,19 @@ class Recorder:
             {"tick": tick, "t": tick * self.dt, "reason": reason, "duration": self.scenario.duration}, indent=1) + "\n",
             encoding="utf-8")
 
+    @property
+    def journal_path(self) -> Path:
+        """Where the simulator daemon keeps its restart journal (in the run directory)."""
+        return self.run_dir / fmt.JOURNAL
+
     def close(self, summary: dict[str, Any]) -> dict[str, Any]:
-        """Closes the tables, adds the error metrics to ``summary`` and writes summary.json."""
+        """Closes the tables and writes ``summary`` as summary.json; the application adds the error
+        metrics afterwards (coload.analysis.summary)."""
         self._closed = True
         for table in self._tables:
             table.close()
-        from coload.metrics import final_errors
-
-        run = None
-        try:
-            run = fmt.read_run(self.run_dir)
-            summary["errors"] = final_errors(run)
-        except (ValueError, OSError) as exc:  # a run too short to score still leaves its data
-            summary["errors"] = {}
-            summary.setdefault("warnings", []).append(f"errors not computed: {exc}")
-        if self.scenario.record.batch_fit:
-            summary.update(_centralized(run))
         write_summary(self.run_dir, summary)
         return summary
-
-
-def _centralized(run: fmt.RunData | None) -> dict[str, Any]:
-    """The batch-fit yardstick blocks (coload.batch_fit.centralized_blocks); whatever goes wrong, the run
-    still gets its summary, with null blocks and the reason."""
-    from coload.batch_fit import CENTRAL_KEYS, RATIO_KEYS, centralized_blocks
-
-    try:
-        if run is None:
-            raise ValueError("the run directory could not be read")
-        return centralized_blocks(run)
-    except Exception as exc:  # noqa: BLE001  the yardstick must never cost the run its summary
-        reason = f"batch fit not run: {type(exc).__name__}: {exc}"
-        return {"centralized": {**dict.fromkeys(CENTRAL_KEYS), "flags": [], "reason": reason},
-                "distributed_over_centralized": {**dict.fromkeys(RATIO_KEYS), "reason": reason}}
 
 
 def write_summary(run_dir: Path, summary: dict[str, Any]) -> None:

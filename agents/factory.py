@@ -1,8 +1,8 @@
 """Builds an agent from a scenario, the same way for every engine.
 
-The in-process engine and the daemons both call this (and ``net.link.build_in_links`` for the
-links), so a lockstep run over Zenoh and an in-process run with the same seed start identical.
-A control law of the user's (``control.law``, agents/laws.py) is imported here, at the edge.
+The in-process engine and the daemons both call :func:`build_agent` (and ``net.link.build_in_links``
+for the links), so a lockstep run over Zenoh and an in-process run with the same seed start
+identical. A control law of the user's (``control.law``, agents/laws.py) is imported here.
 """
 
 from __future__ import annotations
@@ -11,17 +11,12 @@ import hashlib
 import importlib
 import importlib.util
 import sys
-from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from agents.agent import AgentCore
 from agents.laws import ControlLawError, LawFactory, LawSetup
 from config.agent_params import LAW_REF
 from config.scenario import Scenario
-
-if TYPE_CHECKING:
-    from simulator.plant import Plant
 
 
 def build_agent(scenario: Scenario, agent_id: int) -> AgentCore:
@@ -37,31 +32,6 @@ def build_agent(scenario: Scenario, agent_id: int) -> AgentCore:
         dynamics=scenario.dynamics,
         law=build_law(scenario, agent_id),
     )
-
-
-def team_ticks(scenario: Scenario, plant: Plant, agents: Sequence[AgentCore]
-               ) -> Iterator[tuple[int, list[tuple[float, float, float]]]]:
-    """Steps ``agents`` on ``plant`` with fault-free one-tick links (every state reaches the neighbours
-    on the next tick, as on the in-process engine without faults), for diagnostics and tests that look
-    inside the agents. Yields (tick, wrenches) after the agents' step, before the plant applies the
-    wrenches: the plant still holds that tick's truth then. Stop iterating to stop."""
-    from simulator.plant import sensor_rng  # not at import: the agent daemon needs no simulator
-
-    nbrs = scenario.neighbours()
-    rng = sensor_rng(scenario.seed)
-    inbox: list[list] = [[] for _ in agents]
-    for k in range(scenario.ticks):
-        meas = plant.measure(rng)
-        nxt: list[list] = [[] for _ in agents]
-        wr = []
-        for i, a in enumerate(agents):
-            res = a.step(k, meas[i][0], meas[i][1], inbox[i])
-            for j in nbrs[i]:
-                nxt[j].append(res.state)
-            wr.append((res.wrench.fx, res.wrench.fy, res.wrench.tau))
-        inbox = nxt
-        yield k, wr
-        plant.apply_and_step(wr)
 
 
 def build_law(scenario: Scenario, agent_id: int):

@@ -4,7 +4,7 @@ Input is a recording in the measured-data format only (``samples.csv`` + ``run.t
 read only to report errors against it). Pure core: :func:`diagnose` takes arrays and returns a
 :class:`Diagnosis`; :func:`diagnose_dir` reads files; the CLI writes JSON and the figure.
 
-Model (integral form, the plant's exact discrete step as in :mod:`coload.batch_fit`): per tick k,
+Model (integral form, the plant's exact discrete step as in :mod:`ident.batch_fit`): per tick k,
 with the wrench of tick k acting over the step k -> k + 1,
 
     v_{k+1}     = v_k + dt a (F_k + f_b - c_v v_k - F_c v_k / sqrt(|v_k|^2 + eps^2))     a = 1/m
@@ -37,7 +37,14 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from coload.batch_fit import BatchFitError, FitOptions, _check_input, fit_recording, samples_array
+from ident import tables as rf
+from ident.batch_fit import (
+    BatchFitError,
+    FitOptions,
+    _check_input,
+    fit_recording,
+    samples_array,
+)
 
 Z95 = 1.959963984540054
 COULOMB_EPS = 0.02
@@ -743,8 +750,6 @@ def read_recording(path: str | Path) -> tuple[np.ndarray, int, float, dict[str, 
     Only ``run.toml`` (n, dt, edges) and ``samples.csv`` are read for the fit; ``truth.csv``, if present,
     only for the errors. Malformed files raise :class:`DiagnoseError` naming file, line and column.
     """
-    from coload import rundir_format as rf
-
     path = Path(path)
     if not path.is_dir():
         raise DiagnoseError(f"{path}: not a directory (a recording is a directory with run.toml and samples.csv)")

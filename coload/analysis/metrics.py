@@ -2,7 +2,7 @@
 
 The array functions (:func:`eerd`, :func:`eec`, ...) know nothing about files, so they can be tested
 on hand-made numbers and reused by campaigns; :func:`error_series` and :func:`final_errors` apply
-them to a :class:`~coload.rundir_format.RunData` and produce the ``errors`` block of summary.json.
+them to a :class:`~coload.rundir.format.RunData` and produce the ``errors`` block of summary.json.
 Every key of that block is defined in ``docs/run-directory.md``.
 
 Conventions
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from coload.rundir_format import RunData
+from coload.rundir.format import RunData
 
 Edge = tuple[int, int]
 

@@ -280,7 +280,7 @@ is reproduced bit for bit by ``coload run OUT/runs/NAME/run.toml --engine inproc
 
 def _run_one(scenario: Scenario, run_dir: str, keep_data: bool = False) -> dict[str, Any]:
     """Worker: one in-process run from a clean directory (a half-written one is removed first)."""
-    from coload.engine import run_inproc
+    from coload.runs.engine import run_inproc
 
     path = Path(run_dir)
     if path.exists():

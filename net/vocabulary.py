@@ -1,0 +1,48 @@
+"""The vocabulary every process shares: stage numbers and the names of an agent's estimates.
+
+The stage travels in every state message (``phase``) and in the ``phase`` estimate; the estimate
+names are the columns of estimates.csv and the fields of an ``estimate`` message (docs/wire.md,
+docs/run-directory.md).
+"""
+
+from __future__ import annotations
+
+# Stages (the StateMsg ``phase`` field and the ``phase`` estimate)
+SPINUP = 0  # no omega_hat yet: common spin-up torque
+KINEMATIC = 1  # z_ij, omega, z_i (Sec. IV); omega regulated by torques
+M_EXCITE = 2  # Prop. 6 common force, stronger, switched: mass, q_i (hence z_C) by the Kalman filter
+M_AVERAGE = 3  # averaging consensus of m and z_C until converged
+J_EXCITE = 4  # f_i = k_z s(t) z_i^perp, tau_i = 0: J by the rotation regression (Result 5)
+J_AVERAGE = 5  # averaging consensus of J until converged
+DONE = 6  # every estimate final; Prop. 7 braking (optional)
+BACKGROUND = 7  # Algorithm 2: Prop. 6 + torque dither, background observers with forgetting
+
+STAGE_NAMES = ("spinup", "kinematic", "m_excite", "m_average", "j_excite", "j_average", "done", "background")
+
+ESTIMATE_NAMES: tuple[str, ...] = (
+    "phase",  # stage: 0 spinning up (no omega_hat yet), 1 kinematic (omega regulated); 2.. the
+    # dynamical phase (STAGE_NAMES)
+    "omega",  # omega_hat (rad/s), consensus-filtered
+    "omega_local",  # this tick's local pooled eq. (9) value (rad/s; NaN when no sample)
+    "zi_x",  # z_i = p_Ci - p_G estimate, world frame (m)
+    "zi_y",
+    "pairs_ready",  # neighbours whose z_ij is estimated
+    "dropped_unknown",  # messages from senders not in neighbours (count)
+    "dropped_stale",  # duplicates / not newer than already used / from the future / malformed (count)
+    # dynamical phase (agents/dynamic.py; NaN while not estimated, or without it)
+    "J",  # moment of inertia about the CoM after the averaging consensus (kg m^2)
+    "m",  # mass after the averaging consensus (kg)
+    "zc_x",  # z_C = p_G - p_C, world frame (m)
+    "zc_y",
+    "vc_x",  # CoM velocity v_C, world frame (m/s)
+    "vc_y",
+    "J_local",  # this agent's own J estimate, before the averaging consensus (kg m^2)
+    "m_local",  # this agent's own m estimate, before the averaging consensus (kg)
+    "late_switches",  # stage switches this agent learnt of after the agreed tick (count)
+    # augmented model (DynamicsSpec.estimate_effects; NaN without it)
+    "b",  # viscous floor friction on v_C after the averaging consensus (N s/m)
+    "c",  # rotational damping on omega after the averaging consensus (N m s)
+    "b_local",  # this agent's own b, before the averaging consensus (N s/m)
+    "c_local",  # this agent's own c, before the averaging consensus (N m s)
+    "filter_restarts",  # restarts of the dynamical phase's filter by its lock check (count; DynamicsSpec.lock_nis)
+)
