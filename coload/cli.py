@@ -590,8 +590,9 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
                           "y_spread": [s["sync"]["y_spread_initial"], s["sync"]["y_spread_final"]]}, indent=2))
         print(f"run directory: {args.out} (summary.json, hinf.png)")
         return 0
+    from coload.runs.hinf_run import finish_run
     from hinf.daemon import HinfAgentDaemon, HinfSimDaemon
-    from hinf.report import finish_run, load_run_dir
+    from hinf.report import load_run_dir
 
     try:
         setup = load_run_dir(args.run_dir)

@@ -1,11 +1,6 @@
-"""Run directory of `coload hinf run`: inputs, trace, summary.json with the checks, hinf.png.
-
-RUN_DIR/spec.json    the resolved spec (with its [run] section) every daemon reads
-RUN_DIR/design.json  the design (hinf.run_design) every daemon reads: gains, gamma, H_k, X_k
-RUN_DIR/trace.npz    per tick: x, xhat (every local estimate), zeta, u, xi, eta, got (see runtime.Trace)
-RUN_DIR/summary.json final errors, decay, energy gain vs gamma, synchronization, message statistics
-RUN_DIR/hinf.png     Fig. 2 (own-state estimation errors), decay vs the alpha bound, outputs, spread
-"""
+"""A `coload hinf run`'s inputs (spec.json, design.json: what every daemon reads), its summary (final
+errors, decay, energy gain vs gamma, synchronization) and its figure (hinf.png). The application
+writes the run directory (coload/runs/hinf_run.py; layout in docs/run-directory.md)."""
 
 from __future__ import annotations
 
@@ -59,11 +54,6 @@ def load_run_dir(run_dir: Path) -> Setup:
         return build_setup(spec, design)
     except (KeyError, TypeError, ValueError) as exc:
         raise SpecError(f"{run_dir / 'design.json'}: not a design of this spec ({exc!r})") from None
-
-
-def load_trace(run_dir: Path) -> Trace:
-    with np.load(Path(run_dir) / "trace.npz") as f:
-        return Trace(**{k: f[k] for k in f.files})
 
 
 def _own_cols(setup: Setup) -> list[np.ndarray]:
@@ -255,19 +245,7 @@ def plot(setup: Setup, trace: Trace, png: Path) -> None:
     plt.close(fig)
 
 
-def finish_run(run_dir: Path, setup: Setup, trace: Trace, info: dict[str, Any], draw: bool = True) -> dict[str, Any]:
-    """Write trace.npz, summary.json (and hinf.png); return the summary."""
-    run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(run_dir / "trace.npz", **trace.arrays())
-    summary = summarize(setup, trace, info)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
-    if draw:
-        plot(setup, trace, run_dir / "hinf.png")
-    return summary
-
-
-def _json_default(o: Any) -> Any:
+def json_default(o: Any) -> Any:
     if isinstance(o, (np.floating, np.integer)):
         return o.item()
     if isinstance(o, np.ndarray):

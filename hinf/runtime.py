@@ -379,7 +379,10 @@ class Trace:
                      np.zeros((T, dist_n[0])), np.zeros((T, dist_n[1])), np.zeros((T, net.N), bool))
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {k: getattr(self, k) for k in ("x", "xhat", "zeta", "u", "xi", "eta", "got")}
+        return {k: getattr(self, k) for k in TRACE_FIELDS}
+
+
+TRACE_FIELDS = ("x", "xhat", "zeta", "u", "xi", "eta", "got")
 
 
 class TraceWriter:

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import cont2discrete
 
-from coload.runs.hinf_run import run_processes
+from coload.runs.hinf_run import finish_run, load_trace, run_processes
 from config.scenario import LinkSpec, LossSpec, PartitionSpec
 from hinf import SpecError, load_spec, run_design
 from hinf import design as D
@@ -24,7 +24,7 @@ from hinf.daemon import (
     HinfSimDaemon,
     run_daemons_in_memory,
 )
-from hinf.report import finish_run, load_run_dir, load_trace, prepare_run_dir, summarize
+from hinf.report import load_run_dir, prepare_run_dir, summarize
 from net import keys
 from net.hinf_messages import HinfInput, HinfMeas, HinfState
 from net.schema import DecodeError, decode, encode
@@ -316,7 +316,7 @@ def test_cli_inproc_run_writes_the_run_directory(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["hinf", "run", str(EXAMPLE), "--engine", "inproc", "--out", str(out), "--set", "run.duration=2"]) == 0
     assert "empirical_gain" in capsys.readouterr().out
-    for f in ("spec.json", "design.json", "trace.npz", "summary.json", "hinf.png"):
+    for f in ("spec.json", "design.json", "trace.csv", "summary.json", "hinf.png"):
         assert (out / f).is_file()
     assert main(["hinf", "run", str(EXAMPLE), "--engine", "inproc", "--mode", "realtime", "--out", str(out)]) == 2
     assert "lockstep only" in capsys.readouterr().err

@@ -231,6 +231,17 @@ def test_run_observer_cli_writes_png_and_summary(tmp_path):
                          ["run.t_end=0.3", "run.samples=61", "run.rtol=1e-6", "observer.nodes=8"])
     assert (tmp_path / "observer.png").stat().st_size > 10_000 and (tmp_path / "summary.json").exists()
     assert s["metrics"]["s_x-x"]["t_5pct"] is not None and s["metrics"]["r"]["max"] < 1
+    # the run directory's layout: the resolved scenario reloads as itself, the series as recorded
+    from coload.rundir.series import read_series
+    from coload.runs.observer_run import load_observer_scenario, simulate
+
+    sc = load_observer_scenario(tmp_path / "run.toml")
+    assert sc.run.t_end == 0.3 and sc.run.samples == 61 and sc.observer.nodes == 8
+    t, cols = read_series(tmp_path / "series.csv")
+    res = simulate(sc)
+    np.testing.assert_array_equal(t, res["t"])
+    np.testing.assert_array_equal(cols["x_hat"], res["x_hat"])
+    assert s["final"]["x_hat"] == cols["x_hat"][-1].tolist()
 
 
 def test_cli_names_a_bad_file_or_field(tmp_path, capsys):

@@ -1,5 +1,9 @@
 """Runs a paper-003 H-infinity team (``coload hinf run``): in this process, or as an embedded Zenoh
-router, a simulator and one estimator daemon per agent, each its own OS process (docs/hinf.md)."""
+router, a simulator and one estimator daemon per agent, each its own OS process (docs/hinf.md).
+
+Its run directory (docs/run-directory.md): spec.json and design.json (the inputs every daemon
+reads), trace.csv (per tick: x, every local estimate xhat, zeta, u, xi, eta, got; see
+hinf.runtime.Trace), summary.json and hinf.png."""
 
 from __future__ import annotations
 
@@ -7,6 +11,9 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
+from coload.rundir.series import read_series, write_series
 from coload.runs.orchestrate import (
     ProgressBar,
     process_run,
@@ -14,9 +21,8 @@ from coload.runs.orchestrate import (
     watch_simulator,
 )
 from hinf import SpecError, load_spec, run_design
-from hinf.daemon import Setup
-from hinf.report import finish_run, load_run_dir, prepare_run_dir
-from hinf.runtime import run_inproc
+from hinf.report import json_default, load_run_dir, plot, prepare_run_dir, summarize
+from hinf.runtime import TRACE_FIELDS, Setup, Trace, run_inproc
 from net import keys
 
 
@@ -70,3 +76,25 @@ def run_processes(setup: Setup, run_dir: Path, quiet: bool = False, verbose: int
         return sim.returncode == 0
     finally:
         children.close()
+
+
+TRACE_CSV = "trace.csv"
+
+
+def finish_run(run_dir: Path, setup: Setup, trace: Trace, info: dict, draw: bool = True) -> dict:
+    """Write trace.csv, summary.json (and hinf.png); return the summary."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    arrays = trace.arrays()
+    write_series(run_dir / TRACE_CSV, np.arange(len(arrays["x"])) * setup.spec.run.dt, arrays)
+    summary = summarize(setup, trace, info)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=1, default=json_default) + "\n")
+    if draw:
+        plot(setup, trace, run_dir / "hinf.png")
+    return summary
+
+
+def load_trace(run_dir: Path) -> Trace:
+    """The trace of a finished run directory, as the engine recorded it."""
+    _, cols = read_series(Path(run_dir) / TRACE_CSV)
+    return Trace(**{k: (cols[k].astype(bool) if k == "got" else cols[k]) for k in TRACE_FIELDS})

@@ -18,10 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from scipy.integrate import solve_ivp
 
 from agents.speed_observer import Gains, SpeedObserver, plant_rhs, two_link
+from coload.rundir.series import write_series
 from config.loader import deep_merge, parse_overrides
 
 
@@ -219,6 +221,18 @@ def plot(sc: ObserverScenario, res: dict[str, Any], png: Path) -> None:
     plt.close(fig)
 
 
+SERIES_CSV = "series.csv"
+
+
+def _without_none(d: Any) -> Any:
+    """TOML has no null: an unset optional field is left out, as a scenario file would."""
+    if isinstance(d, dict):
+        return {k: _without_none(v) for k, v in d.items() if v is not None}
+    if isinstance(d, (list, tuple)):
+        return [_without_none(v) for v in d]
+    return d
+
+
 def run_observer_cli(scenario_path: Path, out_dir: Path, overrides: list[str]) -> dict:
     """Load, integrate, measure, plot: writes out_dir/observer.png and out_dir/summary.json, returns the summary."""
     sc = load_observer_scenario(Path(scenario_path), list(overrides))
@@ -238,8 +252,8 @@ def run_observer_cli(scenario_path: Path, out_dir: Path, overrides: list[str]) -
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     plot(sc, res, out_dir / "observer.png")
-    np.savez_compressed(out_dir / "series.npz", **{k: v for k, v in res.items() if isinstance(v, np.ndarray)})
-    (out_dir / "run.json").write_text(json.dumps(sc.model_dump(), indent=2))
+    write_series(out_dir / SERIES_CSV, res["t"], {k: v for k, v in res.items() if isinstance(v, np.ndarray) and k != "t"})
+    (out_dir / "run.toml").write_text(tomli_w.dumps(_without_none(sc.model_dump())))
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     summary["png"] = str(out_dir / "observer.png")
     return summary
