@@ -15,7 +15,7 @@ from collections import Counter
 
 from agents.factory import build_agent
 from agents.laws import ControlLawError
-from config.scenario import Scenario
+from config.scenario import AgentView
 from net import keys
 from net.finish import FinishGate
 from net.link import DelayLine, LinkStats, build_in_links, receive_through
@@ -55,17 +55,15 @@ REALTIME_LEAD_SLACK = 50
 
 
 class AgentDaemon:
-    def __init__(self, scenario: Scenario, agent_id: int, transport: Transport, run: str) -> None:
-        if not 0 <= agent_id < scenario.n:
-            raise ValueError(f"--id {agent_id} is not an agent of this scenario (0..{scenario.n - 1})")
-        self.scenario = scenario
-        self.id = agent_id
+    def __init__(self, view: AgentView, transport: Transport, run: str) -> None:
+        self.scenario = view  # what this agent knows of the scenario, nothing more
+        self.id = agent_id = view.agent
         self.run_name = run
         self.transport = transport
-        self.mode = scenario.mode
-        self.core = build_agent(scenario, agent_id)
-        self.neighbours = scenario.neighbours()[agent_id]
-        self.links = build_in_links(scenario, agent_id)
+        self.mode = view.mode
+        self.core = build_agent(view)
+        self.neighbours = list(view.neighbours)
+        self.links = build_in_links(view)
         self.stats = {j: LinkStats() for j in self.neighbours}
         self.line = DelayLine()
         self.drops: Counter[str] = Counter()
@@ -91,9 +89,9 @@ class AgentDaemon:
         self._k_wrench = keys.wrench(run, agent_id)
         self._k_estimate = keys.estimate(run, agent_id)
         self._state_keys = {keys.state(run, j): j for j in self.neighbours}  # parsed once, not per sample
-        self._record_every = scenario.record.every_ticks
+        self._record_every = view.record.every_ticks
         self.ticks_stepped = 0
-        self.max_age_ticks = scenario.timing.max_age_s / scenario.dt
+        self.max_age_ticks = view.timing.max_age_s / view.dt
         self.sim_alive = False
         self._sim_lost = False  # the simulator's token went away after the run started; cleared by a measurement
         self._lost_timer: asyncio.TimerHandle | None = None  # gives up on a simulator gone too long

@@ -1,8 +1,8 @@
 """Builds an agent from a scenario, the same way for every engine.
 
-The in-process engine and the daemons both call :func:`build_agent` (and ``net.link.build_in_links``
-for the links), so a lockstep run over Zenoh and an in-process run with the same seed start
-identical. A control law of the user's (``control.law``, agents/laws.py) is imported here.
+The in-process engine and the daemons both call :func:`build_agent` on the agent's view of the
+scenario (``Scenario.agent_view``; and ``net.link.build_in_links`` for the links), so a lockstep
+run over Zenoh and an in-process run with the same seed start identical. A control law of the user's (``control.law``, agents/laws.py) is imported here.
 """
 
 from __future__ import annotations
@@ -16,41 +16,39 @@ from pathlib import Path
 from agents.agent import AgentCore
 from agents.laws import ControlLawError, LawFactory, LawSetup
 from config.agent_params import LAW_REF
-from config.scenario import Scenario
+from config.scenario import AgentView
 
 
-def build_agent(scenario: Scenario, agent_id: int) -> AgentCore:
-    sigma = scenario.estimator.sigma_v
+def build_agent(view: AgentView) -> AgentCore:
     return AgentCore(
-        agent_id=agent_id,
-        neighbours=scenario.neighbours()[agent_id],
-        n=scenario.n,
-        dt=scenario.dt,
-        sigma_v=scenario.noise.sigma_v if sigma is None else sigma,
-        estimator=scenario.estimator,
-        control=scenario.control,
-        dynamics=scenario.dynamics,
-        law=build_law(scenario, agent_id),
+        agent_id=view.agent,
+        neighbours=list(view.neighbours),
+        n=view.n,
+        dt=view.dt,
+        sigma_v=view.sigma_v,
+        estimator=view.estimator,
+        control=view.control,
+        dynamics=view.dynamics,
+        law=build_law(view),
     )
 
 
-def build_law(scenario: Scenario, agent_id: int):
-    """Agent ``agent_id``'s instance of the scenario's control law, or None; ControlLawError (one line
+def build_law(view: AgentView):
+    """The agent's instance of the scenario's control law, or None; ControlLawError (one line
     naming the law) if it cannot be imported or built."""
-    ref = scenario.control.law
+    ref = view.control.law
     if not ref:
         return None
     factory = load_law_factory(ref)
-    setup = LawSetup(agent=agent_id, n=scenario.n, dt=scenario.dt,
-                     neighbours=tuple(scenario.neighbours()[agent_id]))
+    setup = LawSetup(agent=view.agent, n=view.n, dt=view.dt, neighbours=tuple(view.neighbours))
     try:
-        law = factory(setup, **scenario.control.law_params)
+        law = factory(setup, **view.control.law_params)
     except ControlLawError as exc:
         raise ControlLawError(f"control.law {ref!r}: {exc}") from None
     except Exception as exc:  # the user's code: a wrong parameter name, a bad value
-        raise ControlLawError(f"control.law {ref!r}: building agent {agent_id}'s law failed with "
+        raise ControlLawError(f"control.law {ref!r}: building agent {view.agent}'s law failed with "
                               f"{type(exc).__name__}: {exc} (control.law_params: "
-                              f"{dict(scenario.control.law_params)})") from None
+                              f"{dict(view.control.law_params)})") from None
     if not callable(law):
         raise ControlLawError(f"control.law {ref!r}: the factory returned {type(law).__name__}, "
                               f"not a callable law(x) -> (fx, fy, tau)")

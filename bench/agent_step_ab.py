@@ -87,8 +87,8 @@ def main() -> None:
     best_o = best_m = float("inf")
     bad = 0
     for _ in range(a.reps):
-        ao = other["world"].build_agent(scenario(other), who).step
-        am = mine["world"].build_agent(scenario(mine), who).step
+        ao = other["world"].build_agent(scenario(other).agent_view(who)).step
+        am = mine["world"].build_agent(scenario(mine).agent_view(who)).step
         to = tm = 0.0
         bad = 0
         gc.disable()

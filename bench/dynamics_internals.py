@@ -32,7 +32,7 @@ def run(sc) -> dict[str, np.ndarray]:
     """Steps plant and agents like coload.runs.engine.run_inproc (one-tick links) and records internals."""
     n, T = sc.n, sc.ticks
     plant = Plant(sc)
-    agents = [build_agent(sc, i) for i in range(n)]
+    agents = [build_agent(sc.agent_view(i)) for i in range(n)]
     seen: dict[int, float] = {}
     predict = D.RigidEKF.predict
 

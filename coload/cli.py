@@ -128,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("arms", help="agents that are two-link arms with encoders only (paper 004 observer in the loop)",
                        description="Agents that are planar two-link arms on fixed bases, holding the load through "
-                                   "pivots, with joint encoders and wrist force sensors but no speed sensor (issue 7).")
+                                   "pivots, with joint encoders and wrist force sensors but no speed sensor.")
     asub = p.add_subparsers(dest="arms_command", required=True, metavar="ACTION")
     q = asub.add_parser("run", help="arm agents vs velocity-measuring agents on the same load; comparison report",
                         description="Run a scenario with an [arms] section (e.g. config/scenarios/arms-rocking.toml) "
@@ -259,7 +259,7 @@ def _check_law(scenario, source: str, agents: Sequence[int]) -> None:
 
     try:
         for i in agents:
-            build_law(scenario, i)
+            build_law(scenario.agent_view(i))
     except ControlLawError as exc:
         raise ScenarioError(str(source), None, "control.law", str(exc).removeprefix("control.law ")) from None
 
@@ -330,7 +330,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
     daemon: list[AgentDaemon] = []
 
     def build(t):
-        daemon.append(AgentDaemon(scenario, args.id, t, args.run))
+        daemon.append(AgentDaemon(scenario.agent_view(args.id), t, args.run))
         return daemon[0].run()
 
     report = _run_daemon("agent", args, build)

@@ -7,6 +7,7 @@ forbids unknown keys so that a misspelt key is an error, not a silently ignored 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -425,6 +426,46 @@ class Scenario(_Strict):
             nb[i].append(j)
             nb[j].append(i)
         return [sorted(x) for x in nb]
+
+    def agent_view(self, agent: int) -> AgentView:
+        """What agent ``agent`` is told of this scenario (see :class:`AgentView`)."""
+        if not 0 <= agent < self.n:
+            raise ValueError(f"agent {agent} is not an agent of this scenario (0..{self.n - 1})")
+        sigma = self.estimator.sigma_v
+        return AgentView(
+            agent=agent, n=self.n, dt=self.dt, duration=self.duration, seed=self.seed, mode=self.mode,
+            neighbours=tuple(self.neighbours()[agent]), sigma_v=self.noise.sigma_v if sigma is None else sigma,
+            estimator=self.estimator, control=self.control, dynamics=self.dynamics, timing=self.timing,
+            link=self.link, record=self.record, stop_after_done_s=self.stop_after_done_s,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class AgentView:
+    """What one agent knows of a scenario: the team's size and timing, its own neighbours, its
+    sensor's noise level, its own parameters and the links that end at it. Nothing of the load,
+    the plant's effects or the rest of the graph: the agent daemon and the core are built from this
+    alone (docs/agent-step.md)."""
+
+    agent: int
+    n: int
+    dt: float
+    duration: float
+    seed: int
+    mode: Literal["lockstep", "realtime"]
+    neighbours: tuple[int, ...]
+    sigma_v: float
+    estimator: EstimatorSpec
+    control: ControlSpec
+    dynamics: DynamicsSpec
+    timing: TimingSpec
+    link: LinkSpec
+    record: RecordSpec
+    stop_after_done_s: float | None
+
+    @property
+    def ticks(self) -> int:
+        return int(round(self.duration / self.dt))
 
 
 def _polygon_problem(vertices: list[Vec2]) -> str | None:

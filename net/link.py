@@ -21,7 +21,7 @@ from typing import Final, Generic, Literal, TypeVar
 
 import numpy as np
 
-from config.scenario import LinkSpec, Scenario
+from config.scenario import AgentView, LinkSpec, Scenario
 
 STREAM_ID: Final = 0x11C4
 """Fourth word of every link RNG seed: keeps link streams apart from other users of the run seed."""
@@ -320,13 +320,14 @@ def partition_events(scenario: Scenario) -> list[dict]:
     return events
 
 
-def build_in_links(scenario: Scenario, receiver: int, mode: str | None = None) -> dict[int, LinkModel]:
-    """The fault models of every link that ends at ``receiver``, keyed by sender, partitions included.
+def build_in_links(view: AgentView, mode: str | None = None) -> dict[int, LinkModel]:
+    """The fault models of every link that ends at agent ``view.agent``, keyed by sender, partitions
+    included.
 
     Both engines build their links here (it passes the tick length, which partition windows need).
     """
-    mode = mode or scenario.mode
+    mode = mode or view.mode
     return {
-        sender: LinkModel(scenario.link, scenario.seed, sender, receiver, mode, scenario.dt)  # type: ignore[arg-type]
-        for sender in scenario.neighbours()[receiver]
+        sender: LinkModel(view.link, view.seed, sender, view.agent, mode, view.dt)  # type: ignore[arg-type]
+        for sender in view.neighbours
     }

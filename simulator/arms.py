@@ -195,7 +195,7 @@ class ArmPlant:
             before = after
         self.forces = impulse / self.dt
         plant.tick += 1
-        plant._refresh()  # the plant's per-tick snapshot of the load (its apply_and_step does the same)
+        plant.refresh()  # the plant's per-tick snapshot of the load (its apply_and_step does the same)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

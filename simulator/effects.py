@@ -28,7 +28,6 @@ from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pymunk
 
 from config.scenario import LoadChangeSpec, Scenario
 from simulator import geometry
@@ -70,18 +69,18 @@ class Effects:
     def start(self, plant: Plant) -> None:
         """After construction: apply changes due at t = 0 and seed the sensor history."""
         self._apply_due_changes(plant)
-        self._hist.append(plant._velocities())
+        self._hist.append(plant.contact_velocities())
 
     def after_step(self, plant: Plant) -> None:
         """After each step (plant.tick advanced): load changes now due, then this tick's true velocities."""
         self._apply_due_changes(plant)
-        self._hist.append(plant._velocities())
+        self._hist.append(plant.contact_velocities())
 
     def wrench(self, plant: Plant, fx: float, fy: float, torque: float) -> tuple[float, float, float]:
         """Resultant (force, torque about the CoM) the body gets for the agents' commanded resultant."""
         g = self.gain
         fx, fy, torque = g * fx + self.fext[0], g * fy + self.fext[1], g * torque
-        vx, vy = plant._vel
+        vx, vy = plant.com_velocity
         if self.viscous:
             fx -= self.viscous * vx
             fy -= self.viscous * vy
@@ -92,7 +91,7 @@ class Effects:
                 fx -= k * vx
                 fy -= k * vy
         if self.rotational:
-            torque -= self.rotational * plant._omega
+            torque -= self.rotational * plant.angular_velocity
         return fx, fy, torque
 
     def measure(self, plant: Plant, rng: np.random.Generator) -> list[tuple[float, float]]:
@@ -113,24 +112,8 @@ class Effects:
         if inertia is None:
             j_centroid = change.mass * geometry.polar_moment_per_mass(self._outline)
             inertia = j_centroid + change.mass * float(new_off @ new_off)
-        b = plant.body
-        c, s = plant._c, plant._s
-        dw = (c * d[0] - s * d[1], s * d[0] + c * d[1])  # world frame
-        w = plant._omega
-        b.position = (plant._pos[0] + dw[0], plant._pos[1] + dw[1])
-        b.velocity = (plant._vel[0] - w * dw[1], plant._vel[1] + w * dw[0])  # v of the new CoM point
-        b.mass = change.mass
-        b.moment = inertia
-        for shape in list(b.shapes):
-            plant.space.remove(shape)
-        shape = pymunk.Poly(b, [(float(x), float(y)) for x, y in self._outline - new_off])
-        shape.sensor = True
-        plant.space.add(shape)
-        plant.mass = change.mass
-        plant.inertia = inertia
-        plant._set_contacts(plant._r - d)
+        plant.change_load(change.mass, inertia, d, self._outline - new_off)
         self._offset = new_off
-        plant._refresh()
 
 
 __all__ = ["Effects"]

@@ -139,7 +139,7 @@ class Plant:
         space.add(body, shape)
         self.space = space
         self.body = body
-        self._refresh()
+        self.refresh()
         self.effects = Effects.build(scenario, _outline_about_centroid(scenario))
         if self.effects is not None:
             self.effects.start(self)
@@ -163,8 +163,9 @@ class Plant:
         red[1::3, 6] = perp[:, 1]
         self._reduce = red
 
-    def _refresh(self) -> None:
-        """Snapshot the body state once per tick (each pymunk property read crosses the C boundary)."""
+    def refresh(self) -> None:
+        """Snapshot the body state once per tick (each pymunk property read crosses the C boundary);
+        whoever moves the body outside :meth:`apply_and_step` calls it."""
         b = self.body
         self._pos = tuple(b.position)
         self._vel = tuple(b.velocity)
@@ -173,7 +174,39 @@ class Plant:
         self._c = math.cos(a)
         self._s = math.sin(a)
 
-    def _velocities(self) -> np.ndarray:
+    @property
+    def com_velocity(self) -> Vec2:
+        """v_C, world frame, at the last snapshot."""
+        return self._vel
+
+    @property
+    def angular_velocity(self) -> float:
+        """omega at the last snapshot."""
+        return self._omega
+
+    def change_load(self, mass: float, inertia: float, com_shift: np.ndarray, outline_about_com: np.ndarray) -> None:
+        """The load's mass, inertia (about its new CoM) and CoM move by ``com_shift`` (body frame); the
+        contact points stay on the body and every body point keeps its velocity. ``outline_about_com``
+        is the load's outline about the new CoM (body frame)."""
+        b = self.body
+        c, s = self._c, self._s
+        dw = (c * com_shift[0] - s * com_shift[1], s * com_shift[0] + c * com_shift[1])  # world frame
+        w = self._omega
+        b.position = (self._pos[0] + dw[0], self._pos[1] + dw[1])
+        b.velocity = (self._vel[0] - w * dw[1], self._vel[1] + w * dw[0])  # v of the new CoM point
+        b.mass = mass
+        b.moment = inertia
+        for shape in list(b.shapes):
+            self.space.remove(shape)
+        shape = pymunk.Poly(b, [(float(x), float(y)) for x, y in outline_about_com])
+        shape.sensor = True
+        self.space.add(shape)
+        self.mass = mass
+        self.inertia = inertia
+        self._set_contacts(self._r - com_shift)
+        self.refresh()
+
+    def contact_velocities(self) -> np.ndarray:
         """v_Ci = v_C + omega R r_i^perp (= v_C + omega (p_Ci - p_C)^perp, perp = +90 deg rotation)."""
         c, s, w = self._c, self._s, self._omega
         vx, vy = self._vel
@@ -182,13 +215,13 @@ class Plant:
 
     def velocities(self) -> list[Vec2]:
         """True world-frame velocity of every contact point now."""
-        return list(map(tuple, self._velocities().tolist()))
+        return list(map(tuple, self.contact_velocities().tolist()))
 
     def measure(self, rng: np.random.Generator) -> list[Vec2]:
         """velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call (+ sensor effects)."""
         if self.effects is not None:
             return self.effects.measure(self, rng)
-        noisy = self._velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
+        noisy = self.contact_velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
         return list(map(tuple, noisy.tolist()))
 
     def apply_and_step(self, wrenches: Sequence[tuple[float, float, float]]) -> None:
@@ -222,7 +255,7 @@ class Plant:
         b.torque = torque
         self.space.step(self.dt)
         self.tick += 1
-        self._refresh()
+        self.refresh()
         if effects is not None:
             effects.after_step(self)
 

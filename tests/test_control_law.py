@@ -102,18 +102,18 @@ def test_bad_laws_are_named_with_what_is_wrong(tmp_path):
     sc = load_scenario("quick", [*SHORT, 'control.law="missing.py:make"'])
     assert sc.control.law == f"{Path.cwd() / 'missing.py'}:make"  # a --set path is from the working directory
     with pytest.raises(ControlLawError, match="no such file"):
-        build_law(sc, 0)
+        build_law(sc.agent_view(0))
     with pytest.raises(ControlLawError, match="has no Nope"):
-        build_law(load_scenario("quick", [*SHORT, 'control.law="agents.laws:Nope"']), 0)
+        build_law((load_scenario("quick", [*SHORT, 'control.law="agents.laws:Nope"'])).agent_view(0))
     with pytest.raises(ControlLawError, match="cannot import no_such_module"):
-        build_law(load_scenario("quick", [*SHORT, 'control.law="no_such_module:f"']), 0)
+        build_law((load_scenario("quick", [*SHORT, 'control.law="no_such_module:f"'])).agent_view(0))
     with pytest.raises(ControlLawError, match=r"unexpected keyword argument 'vref'.*law_params"):
-        build_law(load_scenario("quick", [*SHORT, *TRACK[:1], "control.law_params={vref=1}"]), 0)
+        build_law((load_scenario("quick", [*SHORT, *TRACK[:1], "control.law_params={vref=1}"])).agent_view(0))
     with pytest.raises(ControlLawError, match="k_v must be >= 0"):
-        build_law(load_scenario("quick", [*SHORT, *TRACK[:1], "control.law_params={k_v=-1}"]), 0)
+        build_law((load_scenario("quick", [*SHORT, *TRACK[:1], "control.law_params={k_v=-1}"])).agent_view(0))
     (tmp_path / "broken.py").write_text("def make(setup):\n    return 1 / 0\n")
     with pytest.raises(ControlLawError, match="ZeroDivisionError"):
-        build_law(load_scenario("quick", [*SHORT, f'control.law="{tmp_path / "broken.py"}:make"']), 0)
+        build_law((load_scenario("quick", [*SHORT, f'control.law="{tmp_path / "broken.py"}:make"'])).agent_view(0))
     for bad, why in (((1.0, 2.0), "three numbers"), ((1.0, "x", 0.0), "three numbers"), (None, "three numbers"),
                      ((1.0, math.nan, 0.0), "not finite")):
         with pytest.raises(ControlLawError, match=f"at tick 7: .*{why}"):
@@ -128,7 +128,7 @@ def test_a_law_file_next_to_the_scenario_is_found_from_anywhere(tmp_path, monkey
     monkeypatch.chdir(ROOT)
     sc = load_scenario(tmp_path / "sc.toml", SHORT)
     assert sc.control.law == f"{tmp_path / 'laws.py'}:make"
-    law = build_law(sc, 2)
+    law = build_law(sc.agent_view(2))
     x = LawInput()
     x.stage = "done"
     x.t = 0.0
@@ -233,7 +233,7 @@ def test_law_references_and_params_survive_the_run_toml(tmp_path):
     again = load_scenario(tmp_path / "run.toml")
     assert again.control == sc.control
     with pytest.raises(ControlLawError, match="unexpected keyword argument 'opts'"):
-        build_law(again, 0)  # make() takes push only: the error names the parameter
+        build_law(again.agent_view(0))  # make() takes push only: the error names the parameter
     for bad, why in (('{"a.b" = 1}', "not a plain name"), ("{x = nan}", "not a finite number"),
                      ("{d = 1979-05-27}", "date values are not supported")):
         with pytest.raises(ScenarioError, match=why):

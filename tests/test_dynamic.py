@@ -395,7 +395,7 @@ def _own_masses_at_the_end_of_the_m_stage(sc) -> tuple[list[float], list[int]]:
     from coload.runs.team import team_ticks
 
     plant = Plant(sc)
-    agents = [build_agent(sc, i) for i in range(sc.n)]
+    agents = [build_agent(sc.agent_view(i)) for i in range(sc.n)]
     for _ in team_ticks(sc, plant, agents):
         if agents[0]._dyn.stage == D.M_AVERAGE:
             break

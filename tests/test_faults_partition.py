@@ -104,4 +104,4 @@ def test_inproc_run_counts_and_records_the_partition(tmp_path):
         ("partition_start", 50), ("partition_end", 100), ("partition_start", 150)]
     assert summary["events"] == partition_events(sc)
     assert json.loads((tmp_path / "summary.json").read_text())["events"] == summary["events"]
-    assert set(build_in_links(sc, 2)) == {1, 3}
+    assert set(build_in_links(sc.agent_view(2))) == {1, 3}

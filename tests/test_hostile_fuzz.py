@@ -17,11 +17,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from agents.daemon import AgentDaemon
+from coload.rundir.recorder import Recorder
 from config.loader import load_scenario
 from net import keys
 from net.memory import MemoryBus, MemoryTransport
 from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
 from net.schema import encode
+from net.vocabulary import ESTIMATE_NAMES
 from simulator.daemon import SimDaemon
 from tests.conftest import SCENARIOS
 
@@ -111,7 +113,7 @@ def test_agent_handlers_never_raise_and_always_count(loop, batch):
     async def go() -> None:
         bus = MemoryBus(loop)
         transport = MemoryTransport(bus, loop)
-        daemon = AgentDaemon(SC, 1, transport, RUN)  # neighbours 0 and 2
+        daemon = AgentDaemon(SC.agent_view(1), transport, RUN)  # neighbours 0 and 2
         daemon.start()
         try:
             handlers = {
@@ -144,7 +146,7 @@ def test_sim_handlers_never_raise_and_always_count(loop, tmp_path_factory, batch
     async def go() -> None:
         bus = MemoryBus(loop)
         transport = MemoryTransport(bus, loop)
-        sim = SimDaemon(SC, transport, RUN, tmp_path_factory.mktemp("sim"))
+        sim = SimDaemon(SC, transport, RUN, Recorder(tmp_path_factory.mktemp("sim"), SC, ESTIMATE_NAMES))
         sim.tick = 50
         handlers = {"wrench": sim._on_wrench, "estimate": sim._on_estimate, "report": sim._on_report}
         try:
@@ -178,7 +180,7 @@ def test_realtime_a_forged_measurement_far_ahead_does_not_silence_the_agent():
     async def scene():
         bus = MemoryBus()
         agent_t, sim_t = MemoryTransport(bus), MemoryTransport(bus)
-        agent = AgentDaemon(sc, 0, agent_t, RUN)
+        agent = AgentDaemon(sc.agent_view(0), agent_t, RUN)
         agent.start()
         try:
             # one forgery far ahead, then a burst of forgeries each within the slack of the one before

@@ -121,7 +121,7 @@ def test_augmented_state_message_passes_the_wire_schema():
     from net.schema import decode, encode
 
     sc = load_scenario(FRICTION)
-    agent = build_agent(sc, 1)
+    agent = build_agent(sc.agent_view(1))
     res = None
     for k in range(3):
         res = agent.step(k, 0.1, -0.2, [])

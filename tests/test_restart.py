@@ -26,7 +26,7 @@ async def _run(tmp_path):
     loop = asyncio.get_running_loop()
     bus, run = MemoryBus(), "restart"
     transports = {i: MemoryTransport(bus, loop) for i in range(sc.n)}
-    tasks = {i: asyncio.ensure_future(AgentDaemon(sc, i, transports[i], run).run()) for i in range(sc.n)}
+    tasks = {i: asyncio.ensure_future(AgentDaemon(sc.agent_view(i), transports[i], run).run()) for i in range(sc.n)}
     observer = MemoryTransport(bus, loop)
     reached: dict[int, asyncio.Future] = {300: loop.create_future(), 600: loop.create_future()}
 
@@ -45,7 +45,7 @@ async def _run(tmp_path):
         transports[CRASHED].close()
         await asyncio.wait_for(reached[600], 60)  # the run goes on without it
         transports[CRASHED] = MemoryTransport(bus, loop)
-        tasks[CRASHED] = asyncio.ensure_future(AgentDaemon(sc, CRASHED, transports[CRASHED], run).run())
+        tasks[CRASHED] = asyncio.ensure_future(AgentDaemon(sc.agent_view(CRASHED), transports[CRASHED], run).run())
         summary = await asyncio.wait_for(sim, 120)
         reports = await asyncio.wait_for(asyncio.gather(*tasks.values()), 30)
     finally:
@@ -77,7 +77,7 @@ async def _sim_dies(tmp_path):
     loop = asyncio.get_running_loop()
     bus, run = MemoryBus(), "simdies"
     transports = {i: MemoryTransport(bus, loop) for i in range(sc.n)}
-    daemons = {i: AgentDaemon(sc, i, transports[i], run) for i in range(sc.n)}
+    daemons = {i: AgentDaemon(sc.agent_view(i), transports[i], run) for i in range(sc.n)}
     tasks = {i: asyncio.ensure_future(d.run()) for i, d in daemons.items()}
     observer = MemoryTransport(bus, loop)
     reached = loop.create_future()
@@ -119,7 +119,7 @@ async def _core_fails(tmp_path):
     loop = asyncio.get_running_loop()
     bus, run = MemoryBus(), "fails"
     transports = {i: MemoryTransport(bus, loop) for i in range(sc.n)}
-    daemons = {i: AgentDaemon(sc, i, transports[i], run) for i in range(sc.n)}
+    daemons = {i: AgentDaemon(sc.agent_view(i), transports[i], run) for i in range(sc.n)}
     class Failing:  # the agent's core, with a bug at tick 200
         def __init__(self, core):
             self.core = core

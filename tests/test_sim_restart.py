@@ -61,7 +61,7 @@ async def _memory_run(tmp_path, sc, kill_at: int):
     loop = asyncio.get_running_loop()
     bus, run, run_dir = MemoryBus(), "simrestart", tmp_path / "run"
     agent_ts = [MemoryTransport(bus, loop) for _ in range(sc.n)]
-    agents = [asyncio.ensure_future(AgentDaemon(sc, i, agent_ts[i], run).run()) for i in range(sc.n)]
+    agents = [asyncio.ensure_future(AgentDaemon(sc.agent_view(i), agent_ts[i], run).run()) for i in range(sc.n)]
     reached = loop.create_future()
     observer = MemoryTransport(bus, loop)
 

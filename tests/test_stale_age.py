@@ -22,7 +22,7 @@ async def _drive(max_age_s: float):
     loop = asyncio.get_running_loop()
     bus, run = MemoryBus(), "age"
     t_agent, t_test = MemoryTransport(bus, loop), MemoryTransport(bus, loop)
-    agent = AgentDaemon(sc, ME, t_agent, run)
+    agent = AgentDaemon(sc.agent_view(ME), t_agent, run)
     seen: dict[int, list[tuple[int, int]]] = {}  # tick stepped -> (sender, tick) of the inbox it used
     stepped: dict[int, asyncio.Future] = {}
 
@@ -40,7 +40,7 @@ async def _drive(max_age_s: float):
     agent.core = Spy(agent.core)
     agent.start()
     # the neighbours' genuine states, from their own cores
-    cores = {j: build_agent(sc, j) for j in (1, 3)}
+    cores = {j: build_agent(sc.agent_view(j)) for j in (1, 3)}
     states = {j: [cores[j].step(k, 0.0, 0.0, []).state for k in range(40)] for j in (1, 3)}
 
     async def meas(k: int) -> None:

@@ -1,4 +1,4 @@
-"""``coload arms run``: paper-000 agents that are two-link arms, against velocity-measuring agents (issue 7).
+"""``coload arms run``: paper-000 agents that are two-link arms, against velocity-measuring agents.
 
 Two in-process runs on the same load, seed, arms, motion plan and link model:
 
@@ -99,7 +99,7 @@ def run_arms(scenario: Scenario, run_dir: Path | None, sensing: str = "observer"
     plant = ap.plant
     vel_rng = sensor_rng(scenario.seed)
     noise_rng = arm_rng(scenario.seed)
-    agents = [build_agent(agent_scenario(scenario, sensing), i) for i in range(n)]
+    agents = [build_agent(agent_scenario(scenario, sensing).agent_view(i)) for i in range(n)]
 
     q_true = ap.angles()
     q_meas = q_true + noise_rng.normal(0.0, spec.encoder_sigma, size=(n, 2))

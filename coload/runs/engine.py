@@ -46,7 +46,7 @@ class LinkNetwork:
         # links[sender][receiver]: the model at the receiving end of sender -> receiver
         self.links: list[dict[int, Any]] = [{} for _ in range(n)]
         for receiver in range(n):
-            for sender, model in build_in_links(scenario, receiver, mode).items():
+            for sender, model in build_in_links(scenario.agent_view(receiver), mode).items():
                 self.links[sender][receiver] = model
         self.stats = {(s, r): LinkStats() for s in range(n) for r in self.links[s]}
         self.lines = [DelayLine() for _ in range(n)]
@@ -118,7 +118,7 @@ def run_inproc(
     pace = (mode == "realtime") if pace is None else pace
     plant = Plant(scenario)
     rng = sensor_rng(scenario.seed)
-    agents = [build_agent(scenario, i) for i in range(n)]
+    agents = [build_agent(scenario.agent_view(i)) for i in range(n)]
     neighbours = scenario.neighbours()
     net = LinkNetwork(scenario, mode)
     links = net.links

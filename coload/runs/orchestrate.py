@@ -140,7 +140,7 @@ def _on_sigterm(signum: int, frame: object) -> None:
 
 def check_terminated() -> None:
     """Raise :class:`Terminated` if a SIGTERM came: called by the supervision loops, because the
-    raise of the handler can land inside a zenoh call that swallows it (measured: 1 run in ~10)."""
+    raise of the handler can land inside a zenoh call that swallows it."""
     if _terminated:
         raise Terminated
 
@@ -372,7 +372,7 @@ async def run_daemons_in_memory(scenario: Scenario, run_dir: Path) -> dict[str, 
     bus = MemoryBus()
     run = run_name_for(run_dir)
     transports = [MemoryTransport(bus, loop) for _ in range(scenario.n + 1)]
-    agents = [AgentDaemon(scenario, i, transports[i], run) for i in range(scenario.n)]
+    agents = [AgentDaemon(scenario.agent_view(i), transports[i], run) for i in range(scenario.n)]
     agent_tasks = [asyncio.ensure_future(a.run()) for a in agents]
     try:
         recorder = Recorder(run_dir, scenario, ESTIMATE_NAMES)
