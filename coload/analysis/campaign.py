@@ -51,7 +51,7 @@ import numpy as np
 from config.loader import dump_scenario, scenario_from_dict
 from config.scenario import Scenario
 
-DEFAULT_BASE = Path(__file__).resolve().parent.parent / "config" / "scenarios" / "paper-fig4.toml"
+DEFAULT_BASE = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "paper-fig4.toml"
 """The base scenario of the paper's campaign: paper-fig4 (n = 10, 4.0 m x 2.2 m, line graph)."""
 
 PAPER_N = (5, 8, 11, 14, 17, 20)
