@@ -8,6 +8,7 @@ import json
 import os
 import signal
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -103,6 +104,56 @@ def test_executor_addresses():
     pytest.importorskip("distributed")
     assert sweep.parse_executor("dask://10.0.0.7:8786") == "tcp://10.0.0.7:8786"
     assert sweep.parse_executor("dask://node-3.cluster:8786") == "tcp://node-3.cluster:8786"
+
+
+# --- the sweep loop -----------------------------------------------------------------------------
+
+
+class _ThreadPool(sweep.Pool):
+    """A pool of ``slots`` threads that counts the tasks handed to it and not yet seen finished."""
+
+    def __init__(self, slots: int) -> None:
+        self.slots, self.outstanding, self.most = slots, 0, 0
+        self._threads = ThreadPoolExecutor(max(1, slots))
+        self.executor = self  # type: ignore[assignment]
+
+    def submit(self, fn, *args):
+        self.outstanding += 1
+        self.most = max(self.most, self.outstanding)
+        return self._threads.submit(fn, *args)
+
+    def status(self) -> tuple[int, str]:
+        return self.slots, f"{self.slots} threads"
+
+    def close(self) -> None:
+        self._threads.shutdown()
+
+
+def _half(x: int) -> int:
+    if x % 7 == 3:
+        raise ValueError(f"odd {x}")
+    return x // 2
+
+
+@settings(max_examples=30, deadline=None)
+@given(items=st.lists(st.integers(0, 1000), max_size=40), slots=st.integers(0, 3))
+def test_sweep_bounds_the_tasks_in_flight_and_delivers_each_once(items, slots):
+    pool = _ThreadPool(slots)
+    got: list[tuple[int, object]] = []
+
+    def done(item, result):
+        pool.outstanding -= 1
+        try:
+            got.append((item, result()))
+        except ValueError as exc:  # a task's error reaches the driver, the sweep goes on
+            got.append((item, str(exc)))
+
+    notes: list[str] = []
+    sweep.sweep(pool, _half, items, lambda x: (x,), done, notes.append)
+    pool.close()
+    assert sorted(got) == sorted((x, f"odd {x}" if x % 7 == 3 else x // 2) for x in items)
+    assert pool.most <= max(1, sweep.IN_FLIGHT_PER_SLOT * slots)  # 0 workers yet: one task waits
+    assert set(notes) <= {f"{slots} threads"} and (notes or not items)
 
 
 # --- a run directory as data ---------------------------------------------------------------------

@@ -138,6 +138,9 @@ def open_pool(executor: str, jobs: int, tasks: int) -> Iterator[Pool]:
     pool.close()
 
 
+_END: Any = object()
+
+
 def sweep(
     pool: Pool,
     task: Callable[..., Any],
@@ -173,9 +176,6 @@ def sweep(
         finished, _ = wait(pending, timeout=POLL_S, return_when=FIRST_COMPLETED)
         for fut in finished:
             done(pending.pop(fut), fut.result)
-
-
-_END: Any = object()
 
 
 # --- a directory as data ------------------------------------------------------------------------
