@@ -195,6 +195,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, metavar="S", help="simulated time per run (s; default: the base's)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, metavar="J",
                    help="worker processes (default: the number of CPUs, %(default)s)")
+    p.add_argument("--executor", default="local", metavar="WHERE",
+                   help="where the runs execute: 'local' (--jobs processes on this machine, the default) or "
+                        "dask://HOST:PORT, the workers of a running Dask scheduler (needs the extra "
+                        "coload[cluster]; --jobs is then ignored; docs/campaign.md)")
     p.add_argument("--seed0", type=int, default=0, metavar="N",
                    help="campaign seed: each run's seed derives from (N, n, sigma, run index) (default: %(default)s)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -506,6 +510,7 @@ def cmd_hinf(args: argparse.Namespace) -> int:
 def cmd_campaign(args: argparse.Namespace) -> int:
     from coload.analysis import campaign as cp
     from coload.runs.orchestrate import ProgressBar
+    from coload.runs.sweep import ExecutorError, parse_executor
 
     overrides = list(args.overrides) + ([f"duration={args.duration}"] if args.duration is not None else [])
     overrides += ["record.batch_fit=true"] if args.batch_fit else []
@@ -522,6 +527,7 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         sigmas = cp.parse_list(args.sigmas, float, "--sigma")
         if args.jobs < 1:
             raise ValueError(f"--jobs: must be at least 1 (got {args.jobs})")
+        parse_executor(args.executor)
         runs = cp.plan(base, args.out, ns, sigmas, args.runs_per_cell, args.seed0)
     except ValueError as exc:
         print(f"coload campaign: {exc}", file=sys.stderr)
@@ -531,8 +537,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
         print(f"{len(runs)} runs ({len(ns)} n x {len(sigmas)} sigma x {args.runs_per_cell}), "
               f"{runs[0].scenario.duration:g} s simulated each")
         return 0
-    result = cp.run_campaign(runs, args.out, jobs=args.jobs, progress=ProgressBar("campaign", args.quiet, unit="run"),
-                             keep_data=args.keep_data)
+    try:
+        result = cp.run_campaign(runs, args.out, jobs=args.jobs, keep_data=args.keep_data, executor=args.executor,
+                                 progress=ProgressBar("campaign", args.quiet, unit="run"))
+    except ExecutorError as exc:  # the executor cannot be used: nothing was run or written
+        print(f"coload campaign: {exc}", file=sys.stderr)
+        return 2
     print(cp.cell_table(result.rows))
     rate = f", {result.runs_per_min:.1f} runs/min" if result.runs_per_min else ""
     print(f"{result.planned} runs planned: {result.reused} finished before, {result.ran} run now, "

@@ -36,12 +36,10 @@ import csv
 import io
 import json
 import math
-import multiprocessing
 import os
-import shutil
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,6 +48,7 @@ import numpy as np
 
 from config.loader import dump_scenario, scenario_from_dict
 from config.scenario import Scenario
+from coload.runs.sweep import LOCAL, open_pool, pack_dir, sweep, unpack_dir
 
 DEFAULT_BASE = Path(__file__).resolve().parents[2] / "config" / "scenarios" / "paper-fig4.toml"
 """The base scenario of the paper's campaign: paper-fig4 (n = 10, 4.0 m x 2.2 m, line graph)."""
@@ -193,20 +192,27 @@ def run_name(n: int, sigma: float, k: int) -> str:
 
 @dataclass(frozen=True)
 class PlannedRun:
-    """One run of the grid: its grid point, seed, resolved scenario and directory."""
+    """One run of the grid: its grid point, seed and directory; its scenario is derived from the base
+    on demand, so a plan of thousands of runs holds one scenario, not thousands."""
 
     n: int
     sigma: float
     k: int
     seed: int
-    scenario: Scenario
+    base: Scenario
     run_dir: Path
+
+    @property
+    def scenario(self) -> Scenario:
+        """The resolved scenario of this run (:func:`campaign_scenario`)."""
+        return campaign_scenario(self.base, self.n, self.sigma, self.seed)
 
 
 def plan(
     base: Scenario, out: Path, ns: Sequence[int], sigmas: Sequence[float], runs_per_cell: int, seed0: int = 0
 ) -> list[PlannedRun]:
-    """Every run of the grid, cell by cell (n outer, sigma inner), ``runs_per_cell`` per cell."""
+    """Every run of the grid, cell by cell (n outer, sigma inner), ``runs_per_cell`` per cell.
+    Raises ValueError for a grid the base cannot be resized to."""
     if runs_per_cell < 1:
         raise ValueError(f"campaign: runs per cell must be at least 1 (got {runs_per_cell})")
     if len(set(ns)) != len(ns) or len(set(sigmas)) != len(sigmas):
@@ -214,10 +220,10 @@ def plan(
     runs = []
     for n in ns:
         for sigma in sigmas:
+            campaign_scenario(base, n, sigma, 0)  # the cell's errors now, not when its runs are due
             for k in range(runs_per_cell):
                 seed = run_seed(seed0, n, sigma, k)
-                scn = campaign_scenario(base, n, sigma, seed)
-                runs.append(PlannedRun(n, float(sigma), k, seed, scn, Path(out) / RUNS_DIR / run_name(n, sigma, k)))
+                runs.append(PlannedRun(n, float(sigma), k, seed, base, Path(out) / RUNS_DIR / run_name(n, sigma, k)))
     return runs
 
 
@@ -278,18 +284,16 @@ BULK_FILES = ("samples.csv", "pairs.csv", "truth.csv", "estimates.csv")
 is reproduced bit for bit by ``coload run OUT/runs/NAME/run.toml --engine inproc``."""
 
 
-def _run_one(scenario: Scenario, run_dir: str, keep_data: bool = False) -> dict[str, Any]:
-    """Worker: one in-process run from a clean directory (a half-written one is removed first)."""
+def run_task(scenario: Scenario, keep_data: bool = False) -> dict[str, bytes]:
+    """Worker: one in-process run in a private temporary directory; returns the run directory as
+    data (:func:`coload.runs.sweep.pack_dir`, without :data:`BULK_FILES` unless ``keep_data``), for
+    the driver to write: a worker needs no filesystem shared with the driver."""
     from coload.runs.engine import run_inproc
 
-    path = Path(run_dir)
-    if path.exists():
-        shutil.rmtree(path)
-    summary = run_inproc(scenario, path)
-    if not keep_data:  # after summary.json: a kill in between leaves a finished run
-        for name in BULK_FILES:
-            (path / name).unlink(missing_ok=True)
-    return summary
+    with tempfile.TemporaryDirectory(prefix="coload-campaign-") as tmp:
+        path = Path(tmp) / "run"
+        run_inproc(scenario, path)
+        return pack_dir(path, skip=() if keep_data else BULK_FILES)
 
 
 def _scalar(x: Any) -> float | None:
@@ -325,23 +329,64 @@ def row_of(run: PlannedRun, summary: dict[str, Any]) -> dict[str, Any]:
 
 def columns_of(rows: Iterable[dict[str, Any]]) -> list[str]:
     """Fixed columns first, then any other error keys the runs have (sorted), then the tail."""
+    return _columns({k for r in rows for k in r})
+
+
+def _columns(keys: set[str]) -> list[str]:
     fixed = (*ID_COLUMNS, *ERROR_COLUMNS, *CENTRAL_COLUMNS, *TAIL_COLUMNS)
-    extra = sorted({k for r in rows for k in r} - set(fixed))
+    extra = sorted(keys - set(fixed))
     return [*ID_COLUMNS, *ERROR_COLUMNS, *CENTRAL_COLUMNS, *extra, *TAIL_COLUMNS]
 
 
-def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
-    """Writes the table atomically (a temporary file renamed over the old one): never half a table."""
-    rows = sorted(rows, key=lambda r: (r["n"], r["sigma"], r["run"]))
-    cols = columns_of(rows)
+class Table:
+    """campaign.csv of a running campaign: its rows by run name, each formatted once (again only
+    when a run brings a new column), the file rewritten whole after each run at the cost of joining
+    the lines, not of formatting every number of every row again."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.rows: dict[str, dict[str, Any]] = {}
+        self._keys: set[str] = set()
+        self._cols: list[str] = []
+        self._lines: dict[str, str] = {}
+
+    def put(self, name: str, row: dict[str, Any]) -> None:
+        self.rows[name] = row
+        self._lines.pop(name, None)
+        self._keys.update(row)  # a new column reformats every line at the next write
+
+    def write(self) -> None:
+        """Writes the table atomically (a temporary file renamed over the old one): never half a table."""
+        cols = _columns(self._keys)
+        if cols != self._cols:
+            self._cols, self._lines = cols, {}
+        order = sorted(self.rows.items(), key=lambda item: (item[1]["n"], item[1]["sigma"], item[1]["run"]))
+        text = _line(cols) + "".join(self._line_of(name, cols) for name, _ in order)
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, self.path)
+
+    def _line_of(self, name: str, cols: list[str]) -> str:
+        line = self._lines.get(name)
+        if line is None:
+            r = self.rows[name]
+            line = self._lines[name] = _line(["" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float)
+                                                                           else r[c]) for c in cols])
+        return line
+
+
+def _line(cells: Sequence[Any]) -> str:
     buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(cols)
-    for r in rows:
-        w.writerow(["" if r.get(c) is None else (repr(r[c]) if isinstance(r[c], float) else r[c]) for c in cols])
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(buf.getvalue(), encoding="utf-8")
-    os.replace(tmp, path)
+    csv.writer(buf, lineterminator="\n").writerow(cells)
+    return buf.getvalue()
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    """Writes ``rows`` as the table at ``path``, sorted by (n, sigma, run), atomically (:class:`Table`)."""
+    table = Table(path)
+    for i, r in enumerate(rows):
+        table.put(str(i), r)
+    table.write()
 
 
 def read_csv(path: Path) -> list[dict[str, Any]]:
@@ -415,22 +460,27 @@ def run_campaign(
     runs: Sequence[PlannedRun],
     out: Path,
     jobs: int | None = None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[..., None] | None = None,
     plots: bool = True,
     keep_data: bool = False,
+    executor: str = LOCAL,
+    task: Callable[[Scenario, bool], dict[str, bytes]] = run_task,
 ) -> CampaignResult:
-    """Runs what is not finished yet in ``jobs`` worker processes, run index by run index over the
-    cells; writes the CSV and the plots.
+    """Runs what is not finished yet, run index by run index over the cells, on ``executor``
+    (``"local"``: ``jobs`` worker processes, ``jobs = 1`` this process; ``"dask://HOST:PORT"``: the
+    workers of that Dask scheduler, see :mod:`coload.runs.sweep`); writes every run directory, the CSV and
+    the plots here, in the driver.
 
-    ``jobs = 1`` runs in this process (no pool). ``keep_data`` keeps each run's CSV tables
-    (otherwise only run.toml, summary.json and logs/ stay, see :data:`BULK_FILES`). A run that raises is reported in ``failed`` and
-    the others go on; its directory stays without a summary, so a later call retries it.
+    ``keep_data`` keeps each run's CSV tables (otherwise only run.toml, summary.json and logs/ stay, see
+    :data:`BULK_FILES`). A run that raises is reported in ``failed`` and the others go on; its directory
+    stays without a summary, so a later call retries it. ``progress(done, total, note)`` follows the
+    runs (``note``: the workers). ``task`` is the worker function (:func:`run_task`; benchmarks pass a
+    stand-in). Raises ValueError, with nothing written, if the executor cannot be used.
     """
     t0 = time.perf_counter()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     csv_path = out / CSV_NAME
-    rows: dict[str, dict[str, Any]] = {}
+    table = Table(csv_path)
     # the directory's table keeps the runs of other invocations (another grid subset) whose
     # directories are still there: a subset run on a campaign directory must not shrink its table
     planned = {r.run_dir.name for r in runs}
@@ -438,7 +488,7 @@ def run_campaign(
         for row in read_csv(csv_path):
             name = run_name(int(row["n"]), float(row["sigma"]), int(row["run"]))
             if name not in planned and (out / RUNS_DIR / name / "summary.json").is_file():
-                rows[name] = row
+                table.put(name, row)
     except (OSError, ValueError):
         pass  # no table yet, or an unreadable one: rebuilt from the planned runs
     todo: list[PlannedRun] = []
@@ -447,53 +497,44 @@ def run_campaign(
         if s is None:
             todo.append(r)
         else:
-            rows[r.run_dir.name] = row_of(r, s)
-    reused = len(rows.keys() & planned)
-    write_csv(csv_path, list(rows.values()))
+            table.put(r.run_dir.name, row_of(r, s))
+    reused = len(table.rows.keys() & planned)
     # run index first: an interrupted grid has (nearly) the same number of runs in every cell, so its
     # table and plots are those of a smaller grid, not of a few finished cells
     todo.sort(key=lambda r: r.k)
     failed: list[tuple[str, str]] = []
     done = 0
-    if progress is not None:
-        progress(0, len(todo))
+    note = ""
     segment = time.strftime("%Y-%m-%dT%H:%M:%S") + f"-{os.getpid()}"
 
-    def finish(r: PlannedRun, fut_result: Callable[[], dict[str, Any]]) -> None:
+    def show(text: str) -> None:
+        nonlocal note
+        note = text
+        if progress is not None:
+            progress(done, len(todo), note)
+
+    def finish(r: PlannedRun, files_of: Callable[[], dict[str, bytes]]) -> None:
         nonlocal done
         try:
-            rows[r.run_dir.name] = row_of(r, fut_result())
-            write_csv(csv_path, list(rows.values()))
+            files = files_of()
+            summary = json.loads(files["summary.json"])
+            unpack_dir(files, r.run_dir)
+            table.put(r.run_dir.name, row_of(r, summary))
+            table.write()
             with (out / LOG_NAME).open("a", encoding="utf-8") as log:
                 log.write(json.dumps({"segment": segment, "run": r.run_dir.name,
                                       "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
         except Exception as exc:  # noqa: BLE001  a failed run must not stop the campaign
             failed.append((r.run_dir.name, f"{type(exc).__name__}: {exc}"))
         done += 1
-        if progress is not None:
-            progress(done, len(todo))
+        show(note)
 
-    jobs = max(1, jobs or os.cpu_count() or 1)
-    if jobs == 1 or len(todo) <= 1:
-        for r in todo:
-            finish(r, lambda r=r: _run_one(r.scenario, str(r.run_dir), keep_data))
-    elif todo:
-        ctx = multiprocessing.get_context("spawn")  # no fork of a possibly threaded parent
-        with ProcessPoolExecutor(max_workers=min(jobs, len(todo)), mp_context=ctx) as pool:
-            pending: dict[Future, PlannedRun] = {pool.submit(_run_one, r.scenario, str(r.run_dir), keep_data): r
-                                             for r in todo}
-            try:
-                while pending:
-                    finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-                    for fut in finished:
-                        finish(pending.pop(fut), fut.result)
-            except BaseException:  # Ctrl-C, SIGTERM (coload.cli): the runs under way are dropped, not awaited
-                workers = list(getattr(pool, "_processes", {}).values())
-                pool.shutdown(wait=False, cancel_futures=True)
-                for proc in workers:
-                    proc.terminate()
-                raise
-    result = CampaignResult(rows=sorted(rows.values(), key=lambda r: (r["n"], r["sigma"], r["run"])),
+    with open_pool(executor, max(1, jobs or os.cpu_count() or 1), len(todo)) as pool:
+        out.mkdir(parents=True, exist_ok=True)
+        table.write()
+        show("")
+        sweep(pool, task, todo, lambda r: (r.scenario, keep_data), finish, show)
+    result = CampaignResult(rows=sorted(table.rows.values(), key=lambda r: (r["n"], r["sigma"], r["run"])),
                             planned=len(runs), reused=reused, ran=done - len(failed), failed=failed,
                             wall_s=time.perf_counter() - t0)
     result.total_wall_s, result.total_ran, _ = logged_wall(out / LOG_NAME)

@@ -34,23 +34,25 @@ class ProgressBar:
         self.t0 = time.perf_counter()
         self._last_decile = -1
 
-    def __call__(self, done: int, total: int) -> None:
+    def __call__(self, done: int, total: int, note: str = "") -> None:
+        """``note``: shown after the count (a campaign's workers)."""
         if self.quiet or total <= 0:
             return
+        note = f", {note}" if note else ""
         frac = done / total
         wall = time.perf_counter() - self.t0
         # remaining time at the pace so far: the number a user waiting on a long campaign wants
         eta = f", ~{wall * (total - done) / done:.0f}s left" if 0 < done < total else ""
         if self.tty:
             bar = "#" * int(30 * frac)
-            sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%  {self.unit} {done}/{total}  "
+            sys.stderr.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}%  {self.unit} {done}/{total}{note}  "
                              f"{wall:6.1f}s wall{eta}   ")
             if done >= total:
                 sys.stderr.write("\n")
             sys.stderr.flush()
         elif int(10 * frac) > self._last_decile:
             self._last_decile = int(10 * frac)
-            print(f"{self.label}: {100 * frac:3.0f}% ({self.unit} {done}/{total}, {wall:.1f}s wall{eta})",
+            print(f"{self.label}: {100 * frac:3.0f}% ({self.unit} {done}/{total}{note}, {wall:.1f}s wall{eta})",
                   file=sys.stderr, flush=True)
 
 
