@@ -13,6 +13,7 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
+from coload.extras import ExtraMissing, require
 from config.loader import ScenarioError, load_scenario
 
 EXAMPLES = """examples:
@@ -63,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--version", action="version", version=_version_line())
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run a scenario: router, simulator and agents as processes, or in-process",
@@ -237,7 +239,65 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", action="store_true",
                    help="draw RECORDING/diagnose.png: residual before/after and its autocorrelation with bounds")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+    p = sub.add_parser("export", help="write a run directory in a standard viewer's format (MCAP: Foxglove, Rerun)",
+                       description="Write a run directory as an MCAP file (JSON channels with Foxglove's schemas: "
+                                   "the load's transform, pose and scene, each agent's estimates, the truth, the "
+                                   "link statistics) for Foxglove or Rerun. Needs the viz extra: "
+                                   "pip install 'coload[viz]'. See docs/viewers.md.")
+    p.add_argument("run_dir", type=Path, help="a run directory")
+    p.add_argument("--mcap", nargs="?", const="", metavar="FILE",
+                   help="write an MCAP file (default FILE: RUN_DIR/run.mcap)")
+    _add_verbose_after_command(sub)
     return parser
+
+
+def _version_line() -> str:
+    from coload.provenance import commit, version
+
+    rev = commit()
+    return f"coload {version('coload')}" + (f" (commit {rev})" if rev else "")
+
+
+def _add_verbose_after_command(sub: argparse._SubParsersAction) -> None:
+    """``-v`` after the command too (``coload run X -v``), on every command and action; counted with any
+    given before it."""
+    for p in sub.choices.values():
+        p.add_argument("-v", "--verbose", action=_MoreVerbose, nargs=0, default=argparse.SUPPRESS,
+                       help="more log output (-vv for debug)")
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                _add_verbose_after_command(action)
+
+
+class _MoreVerbose(argparse.Action):
+    # a subcommand parses into a namespace of its own, copied over the top-level one afterwards: the count
+    # goes in a separate field that main() adds to the top-level -v
+    def __call__(self, parser, namespace, values, option_string=None):
+        namespace.verbose_after = getattr(namespace, "verbose_after", 0) + 1
+
+
+def writable(flag: str, path: Path) -> str | None:
+    """Why ``path`` (given as ``flag``) cannot be written, checked before any work; None if it can be."""
+    where = f"{flag} {path}: cannot write there"
+    if path.is_dir():
+        return f"{where}: it is a directory"
+    parent = path.parent
+    if not parent.is_dir():
+        return f"{where}: no directory {parent}"
+    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        return f"{where}: permission denied"
+    return None
+
+
+def _refuse_unwritable(command: str, *outputs: tuple[str, Path | None]) -> bool:
+    """Print the one line for the first output that cannot be written; True if there was one."""
+    for flag, path in outputs:
+        problem = writable(flag, path) if path is not None else None
+        if problem:
+            print(f"coload {command}: {problem}", file=sys.stderr)
+            return True
+    return False
 
 
 def _scenario(args: argparse.Namespace):
@@ -380,6 +440,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     if not args.run_dir.is_dir():
         print(f"coload report: {args.run_dir}: not a directory", file=sys.stderr)
         return 2
+    if _refuse_unwritable("report", ("--out", args.out)):
+        return 2
     try:
         path, table = make_report(args.run_dir, args.out)
     except ValueError as exc:  # RunFormatError; a recording without truth.csv/estimates.csv
@@ -422,6 +484,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         stderr_progress,
     )
 
+    if _refuse_unwritable("diagnose", ("--json", args.json)):
+        return 2
     try:
         result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress())
     except DiagnoseError as exc:
@@ -433,6 +497,30 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"json: {args.json}")
     if args.plot:
         print(f"plot: {plot_diagnosis(result, args.recording / 'diagnose.png')}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from coload.rundir.format import RunFormatError
+    from coload.viz.mcap_export import default_path, export_mcap
+
+    if args.mcap is None:
+        print("coload export: choose a format: --mcap [FILE]", file=sys.stderr)
+        return 2
+    if not args.run_dir.is_dir():
+        print(f"coload export: {args.run_dir}: not a directory", file=sys.stderr)
+        return 2
+    out = Path(args.mcap) if args.mcap else default_path(args.run_dir)
+    if _refuse_unwritable("export", ("--mcap", out)):
+        return 2
+    require("viz", "mcap")
+    try:
+        counts = export_mcap(args.run_dir, out)
+    except RunFormatError as exc:
+        print(f"coload export: {exc}", file=sys.stderr)
+        return 2
+    print(f"{sum(counts.values())} messages on {len(counts)} channels")
+    print(f"mcap: {out}")
     return 0
 
 
@@ -488,6 +576,9 @@ def cmd_hinf(args: argparse.Namespace) -> int:
 
     if args.hinf_command != "design":
         return cmd_hinf_runtime(args)
+    require("hinf", "cvxpy")
+    if _refuse_unwritable("hinf design", ("--out", args.out)):
+        return 2
     try:
         result = design_cli(args.spec, args.out)
     except (SpecError, HinfDesignError) as exc:
@@ -520,6 +611,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         ns = cp.parse_list(args.ns, int, "--n")
         sigmas = cp.parse_list(args.sigmas, float, "--sigma")
+        negative = [x for x in sigmas if not x >= 0]
+        if negative:
+            raise ValueError(f"--sigma: a noise level must be >= 0 m/s (got {negative[0]:g})")
         if args.jobs < 1:
             raise ValueError(f"--jobs: must be at least 1 (got {args.jobs})")
         runs = cp.plan(base, args.out, ns, sigmas, args.runs_per_cell, args.seed0)
@@ -574,6 +668,7 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
     from hinf.design import HinfDesignError
 
     if args.hinf_command == "run":
+        require("hinf", "cvxpy")
         try:
             s = run_cli(args.spec, args.out, args.engine, args.mode, args.overrides, args.quiet, args.verbose)
         except (SpecError, HinfDesignError) as exc:
@@ -661,7 +756,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
             "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
-            "arms": cmd_arms, "diagnose": cmd_diagnose}
+            "arms": cmd_arms, "diagnose": cmd_diagnose, "export": cmd_export}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -678,6 +773,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         die_with_parent(int(parent))
     args = build_parser().parse_args(argv)
+    args.verbose += getattr(args, "verbose_after", 0)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     daemon = args.command in ("sim", "agent", "router") or getattr(args, "hinf_command", None) in ("sim", "agent")
     if daemon:
@@ -692,6 +788,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_terminated()  # a SIGTERM that a library call swallowed: still a stop
         return code
     except ScenarioError as exc:
+        print(f"coload {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except ExtraMissing as exc:
         print(f"coload {args.command}: {exc}", file=sys.stderr)
         return 2
     except ControlLawError as exc:  # the user's law failed while running (it was built and checked before)
