@@ -209,7 +209,7 @@ def _load_fast(path: Path, required: Sequence[str]) -> _Csv | None:
     cut = ()
     if text and text[-1] not in "\r\n":
         end = text.rfind("\n") + 1
-        cut = (_cut_warning(path, text.count("\n", 0, end) + 1),)
+        cut = (_cut_warning(path, text.count("\n", 0, end) + 1, text[end:].count(",") + 1, len(header)),)
         text = text[:end]
     if ",," in text or ",\n" in text or ",\r" in text:  # empty cells: no value, read as NaN
         text = text.replace(",,", ",nan,").replace(",,", ",nan,").replace(",\r", ",nan\r").replace(",\n", ",nan\n")
@@ -226,10 +226,10 @@ def _load_fast(path: Path, required: Sequence[str]) -> _Csv | None:
     return _Csv(path, header, matrix=matrix, warnings=cut)
 
 
-def _cut_warning(path: Path, line: int) -> str:
+def _cut_warning(path: Path, line: int, fields: int, expected: int) -> str:
     # a recorder killed mid-write leaves its last line without a newline, perhaps cut mid-number: the
     # whole lines are the recording, so they are read and the cut one is named, not made fatal
-    return f"{path}:{line}: last line cut off (no newline at the end of the file): ignored"
+    return f"{path}:{line}: last line cut off ({fields} of {expected} fields, no newline): ignored"
 
 
 _COMPRESSED = ((b"\x1f\x8b", "gzip", "gunzip -c FILE >"), (b"BZh", "bzip2", "bunzip2 -c FILE >"),
@@ -317,7 +317,8 @@ def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
         raise wrong_count(*short)
     warned: tuple[str, ...] = ()
     if cut and (short is not None or rows):
-        warned = (_cut_warning(path, short[0] if short is not None else lines[-1]),)
+        line, fields = short if short is not None else (lines[-1], len(rows[-1]))
+        warned = (_cut_warning(path, line, fields, len(header)),)
         if short is None:  # all its fields, but the last may be cut mid-number
             rows.pop()
             lines.pop()

@@ -102,7 +102,8 @@ def test_a_samples_csv_without_its_final_newline_loses_its_last_line_and_says_so
     whole = (run_dir / rf.SAMPLES_CSV).read_bytes()
     rec = _recording(run_dir, tmp_path / "cut", whole[:-cut])
     lines = whole.decode().splitlines()
-    want = f"{rec / rf.SAMPLES_CSV}:{len(lines)}: last line cut off (no newline at the end of the file): ignored"
+    fields = whole[:-cut].decode().splitlines()[-1].count(",") + 1
+    want = f"{rec / rf.SAMPLES_CSV}:{len(lines)}: last line cut off ({fields} of 7 fields, no newline): ignored"
     _, n, _, _, warns = read_recording(rec)
     assert warns == [want]
     table = rf.read_agent_csv(rec / rf.SAMPLES_CSV, rf.SAMPLES_HEADER, n)
@@ -119,6 +120,6 @@ def test_the_cut_line_warning_reaches_the_diagnosis_json(run_dir, tmp_path):
     proc = coload("diagnose", str(rec), "--quiet", "--json", str(rec / "d.json"))
     assert proc.returncode == 0, proc.stderr
     n_lines = whole.decode().count("\n")
-    want = f"{rec / rf.SAMPLES_CSV}:{n_lines}: last line cut off (no newline at the end of the file): ignored"
+    want = f"{rec / rf.SAMPLES_CSV}:{n_lines}: last line cut off (7 of 7 fields, no newline): ignored"
     assert want in json.loads((rec / "d.json").read_text())["warnings"]
     assert f"warning   {want}" in proc.stdout
