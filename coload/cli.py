@@ -28,6 +28,9 @@ EXAMPLES = """examples:
 """
 
 
+VIEW_PORT = 8765  # Foxglove's default WebSocket port
+
+
 def _add_scenario_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", type=Path,
                    help="scenario TOML file, a run directory (its run.toml) or a bundled scenario's name "
@@ -79,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="zenoh engine: the embedded router's endpoint, for clients that watch or join the run "
                         "(docs/wire.md), e.g. tcp/127.0.0.1:7447 (default: a free loopback port; printed)")
     p.add_argument("--no-report", action="store_true", help="do not draw report.png at the end")
+    p.add_argument("--view", nargs="?", type=int, const=VIEW_PORT, metavar="PORT",
+                   help=f"zenoh engine: stream the load, the contact points and the estimates live to Foxglove's "
+                        f"WebSocket server on 127.0.0.1:PORT (default {VIEW_PORT}; Foxglove: open connection, "
+                        f"Foxglove WebSocket); needs the viz extra. See docs/viewers.md")
     p.add_argument("--no-batch-fit", action="store_true",
                    help="skip the centralized batch fit of samples.csv at the end (summary.json then has no "
                         "'centralized' and 'distributed_over_centralized' blocks; saves ~1/3 to 1x the run's CPU)")
@@ -96,6 +103,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scenario_args(p)
     _add_zenoh_args(p)
     p.add_argument("--run", required=True, help="run name: the key-expression namespace shared by all daemons")
+
+    p = sub.add_parser("view", help="watch a live run in Foxglove (its load pose and estimates, from Zenoh)",
+                       description="Subscribe to a run's load pose (coload/RUN/sim/pose) and estimates and "
+                                   "stream them to Foxglove's WebSocket server until the run ends; the scenario "
+                                   "gives the team size and the load's outline. Needs the viz extra. "
+                                   "See docs/viewers.md.")
+    _add_scenario_args(p)
+    _add_zenoh_args(p)
+    p.add_argument("--run", required=True, help="run name: the key-expression namespace of the run to watch")
+    p.add_argument("--port", type=int, default=VIEW_PORT, help="Foxglove WebSocket port (default: %(default)s)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: %(default)s)")
 
     p = sub.add_parser("router", help="run an embedded Zenoh router",
                        description="Run a Zenoh router in this process (nothing to install).")
@@ -721,6 +739,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.listen and args.engine != "zenoh":
         print("coload run: --listen is for --engine zenoh (the in-process engine has no router)", file=sys.stderr)
         return 2
+    if args.view is not None and args.engine != "zenoh":
+        print("coload run: --view is for --engine zenoh (the live view listens on the run's router)", file=sys.stderr)
+        return 2
+    view = _start_view(scenario, args.view) if args.view is not None else None
     try:
         note = prepare_run_dir(run_dir)
     except ValueError as exc:
@@ -731,7 +753,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.engine == "inproc":
         summary = run_inproc_cli(scenario, run_dir, quiet=args.quiet)
     else:
-        summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen)
+        try:
+            summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen,
+                                    on_router=view.attach if view else None)
+        finally:
+            if view:
+                view.close()
     if summary is None:
         return 1
     if not args.no_report:
@@ -754,9 +781,78 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+class _RunView:
+    """`coload run --view`: the Foxglove server from the start, the Zenoh watcher once the router listens."""
+
+    def __init__(self, scenario, port: int) -> None:
+        from coload.viz.live import FoxgloveSink, LiveScene
+        from coload.viz.scene import outline_body
+
+        self.scene = LiveScene(scenario.n, scenario.dt, outline_body(scenario))
+        self.sink = FoxgloveSink(scenario.n, "127.0.0.1", port)
+        self.thread = None
+
+    def attach(self, endpoint: str, run: str) -> None:
+        from coload.viz.live import ViewThread
+        from net.zenoh_transport import zenoh_config
+
+        self.thread = ViewThread(zenoh_config(mode="client", connect=[endpoint]), run, self.scene, self.sink)
+        self.thread.start()
+
+    def close(self) -> None:
+        if self.thread is not None:
+            self.thread.stop()
+            c = self.thread.counts
+            print(f"coload run: live view sent {c.get('pose', 0)} poses and {c.get('estimate', 0)} estimates"
+                  + (f" (stopped: {self.thread.error})" if self.thread.error else ""), file=sys.stderr)
+        self.sink.close()
+
+
+def _start_view(scenario, port: int) -> _RunView:
+    require("viz", "foxglove")
+    try:
+        view = _RunView(scenario, port)
+    except RuntimeError as exc:  # the port is taken
+        print(f"coload run: --view {port}: cannot serve there ({exc})", file=sys.stderr)
+        raise SystemExit(2) from None
+    print(f"coload run: live view on ws://127.0.0.1:{view.sink.port} (Foxglove: Open connection, Foxglove "
+          f"WebSocket)", file=sys.stderr, flush=True)
+    return view
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """`coload view`: a live team's pose and estimates to Foxglove until the run's done notice or Ctrl-C."""
+    from coload.viz.live import FoxgloveSink, LiveScene, watch
+    from coload.viz.scene import outline_body
+
+    require("viz", "foxglove")
+    scenario = _scenario(args)
+    scene = LiveScene(scenario.n, scenario.dt, outline_body(scenario))
+    try:
+        sink = FoxgloveSink(scenario.n, args.host, args.port)
+    except RuntimeError as exc:
+        print(f"coload view: --port {args.port}: cannot serve there ({exc})", file=sys.stderr)
+        return 2
+    print(f"coload view: ws://{args.host}:{sink.port} (Foxglove: Open connection, Foxglove WebSocket); "
+          f"watching run {args.run}", file=sys.stderr, flush=True)
+
+    def build(transport):
+        stop = asyncio.Event()
+        return watch(transport, args.run, scene, sink.log, stop)
+
+    try:
+        counts = _run_daemon("view", args, build)
+    finally:
+        sink.close()
+    if counts is None:
+        return 130
+    print(f"coload view: {counts['pose']} poses, {counts['estimate']} estimates, {counts['dropped']} dropped")
+    return 0
+
+
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
             "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
-            "arms": cmd_arms, "diagnose": cmd_diagnose, "export": cmd_export}
+            "arms": cmd_arms, "diagnose": cmd_diagnose, "export": cmd_export, "view": cmd_view}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

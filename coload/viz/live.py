@@ -70,7 +70,7 @@ class FoxgloveSink:
 
 
 async def watch(transport: Any, run: str, scene: LiveScene, sink: Callable[[list[Message]], None],
-                stop: asyncio.Event) -> dict[str, int]:
+                stop: asyncio.Event, subscribed: Callable[[], None] = lambda: None) -> dict[str, int]:
     """Forward a run to ``sink`` until its ``done`` notice or ``stop``; return messages per kind."""
     from net import keys
     from net.schema import DecodeError, decode
@@ -101,6 +101,7 @@ async def watch(transport: Any, run: str, scene: LiveScene, sink: Callable[[list
     subs = [transport.subscribe(keys.sim_pose(run), on_pose),
             transport.subscribe(keys.agent_all(run, "estimate"), on_estimate),
             transport.subscribe(keys.sim_control(run), on_control)]
+    subscribed()
     try:
         await stop.wait()
     finally:
@@ -133,8 +134,8 @@ class ViewThread:
             self._stop = asyncio.Event()
             transport = ZenohTransport(self._conf, self._loop)
             try:
-                self._ready.set()
-                self.counts = await watch(transport, self._run, self._scene, self._sink.log, self._stop)
+                self.counts = await watch(transport, self._run, self._scene, self._sink.log, self._stop,
+                                          self._ready.set)
             finally:
                 transport.close()
 
@@ -145,6 +146,9 @@ class ViewThread:
             self._ready.set()
 
     def stop(self, timeout: float = 5.0) -> None:
-        if self._loop is not None and self._stop is not None:
-            self._loop.call_soon_threadsafe(self._stop.set)
+        if self._thread.is_alive() and self._loop is not None and self._stop is not None:
+            try:
+                self._loop.call_soon_threadsafe(self._stop.set)
+            except RuntimeError:  # the run's done notice ended it meanwhile
+                pass
         self._thread.join(timeout)

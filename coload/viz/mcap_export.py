@@ -12,21 +12,10 @@ from pathlib import Path
 
 from coload.rundir import format as rf
 from coload.extras import require
-from coload.viz.scene import SCHEMAS, channels, run_messages
+from coload.viz.scene import SCHEMAS, channels, outline_body, run_messages
+from config.loader import load_scenario
 
 PROFILE = ""  # no ROS profile: plain JSON channels
-
-
-def outline_body(run_dir: Path):
-    """The load's outline about its geometric centre, body frame, from the run's run.toml."""
-    from config.loader import load_scenario
-    from simulator.plant import load_polygon_body
-
-    import numpy as np
-
-    scenario = load_scenario(run_dir / rf.RUN_TOML)
-    off = np.asarray(scenario.load.com_offset, dtype=float)
-    return np.asarray(load_polygon_body(scenario), dtype=float) + off
 
 
 def default_path(run_dir: Path) -> Path:
@@ -41,7 +30,7 @@ def export_mcap(run_dir: Path, out: Path) -> dict[str, int]:
     run = rf.read_run(run_dir)
     if run.truth is None:
         raise rf.RunFormatError(f"{run_dir / rf.TRUTH_CSV}: missing (the viewer's scene is drawn from the truth)")
-    outline = outline_body(run_dir)
+    outline = outline_body(load_scenario(run_dir / rf.RUN_TOML))
     counts: dict[str, int] = {}
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:

@@ -215,6 +215,13 @@ def frame(ns: int, pose: tuple[float, float, float], pg: tuple[float, float], z_
             Message(ns, SCENE_TOPIC, {"deletions": [], "entities": entities})]
 
 
+def outline_body(scenario: Any) -> np.ndarray:
+    """The load's outline about its geometric centre G, body frame (m), from a scenario."""
+    from simulator.plant import load_polygon_body
+
+    return np.asarray(load_polygon_body(scenario), dtype=float) + np.asarray(scenario.load.com_offset, dtype=float)
+
+
 def _row(t: float, names: Sequence[str], values: np.ndarray) -> dict[str, Any]:
     out: dict[str, Any] = {"t": float(t)}
     for name, v in zip(names, values):
