@@ -6,12 +6,16 @@ import gzip
 import json
 import math
 import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 
 from conftest import coload_cmd
 from ident.diagnose import read_recording
 from coload.rundir import format as rf
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def coload(*args: str, timeout: float = 240) -> subprocess.CompletedProcess:
@@ -123,3 +127,31 @@ def test_the_cut_line_warning_reaches_the_diagnosis_json(run_dir, tmp_path):
     want = f"{rec / rf.SAMPLES_CSV}:{n_lines}: last line cut off (7 of 7 fields, no newline): ignored"
     assert want in json.loads((rec / "d.json").read_text())["warnings"]
     assert f"warning   {want}" in proc.stdout
+
+
+def test_a_mistyped_bundled_scenario_name_gets_a_suggestion(tmp_path):
+    line = one_line(coload("run", "papr-fig4", "--engine", "inproc", "--out", str(tmp_path / "r")))
+    assert line.startswith("coload run: papr-fig4: no such file or bundled scenario (did you mean paper-fig4?); "
+                           "bundled scenarios: ")
+    assert not (tmp_path / "r").exists()
+
+
+def test_hinf_design_without_its_extra_names_it(tmp_path):
+    code = ("import sys; sys.modules['cvxpy'] = None; from coload.cli import main; "
+            f"sys.exit(main(['hinf', 'design', {str(ROOT / 'config/hinf/sec5-cyclic.toml')!r}, '--out', "
+            f"{str(tmp_path / 'g.json')!r}]))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert one_line(proc) == "coload hinf: needs the Python package(s) cvxpy: pip install 'coload[hinf]'"
+    assert not (tmp_path / "g.json").exists()
+
+
+def test_version_and_verbose_after_the_command():
+    from coload.cli import build_parser
+    from coload.provenance import version
+
+    proc = coload("--version", timeout=60)
+    assert proc.returncode == 0 and proc.stdout.startswith(f"coload {version('coload')}")
+    args = build_parser().parse_args(["-v", "report", "r", "-vv"])
+    assert args.verbose + args.verbose_after == 3
+    args = build_parser().parse_args(["hinf", "run", "spec.toml", "--out", "o", "-v"])
+    assert args.verbose + args.verbose_after == 1
