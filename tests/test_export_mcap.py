@@ -136,3 +136,11 @@ def test_the_outline_is_the_body_outline_moved_rigidly(angle, gx, gy, w, h):
     # the first side keeps its direction relative to the load's angle
     side = pts[1] - pts[0]
     assert math.isclose(math.remainder(math.atan2(side[1], side[0]) - angle, 2 * math.pi), 0.0, abs_tol=1e-9)
+
+
+def test_summary_records_what_produced_the_run(exported):
+    run, _, _ = exported
+    versions = json.loads((run / "summary.json").read_text())["versions"]
+    assert set(versions) == {"coload", "commit", "numpy", "scipy", "pymunk", "eclipse-zenoh"}
+    assert versions["numpy"] == np.__version__ and versions["pymunk"].split(".")[0] == "7"
+    assert versions["commit"] is None or len(versions["commit"].removesuffix("+dirty")) == 40
