@@ -32,7 +32,7 @@ def main() -> None:
         by_t.setdefault(r["t"], []).append(r)
     t = np.array([float(x) for x in times])
     for col, k in (("m", 0), ("J", 1)):
-        rel = [np.array([float(r[col]) for r in by_t[x]]) / truth[x][k] - 1.0 for x in times]
+        rel = [np.array([float(r[col] or "nan") for r in by_t[x]]) / truth[x][k] - 1.0 for x in times]
         med = np.array([np.nanmedian(v) if np.isfinite(v).any() else np.nan for v in rel])
         inside = np.abs(med) <= a.band
         after = t >= a.t_change

@@ -61,7 +61,7 @@ def _signed(run_dir: Path) -> dict:
     last = [r for r in rows if r["t"] == t_end]
     out = {}
     for col, tcol in (("J", "inertia"), ("m", "mass")):
-        vals = np.array([float(r[col]) for r in last])
+        vals = np.array([float(r[col] or "nan") for r in last])
         if np.isfinite(vals).all() and t_end in truth:
             out[f"{col}_signed_rel"] = float(vals.mean() / float(truth[t_end][tcol]) - 1.0)
     return out

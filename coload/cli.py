@@ -13,6 +13,7 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
+from coload.extras import ExtraMissing, require
 from config.loader import ScenarioError, load_scenario
 
 EXAMPLES = """examples:
@@ -25,6 +26,9 @@ EXAMPLES = """examples:
   coload sim config/scenarios/quick.toml --connect tcp/127.0.0.1:7447 --run demo --out runs/demo
   coload agent --id 0 config/scenarios/quick.toml --connect tcp/127.0.0.1:7447 --run demo
 """
+
+
+VIEW_PORT = 8765  # Foxglove's default WebSocket port
 
 
 def _add_scenario_args(p: argparse.ArgumentParser) -> None:
@@ -63,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("--version", action="version", version=_version_line())
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run a scenario: router, simulator and agents as processes, or in-process",
@@ -77,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="zenoh engine: the embedded router's endpoint, for clients that watch or join the run "
                         "(docs/wire.md), e.g. tcp/127.0.0.1:7447 (default: a free loopback port; printed)")
     p.add_argument("--no-report", action="store_true", help="do not draw report.png at the end")
+    p.add_argument("--view", nargs="?", type=int, const=VIEW_PORT, metavar="PORT",
+                   help=f"zenoh engine: stream the load, the contact points and the estimates live to Foxglove's "
+                        f"WebSocket server on 127.0.0.1:PORT (default {VIEW_PORT}; Foxglove: open connection, "
+                        f"Foxglove WebSocket); needs the viz extra. See docs/viewers.md")
     p.add_argument("--no-batch-fit", action="store_true",
                    help="skip the centralized batch fit of samples.csv at the end (summary.json then has no "
                         "'centralized' and 'distributed_over_centralized' blocks; saves ~1/3 to 1x the run's CPU)")
@@ -94,6 +103,17 @@ def build_parser() -> argparse.ArgumentParser:
     _add_scenario_args(p)
     _add_zenoh_args(p)
     p.add_argument("--run", required=True, help="run name: the key-expression namespace shared by all daemons")
+
+    p = sub.add_parser("view", help="watch a live run in Foxglove (its load pose and estimates, from Zenoh)",
+                       description="Subscribe to a run's load pose (coload/RUN/sim/pose) and estimates and "
+                                   "stream them to Foxglove's WebSocket server until the run ends; the scenario "
+                                   "gives the team size and the load's outline. Needs the viz extra. "
+                                   "See docs/viewers.md.")
+    _add_scenario_args(p)
+    _add_zenoh_args(p)
+    p.add_argument("--run", required=True, help="run name: the key-expression namespace of the run to watch")
+    p.add_argument("--port", type=int, default=VIEW_PORT, help="Foxglove WebSocket port (default: %(default)s)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default: %(default)s)")
 
     p = sub.add_parser("router", help="run an embedded Zenoh router",
                        description="Run a Zenoh router in this process (nothing to install).")
@@ -241,7 +261,65 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", action="store_true",
                    help="draw RECORDING/diagnose.png: residual before/after and its autocorrelation with bounds")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+    p = sub.add_parser("export", help="write a run directory in a standard viewer's format (MCAP: Foxglove, Rerun)",
+                       description="Write a run directory as an MCAP file (JSON channels with Foxglove's schemas: "
+                                   "the load's transform, pose and scene, each agent's estimates, the truth, the "
+                                   "link statistics) for Foxglove or Rerun. Needs the viz extra: "
+                                   "pip install 'coload[viz]'. See docs/viewers.md.")
+    p.add_argument("run_dir", type=Path, help="a run directory")
+    p.add_argument("--mcap", nargs="?", const="", metavar="FILE",
+                   help="write an MCAP file (default FILE: RUN_DIR/run.mcap)")
+    _add_verbose_after_command(sub)
     return parser
+
+
+def _version_line() -> str:
+    from coload.provenance import commit, version
+
+    rev = commit()
+    return f"coload {version('coload')}" + (f" (commit {rev})" if rev else "")
+
+
+def _add_verbose_after_command(sub: argparse._SubParsersAction) -> None:
+    """``-v`` after the command too (``coload run X -v``), on every command and action; counted with any
+    given before it."""
+    for p in sub.choices.values():
+        p.add_argument("-v", "--verbose", action=_MoreVerbose, nargs=0, default=argparse.SUPPRESS,
+                       help="more log output (-vv for debug)")
+        for action in p._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                _add_verbose_after_command(action)
+
+
+class _MoreVerbose(argparse.Action):
+    # a subcommand parses into a namespace of its own, copied over the top-level one afterwards: the count
+    # goes in a separate field that main() adds to the top-level -v
+    def __call__(self, parser, namespace, values, option_string=None):
+        namespace.verbose_after = getattr(namespace, "verbose_after", 0) + 1
+
+
+def writable(flag: str, path: Path) -> str | None:
+    """Why ``path`` (given as ``flag``) cannot be written, checked before any work; None if it can be."""
+    where = f"{flag} {path}: cannot write there"
+    if path.is_dir():
+        return f"{where}: it is a directory"
+    parent = path.parent
+    if not parent.is_dir():
+        return f"{where}: no directory {parent}"
+    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        return f"{where}: permission denied"
+    return None
+
+
+def _refuse_unwritable(command: str, *outputs: tuple[str, Path | None]) -> bool:
+    """Print the one line for the first output that cannot be written; True if there was one."""
+    for flag, path in outputs:
+        problem = writable(flag, path) if path is not None else None
+        if problem:
+            print(f"coload {command}: {problem}", file=sys.stderr)
+            return True
+    return False
 
 
 def _scenario(args: argparse.Namespace):
@@ -384,6 +462,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     if not args.run_dir.is_dir():
         print(f"coload report: {args.run_dir}: not a directory", file=sys.stderr)
         return 2
+    if _refuse_unwritable("report", ("--out", args.out)):
+        return 2
     try:
         path, table = make_report(args.run_dir, args.out)
     except ValueError as exc:  # RunFormatError; a recording without truth.csv/estimates.csv
@@ -426,6 +506,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         stderr_progress,
     )
 
+    if _refuse_unwritable("diagnose", ("--json", args.json)):
+        return 2
     try:
         result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress())
     except DiagnoseError as exc:
@@ -437,6 +519,30 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"json: {args.json}")
     if args.plot:
         print(f"plot: {plot_diagnosis(result, args.recording / 'diagnose.png')}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from coload.rundir.format import RunFormatError
+    from coload.viz.mcap_export import default_path, export_mcap
+
+    if args.mcap is None:
+        print("coload export: choose a format: --mcap [FILE]", file=sys.stderr)
+        return 2
+    if not args.run_dir.is_dir():
+        print(f"coload export: {args.run_dir}: not a directory", file=sys.stderr)
+        return 2
+    out = Path(args.mcap) if args.mcap else default_path(args.run_dir)
+    if _refuse_unwritable("export", ("--mcap", out)):
+        return 2
+    require("viz", "mcap")
+    try:
+        counts = export_mcap(args.run_dir, out)
+    except RunFormatError as exc:
+        print(f"coload export: {exc}", file=sys.stderr)
+        return 2
+    print(f"{sum(counts.values())} messages on {len(counts)} channels")
+    print(f"mcap: {out}")
     return 0
 
 
@@ -492,6 +598,9 @@ def cmd_hinf(args: argparse.Namespace) -> int:
 
     if args.hinf_command != "design":
         return cmd_hinf_runtime(args)
+    require("hinf", "cvxpy")
+    if _refuse_unwritable("hinf design", ("--out", args.out)):
+        return 2
     try:
         result = design_cli(args.spec, args.out)
     except (SpecError, HinfDesignError) as exc:
@@ -525,6 +634,9 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     try:
         ns = cp.parse_list(args.ns, int, "--n")
         sigmas = cp.parse_list(args.sigmas, float, "--sigma")
+        negative = [x for x in sigmas if not x >= 0]
+        if negative:
+            raise ValueError(f"--sigma: a noise level must be >= 0 m/s (got {negative[0]:g})")
         if args.jobs < 1:
             raise ValueError(f"--jobs: must be at least 1 (got {args.jobs})")
         parse_executor(args.executor)
@@ -584,6 +696,7 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
     from hinf.design import HinfDesignError
 
     if args.hinf_command == "run":
+        require("hinf", "cvxpy")
         try:
             s = run_cli(args.spec, args.out, args.engine, args.mode, args.overrides, args.quiet, args.verbose)
         except (SpecError, HinfDesignError) as exc:
@@ -637,6 +750,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.listen and args.engine != "zenoh":
         print("coload run: --listen is for --engine zenoh (the in-process engine has no router)", file=sys.stderr)
         return 2
+    if args.view is not None and args.engine != "zenoh":
+        print("coload run: --view is for --engine zenoh (the live view listens on the run's router)", file=sys.stderr)
+        return 2
+    view = _start_view(scenario, args.view) if args.view is not None else None
     try:
         note = prepare_run_dir(run_dir)
     except ValueError as exc:
@@ -647,7 +764,12 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.engine == "inproc":
         summary = run_inproc_cli(scenario, run_dir, quiet=args.quiet)
     else:
-        summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen)
+        try:
+            summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen,
+                                    on_router=view.attach if view else None)
+        finally:
+            if view:
+                view.close()
     if summary is None:
         return 1
     if not args.no_report:
@@ -670,9 +792,78 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+class _RunView:
+    """`coload run --view`: the Foxglove server from the start, the Zenoh watcher once the router listens."""
+
+    def __init__(self, scenario, port: int) -> None:
+        from coload.viz.live import FoxgloveSink, LiveScene
+        from coload.viz.scene import outline_body
+
+        self.scene = LiveScene(scenario.n, scenario.dt, outline_body(scenario))
+        self.sink = FoxgloveSink(scenario.n, "127.0.0.1", port)
+        self.thread = None
+
+    def attach(self, endpoint: str, run: str) -> None:
+        from coload.viz.live import ViewThread
+        from net.zenoh_transport import zenoh_config
+
+        self.thread = ViewThread(zenoh_config(mode="client", connect=[endpoint]), run, self.scene, self.sink)
+        self.thread.start()
+
+    def close(self) -> None:
+        if self.thread is not None:
+            self.thread.stop()
+            c = self.thread.counts
+            print(f"coload run: live view sent {c.get('pose', 0)} poses and {c.get('estimate', 0)} estimates"
+                  + (f" (stopped: {self.thread.error})" if self.thread.error else ""), file=sys.stderr)
+        self.sink.close()
+
+
+def _start_view(scenario, port: int) -> _RunView:
+    require("viz", "foxglove")
+    try:
+        view = _RunView(scenario, port)
+    except RuntimeError as exc:  # the port is taken
+        print(f"coload run: --view {port}: cannot serve there ({exc})", file=sys.stderr)
+        raise SystemExit(2) from None
+    print(f"coload run: live view on ws://127.0.0.1:{view.sink.port} (Foxglove: Open connection, Foxglove "
+          f"WebSocket)", file=sys.stderr, flush=True)
+    return view
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    """`coload view`: a live team's pose and estimates to Foxglove until the run's done notice or Ctrl-C."""
+    from coload.viz.live import FoxgloveSink, LiveScene, watch
+    from coload.viz.scene import outline_body
+
+    require("viz", "foxglove")
+    scenario = _scenario(args)
+    scene = LiveScene(scenario.n, scenario.dt, outline_body(scenario))
+    try:
+        sink = FoxgloveSink(scenario.n, args.host, args.port)
+    except RuntimeError as exc:
+        print(f"coload view: --port {args.port}: cannot serve there ({exc})", file=sys.stderr)
+        return 2
+    print(f"coload view: ws://{args.host}:{sink.port} (Foxglove: Open connection, Foxglove WebSocket); "
+          f"watching run {args.run}", file=sys.stderr, flush=True)
+
+    def build(transport):
+        stop = asyncio.Event()
+        return watch(transport, args.run, scene, sink.log, stop)
+
+    try:
+        counts = _run_daemon("view", args, build)
+    finally:
+        sink.close()
+    if counts is None:
+        return 130
+    print(f"coload view: {counts['pose']} poses, {counts['estimate']} estimates, {counts['dropped']} dropped")
+    return 0
+
+
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
             "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
-            "arms": cmd_arms, "diagnose": cmd_diagnose}
+            "arms": cmd_arms, "diagnose": cmd_diagnose, "export": cmd_export, "view": cmd_view}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -689,6 +880,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         die_with_parent(int(parent))
     args = build_parser().parse_args(argv)
+    args.verbose += getattr(args, "verbose_after", 0)
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     daemon = args.command in ("sim", "agent", "router") or getattr(args, "hinf_command", None) in ("sim", "agent")
     if daemon:
@@ -703,6 +895,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             check_terminated()  # a SIGTERM that a library call swallowed: still a stop
         return code
     except ScenarioError as exc:
+        print(f"coload {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except ExtraMissing as exc:
         print(f"coload {args.command}: {exc}", file=sys.stderr)
         return 2
     except ControlLawError as exc:  # the user's law failed while running (it was built and checked before)

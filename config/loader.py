@@ -322,6 +322,13 @@ def resolve_scenario_path(path: str | Path) -> Path:
     return p
 
 
+def _bundled_hint(path: Path) -> str:
+    """For a bare name that is no file: the bundled scenario it most likely means, then all of them."""
+    names = bundled_scenario_names()
+    close = difflib.get_close_matches(path.stem, names, n=1, cutoff=0.6)
+    return (f" (did you mean {close[0]}?)" if close else "") + f"; bundled scenarios: {', '.join(names)}"
+
+
 def bundled_scenario_names() -> list[str]:
     return sorted(f.stem for f in BUNDLED_SCENARIOS.glob("*.toml"))
 
@@ -337,6 +344,8 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         raise ScenarioError(file, line, "", f"not UTF-8 text (byte {exc.object[exc.start]:#04x}); "
                                             f"TOML files must be UTF-8") from None
     except OSError as exc:
+        if not path.exists() and len(path.parts) == 1:  # a bare name: meant as a bundled scenario's
+            raise ScenarioError(file, None, "", f"no such file or bundled scenario{_bundled_hint(path)}") from None
         hint = f"; bundled scenarios: {', '.join(bundled_scenario_names())}" if not path.exists() else ""
         raise ScenarioError(file, None, "", f"cannot read: {exc}{hint}") from None
     try:

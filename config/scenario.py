@@ -397,6 +397,15 @@ class Scenario(_Strict):
                              '= "sequential" (from done on) or "background"')
         if self.arms is not None and self.arms.bases is not None and len(self.arms.bases) != self.n:
             raise ValueError(f"arms.bases: must list exactly n = {self.n} bases (got {len(self.arms.bases)})")
+        if self.ticks < 1:
+            raise ValueError(f"duration: {self.duration:g} s is less than one tick (dt = {self.dt:g} s): "
+                             "the run would record nothing")
+        for field, offset in [("load.com_offset", self.load.com_offset)] + [
+                (f"plant.load_changes: change {k}'s com_offset", c.com_offset)
+                for k, c in enumerate(self.plant.load_changes) if c.com_offset is not None]:
+            if not _inside(offset, _outline_about_centroid(self.load)):
+                raise ValueError(f"{field}: ({offset[0]:g}, {offset[1]:g}) lies outside the load's outline "
+                                 "(the CoM of a rigid load is inside its convex hull)")
         if not _connected(self.n, self.edges()):
             field = "graph.edges" if self.graph.topology == "explicit" else "graph"
             raise ValueError(f"{field}: the communication graph must be connected (agents 0..{self.n - 1})")
@@ -466,6 +475,35 @@ class AgentView:
     @property
     def ticks(self) -> int:
         return int(round(self.duration / self.dt))
+
+
+def _outline_about_centroid(load: LoadSpec) -> list[Vec2]:
+    """The outline's vertices about its area centroid (the body frame's origin)."""
+    if load.shape == "rectangle":
+        w, h = 0.5 * load.width, 0.5 * load.height
+        return [(-w, -h), (w, -h), (w, h), (-w, h)]
+    v = load.vertices or []
+    m = len(v)
+    cross = [v[k][0] * v[(k + 1) % m][1] - v[(k + 1) % m][0] * v[k][1] for k in range(m)]
+    a3 = 3.0 * sum(cross)  # six times the area, over two
+    cx = sum((v[k][0] + v[(k + 1) % m][0]) * cross[k] for k in range(m)) / a3
+    cy = sum((v[k][1] + v[(k + 1) % m][1]) * cross[k] for k in range(m)) / a3
+    return [(x - cx, y - cy) for x, y in v]
+
+
+def _inside(p: Vec2, outline: list[Vec2]) -> bool:
+    """Whether ``p`` lies inside the closed polygon or on its boundary (even-odd rule; the boundary counts)."""
+    x, y = p
+    m = len(outline)
+    inside = False
+    for k in range(m):
+        (x1, y1), (x2, y2) = outline[k], outline[(k + 1) % m]
+        cross = (x2 - x1) * (y - y1) - (y2 - y1) * (x - x1)
+        if cross == 0 and min(x1, x2) <= x <= max(x1, x2) and min(y1, y2) <= y <= max(y1, y2):
+            return True
+        if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
+            inside = not inside
+    return inside
 
 
 def _polygon_problem(vertices: list[Vec2]) -> str | None:

@@ -766,7 +766,7 @@ def read_recording(path: str | Path) -> tuple[np.ndarray, int, float, dict[str, 
         samples = samples_array(table.t, table.columns, dt)
     except BatchFitError as exc:
         raise DiagnoseError(f"{csv_path}: {exc}") from None
-    warns: list[str] = []
+    warns: list[str] = list(table.warnings)
     truth = None
     tpath = path / rf.TRUTH_CSV
     if tpath.exists():

@@ -2,14 +2,16 @@
 read strictly (docs/run-directory.md).
 
 A malformed file raises :class:`RunFormatError` naming the file, line and column; content that real
-recordings produce is accepted: extra columns are ignored, rows may come in any order, and an empty
-cell reads as NaN. ``coload diagnose`` reads a recording with these; the application's run
+recordings produce is accepted: extra columns are ignored, rows may come in any order, an empty
+cell (or ``nan``) reads as NaN, and a last line without its newline (a write cut off) is dropped with
+a warning, kept in the table's ``warnings``. ``coload diagnose`` reads a recording with these; the application's run
 directory (coload.rundir.format) builds on them.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 import math
@@ -69,6 +71,8 @@ class AgentTable:
 
     t: np.ndarray
     columns: dict[str, np.ndarray]
+    warnings: tuple[str, ...] = ()
+    """What was read but not used (a cut last line), one line each with file and line."""
 
     def has(self, *names: str) -> bool:
         return all(name in self.columns for name in names)
@@ -81,6 +85,7 @@ class TruthTable:
     t: np.ndarray
     columns: dict[str, np.ndarray]
     zi: np.ndarray
+    warnings: tuple[str, ...] = ()
 
 
 def _read_json(path: Path) -> dict[str, Any]:
@@ -138,6 +143,7 @@ class _Csv:
     rows: list[list[str]] | None = None
     lines: list[int] | None = None
     matrix: np.ndarray | None = None
+    warnings: tuple[str, ...] = ()
 
     def fail(self, r: int, message: str) -> None:
         """Raise a RunFormatError for row ``r``; on the fast path (no line numbers) fall back first."""
@@ -194,35 +200,74 @@ class _Csv:
 def _load_fast(path: Path, required: Sequence[str]) -> _Csv | None:
     """All-numeric, well-formed file in one C-speed ``np.loadtxt``; None if anything is unusual."""
     try:
-        with path.open(newline="", encoding="utf-8-sig", errors="replace") as fh:
-            header = [h.strip() for h in next(csv.reader(fh))]
-    except (OSError, StopIteration, csv.Error):
+        text = path.read_bytes().decode("utf-8-sig")
+        header = [h.strip() for h in next(csv.reader(io.StringIO(text[: text.find("\n") + 1 or None])))]
+    except (OSError, UnicodeDecodeError, StopIteration, csv.Error):  # another encoding -> the line reader
         return None
     if any(c not in header for c in required) or len(set(header)) != len(header):
         return None
+    cut = ()
+    if text and text[-1] not in "\r\n":
+        end = text.rfind("\n") + 1
+        cut = (_cut_warning(path, text.count("\n", 0, end) + 1, text[end:].count(",") + 1, len(header)),)
+        text = text[:end]
+    if ",," in text or ",\n" in text or ",\r" in text:  # empty cells: no value, read as NaN
+        text = text.replace(",,", ",nan,").replace(",,", ",nan,").replace(",\r", ",nan\r").replace(",\n", ",nan\n")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "input contained no data": header only
-            matrix = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=float, comments=None,
-                                encoding="utf-8")
-    except ValueError:  # also UnicodeDecodeError: a text column in another encoding -> the line reader
+            matrix = np.loadtxt(io.StringIO(text), delimiter=",", skiprows=1, ndmin=2, dtype=float, comments=None)
+    except ValueError:
         return None
     if matrix.size == 0:
         matrix = np.empty((0, len(header)))
     if matrix.shape[1] != len(header):
         return None
-    return _Csv(path, header, matrix=matrix)
+    return _Csv(path, header, matrix=matrix, warnings=cut)
+
+
+def _cut_warning(path: Path, line: int, fields: int, expected: int) -> str:
+    # a recorder killed mid-write leaves its last line without a newline, perhaps cut mid-number: the
+    # whole lines are the recording, so they are read and the cut one is named, not made fatal
+    return f"{path}:{line}: last line cut off ({fields} of {expected} fields, no newline): ignored"
+
+
+_COMPRESSED = ((b"\x1f\x8b", "gzip", "gunzip -c FILE >"), (b"BZh", "bzip2", "bunzip2 -c FILE >"),
+               (b"\xfd7zXZ\x00", "xz", "unxz -c FILE >"), (b"\x28\xb5\x2f\xfd", "zstd", "unzstd -c FILE >"),
+               (b"PK\x03\x04", "zip", "unzip -p FILE >"))
+
+
+def _check_text(path: Path) -> None:
+    """A compressed or binary file is named as such, not parsed into a located but baffling error."""
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096)
+    except OSError as exc:
+        raise RunFormatError(f"{path}: cannot open: {exc.strerror}") from exc
+    for magic, kind, command in _COMPRESSED:
+        if head.startswith(magic):
+            raise RunFormatError(f"{path}: {kind}-compressed data, not CSV text: decompress it first "
+                                 f"({command} {path.name})")
+    if b"\x00" in head:
+        raise RunFormatError(f"{path}: binary data (a NUL byte in its first {len(head)} bytes), not CSV text")
 
 
 def _read(path: Path, required: Sequence[str], build: Callable[[_Csv], T]) -> T:
     """Build a table from the fast reader, or from the line-tracking one when the file needs it."""
-    fast = _load_fast(path, required)
-    if fast is not None:
+    _check_text(path)
+    csvf = _load_fast(path, required)
+    table = None
+    if csvf is not None:
         try:
-            return build(fast)
+            table = build(csvf)
         except _SlowPath:
             pass
-    return build(_read_csv(path, required))
+    if table is None:
+        csvf = _read_csv(path, required)
+        table = build(csvf)
+    for message in csvf.warnings:
+        log.warning("%s", message)
+    return table
 
 
 def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
@@ -248,6 +293,7 @@ def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
         rows: list[list[str]] = []
         lines: list[int] = []
         short: tuple[int, int] | None = None  # (line, fields) of a short row: an error unless it is a cut tail
+        cut = _ends_cut(path)
 
         def wrong_count(line: int, got: int) -> RunFormatError:
             return RunFormatError(f"{path}:{line}: expected {len(header)} fields, got {got}")
@@ -267,14 +313,16 @@ def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
                 lines.append(reader.line_num)
         except csv.Error as exc:
             raise RunFormatError(f"{path}:{reader.line_num}: {exc}") from exc
-    if short is not None:
-        if not _ends_cut(path):
-            raise wrong_count(*short)
-        # a recorder killed mid-write leaves its last line short and without a newline: the whole rows are
-        # the recording, so they are read and the cut line is named, not made fatal
-        log.warning("%s:%d: last line cut off (%d of %d fields, no newline): ignored",
-                    path, short[0], short[1], len(header))
-    return _Csv(path, header, rows=rows, lines=lines)
+    if short is not None and not cut:
+        raise wrong_count(*short)
+    warned: tuple[str, ...] = ()
+    if cut and (short is not None or rows):
+        line, fields = short if short is not None else (lines[-1], len(rows[-1]))
+        warned = (_cut_warning(path, line, fields, len(header)),)
+        if short is None:  # all its fields, but the last may be cut mid-number
+            rows.pop()
+            lines.pop()
+    return _Csv(path, header, rows=rows, lines=lines, warnings=warned)
 
 
 def _ends_cut(path: Path) -> bool:
@@ -324,7 +372,7 @@ def read_agent_csv(path: Path, required: Sequence[str], n: int) -> AgentTable:
             table = np.full((len(grid), n), np.nan)
             table[ti, agent] = values
             columns[name] = table
-        return AgentTable(t=grid, columns=columns)
+        return AgentTable(t=grid, columns=columns, warnings=csvf.warnings)
 
     return _read(path, required, build)
 
@@ -342,6 +390,6 @@ def read_truth_csv(path: Path, n: int) -> TruthTable:
             if values is not None:
                 columns[name] = values[order]
         zi = np.stack([np.stack([columns[f"z{i}_x"], columns[f"z{i}_y"]], axis=1) for i in range(n)], axis=1)
-        return TruthTable(t=columns["t"], columns=columns, zi=zi.reshape(len(t), n, 2))
+        return TruthTable(t=columns["t"], columns=columns, zi=zi.reshape(len(t), n, 2), warnings=csvf.warnings)
 
     return _read(path, truth_header(n), build)

@@ -9,6 +9,7 @@ Every key lives under ``coload/{run}/`` so that concurrent runs on one router ne
     coload/{run}/agent/{i}/report     agent i -> simulator, at the end report(run, i)
     coload/{run}/alive/{role}/{id}    liveliness tokens                alive(run, role, id)
     coload/{run}/sim/control          simulator run notices            sim_control(run)
+    coload/{run}/sim/pose             simulator -> monitors: the load  sim_pose(run)
     coload/{run}/hinf/{k}/{kind}      paper-003 runtime (meas, input,  hinf(run, k, kind)
                                       state, report)
     coload/{run}/hinf/control         its simulator's run notices      hinf_control(run)
@@ -152,6 +153,11 @@ def parse_alive(key: str) -> AliveKey | None:
 def sim_control(run: str) -> str:
     """``coload/{run}/sim/control``: the simulator's run notices (start / progress / done)."""
     return f"{ROOT}/{validate_run(run)}/sim/control"
+
+
+def sim_pose(run: str) -> str:
+    """``coload/{run}/sim/pose``: the load's true pose on recorded ticks, for live views (monitoring only)."""
+    return f"{ROOT}/{validate_run(run)}/sim/pose"
 
 
 def run_all(run: str) -> str:

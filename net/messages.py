@@ -72,6 +72,23 @@ class Control:
 
 
 @dataclass(frozen=True, slots=True)
+class LoadPose:
+    """Simulator -> monitors, on recorded ticks: where the load truly is (no daemon reads it; a live view does).
+
+    ``x, y`` the CoM and ``angle`` the orientation (m, rad, world frame); ``pg_x, pg_y`` the geometric
+    centre G; ``z`` every agent's z_i = p_Ci - p_G flattened as (x0, y0, x1, y1, ...) (m, world frame).
+    """
+
+    tick: int
+    x: float
+    y: float
+    angle: float
+    pg_x: float
+    pg_y: float
+    z: tuple[float, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
 class AgentReport:
     """Agent -> simulator when the run ends: its receive-side counters, for summary.json.
 

@@ -31,7 +31,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstra
 from pydantic_core import PydanticCustomError
 
 from net.hinf_messages import HinfInput, HinfMeas, HinfState
-from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
+from net.messages import AgentReport, Control, Estimate, LoadPose, Measurement, StateMsg, Wrench
 
 SCHEMA_VERSION: Final = 1
 MAX_PAYLOAD: Final = 64 * 1024
@@ -49,6 +49,8 @@ MAX_PAIR_LEN: Final = 24
 """Most floats in one ``StateMsg.pair`` value (the dynamical phase with the augmented model sends 4 + 13)."""
 MAX_COUNT: Final = 2**63 - 1
 """Largest counter in an ``AgentReport``."""
+MAX_TEAM: Final = 1000
+"""Most agents in a run (the scenario's bound on n): ``LoadPose.z`` holds two floats per agent."""
 MAX_VEC: Final = 1024
 """Most floats in one vector of a paper-003 message (``HinfMeas.z``, ``HinfState.xhat``, ...)."""
 CONTROL_KINDS: Final = ("start", "progress", "stop", "done")
@@ -71,6 +73,7 @@ KIND: Final[dict[type, str]] = {
     Estimate: "estimate",
     Control: "control",
     AgentReport: "report",
+    LoadPose: "pose",
     HinfMeas: "hinf_meas",
     HinfState: "hinf_state",
     HinfInput: "hinf_input",
@@ -78,8 +81,10 @@ KIND: Final[dict[type, str]] = {
 """Message-kind tag of each message type; the same words as the last chunk of its key expression."""
 TYPE_OF_KIND: Final[dict[str, type]] = {v: k for k, v in KIND.items()}
 
-Message = Union[Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, HinfMeas, HinfState, HinfInput]
-Msg = TypeVar("Msg", Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, HinfMeas, HinfState, HinfInput)
+Message = Union[Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, LoadPose, HinfMeas, HinfState,
+                HinfInput]
+Msg = TypeVar("Msg", Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, LoadPose, HinfMeas, HinfState,
+              HinfInput)
 
 
 class DecodeError(ValueError):
@@ -169,6 +174,16 @@ class _ReportBody(_Body):
 Vec = Annotated[tuple[float, ...], Field(max_length=MAX_VEC)]
 
 
+class _LoadPoseBody(_Body):
+    tick: Tick
+    x: float
+    y: float
+    angle: float
+    pg_x: float
+    pg_y: float
+    z: Annotated[tuple[float, ...], Field(max_length=2 * MAX_TEAM)]
+
+
 class _HinfMeasBody(_Body):
     tick: Tick
     agent: AgentId
@@ -198,6 +213,7 @@ _BODY: Final[dict[type, type[_Body]]] = {
     Estimate: _EstimateBody,
     Control: _ControlBody,
     AgentReport: _ReportBody,
+    LoadPose: _LoadPoseBody,
     HinfMeas: _HinfMeasBody,
     HinfState: _HinfStateBody,
     HinfInput: _HinfInputBody,
@@ -262,6 +278,11 @@ def _vec(v: tuple[float, ...]) -> tuple[float, ...]:
     return tuple(float(x) for x in v)
 
 
+def _enc_pose(m: LoadPose) -> dict[str, Any]:
+    return {"tick": m.tick, "x": float(m.x), "y": float(m.y), "angle": float(m.angle), "pg_x": float(m.pg_x),
+            "pg_y": float(m.pg_y), "z": _vec(m.z)}
+
+
 def _enc_hinf_meas(m: HinfMeas) -> dict[str, Any]:
     return {"tick": m.tick, "agent": m.agent, "z": _vec(m.z)}
 
@@ -281,6 +302,7 @@ _ENCODERS: Final = {
     Estimate: _enc_estimate,
     Control: _enc_control,
     AgentReport: _enc_report,
+    LoadPose: _enc_pose,
     HinfMeas: _enc_hinf_meas,
     HinfState: _enc_hinf_state,
     HinfInput: _enc_hinf_input,

@@ -35,7 +35,7 @@ from config.loader import dump_scenario
 from config.scenario import Scenario
 from net import keys
 from net.link import partition_events
-from net.messages import AgentReport, Control, Estimate, Measurement, Wrench
+from net.messages import AgentReport, Control, Estimate, LoadPose, Measurement, Wrench
 from net.schema import decode, decode_counted, encode
 from net.transport import Transport
 from simulator.plant import Plant, sensor_rng
@@ -425,6 +425,7 @@ class SimDaemon:
         report_every = max(1, ticks // 100)
         pevents = self._partition_events
         stop = self._stop
+        every, pose_key = sc.record.every_ticks, keys.sim_pose(self.run_name)
         for k in range(start, ticks):
             if stop is not None and k >= stop.end:
                 break
@@ -444,7 +445,11 @@ class SimDaemon:
             for i in range(self.n):
                 publish(meas_keys[i], out[i])
             # recorded once the measurements are out: the agents are busy with them meanwhile
-            self.recorder.truth(self.plant.truth())
+            truth = self.plant.truth()
+            self.recorder.truth(truth)
+            if k % every == 0:
+                publish(pose_key, encode(LoadPose(k, truth.x, truth.y, truth.angle, truth.pg[0], truth.pg[1],
+                                                  tuple(c for xy in truth.zi for c in xy))))
             got = True
             if sc.mode == "lockstep":
                 self._meas_out = out

@@ -288,19 +288,21 @@ def scenarios(draw) -> Scenario:
     data: dict = {
         "name": draw(st.text(max_size=20)),
         "n": n,
-        "dt": draw(positive),
-        "duration": draw(positive),
+        "dt": (dt := draw(positive)),
+        "duration": dt * draw(st.floats(1.0, 1e5)),  # at least one tick
         "seed": draw(st.integers(0, 2**63)),
         "mode": draw(st.sampled_from(["lockstep", "realtime"])),
     }
-    load: dict = {"mass": draw(positive), "com_offset": [draw(finite), draw(finite)]}
+    inner = st.floats(-1.0, 1.0)  # the CoM lies inside the outline: a fraction of a box inside it
+    load: dict = {"mass": draw(positive)}
     if draw(st.booleans()):
         k = draw(st.integers(3, 8))
         load |= {"shape": "polygon", "vertices": [
             [math.cos(2 * math.pi * i / k) * 2, math.sin(2 * math.pi * i / k)] for i in range(k)
-        ]}  # fmt: skip
+        ], "com_offset": [0.25 * draw(inner), 0.25 * draw(inner)]}  # fmt: skip
     else:
-        load |= {"width": draw(positive), "height": draw(positive)}
+        load |= {"width": (w := draw(positive)), "height": (h := draw(positive))}
+        load["com_offset"] = [0.5 * w * draw(inner), 0.5 * h * draw(inner)]
     if draw(st.booleans()):
         load["inertia"] = draw(positive)
     data["load"] = load

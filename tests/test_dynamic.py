@@ -163,7 +163,7 @@ def _estimates(run_dir):
 
     with open(run_dir / "estimates.csv") as f:
         rows = list(csv.DictReader(f))
-    return rows
+    return [{k: v or "nan" for k, v in r.items()} for r in rows]  # an empty cell: no value
 
 
 @pytest.mark.slow

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from net.hinf_messages import HinfInput, HinfMeas, HinfState
-from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
+from net.messages import AgentReport, Control, Estimate, LoadPose, Measurement, StateMsg, Wrench
 from net.schema import (
     KIND,
     MAX_AGENT_ID,
@@ -28,7 +28,7 @@ from net.schema import (
     is_finite_message,
 )
 
-TYPES = [Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, HinfMeas, HinfState, HinfInput]
+TYPES = [Measurement, Wrench, StateMsg, Estimate, Control, AgentReport, LoadPose, HinfMeas, HinfState, HinfInput]
 
 finite = st.floats(allow_nan=False, allow_infinity=False)
 ticks = st.integers(0, MAX_TICK)
@@ -65,10 +65,12 @@ reports = st.builds(
     ticks=ticks,
 )
 vectors = st.lists(finite, max_size=8).map(tuple)
+poses = st.builds(LoadPose, tick=ticks, x=finite, y=finite, angle=finite, pg_x=finite, pg_y=finite, z=vectors)
 hinf_meas = st.builds(HinfMeas, tick=ticks, agent=ids, z=vectors)
 hinf_states = st.builds(HinfState, tick=ticks, sender=ids, xhat=vectors, u=vectors, zeta=vectors)
 hinf_inputs = st.builds(HinfInput, tick=ticks, agent=ids, u=vectors, xhat=vectors, zeta=vectors)
-messages = st.one_of(measurements, wrenches, states, estimates, controls, reports, hinf_meas, hinf_states, hinf_inputs)
+messages = st.one_of(measurements, wrenches, states, estimates, controls, reports, poses, hinf_meas, hinf_states,
+                     hinf_inputs)
 
 
 def _same(a: object, b: object) -> bool:
@@ -135,6 +137,7 @@ GOOD = {
     Control: {"kind": "progress", "tick": 5, "ticks": 100},
     AgentReport: {"agent": 2, "links": {1: {"sent": 3, "dropped": 1}}, "drops": {"stale": 2}, "timeouts": 0,
                   "ticks": 100},
+    LoadPose: {"tick": 1, "x": 0.5, "y": -0.5, "angle": 0.1, "pg_x": 0.4, "pg_y": -0.3, "z": (1.0, 2.0, -1.0, -2.0)},
     HinfMeas: {"tick": 1, "agent": 2, "z": (0.1, -0.2)},
     HinfState: {"tick": 1, "sender": 2, "xhat": (1.0, 2.0), "u": (0.5,), "zeta": ()},
     HinfInput: {"tick": 1, "agent": 2, "u": (0.5,), "xhat": (1.0, 2.0), "zeta": (0.1,)},

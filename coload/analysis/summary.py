@@ -12,14 +12,15 @@ from typing import Any
 
 from coload.analysis import yardstick
 from coload.analysis.metrics import final_errors
+from coload.provenance import versions
 from coload.rundir import format as fmt
 from coload.rundir.recorder import write_summary
 from config.scenario import Scenario
 
 
 def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any]) -> dict[str, Any]:
-    """Adds ``errors`` (and, with ``record.batch_fit``, the centralized blocks) to ``summary`` and
-    rewrites summary.json. A run too short to score still keeps its summary, with the reason."""
+    """Adds ``errors`` (and, with ``record.batch_fit``, the centralized blocks) and ``versions`` to
+    ``summary`` and rewrites summary.json. A run too short to score still keeps its summary, with the reason."""
     run = None
     try:
         run = fmt.read_run(run_dir)
@@ -29,6 +30,7 @@ def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any])
         summary.setdefault("warnings", []).append(f"errors not computed: {exc}")
     if scenario.record.batch_fit:
         summary.update(_centralized(run))
+    summary["versions"] = versions()
     write_summary(Path(run_dir), summary)
     return summary
 

@@ -1,7 +1,8 @@
 """Writes a run directory as the run goes (see docs/run-directory.md).
 
 Rows are buffered and flushed in blocks so that recording stays a small share of a tick; floats are
-written with ``repr`` so that they read back bit-identical (the engine-equality test relies on it).
+written with ``repr`` so that they read back bit-identical (the engine-equality test relies on it), and
+a missing value (NaN) as an empty cell.
 """
 
 from __future__ import annotations
@@ -43,7 +44,10 @@ class _Table:
 
 
 def _f(x: float) -> str:
-    return repr(float(x))
+    # no value (NaN) is an empty cell, which every CSV reader takes for missing (a "nan" cell turns a
+    # column into strings for some); repr reads back bit-identical
+    x = float(x)
+    return repr(x) if x == x else ""
 
 
 class Recorder:

@@ -16,6 +16,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
@@ -304,9 +305,11 @@ def process_run(run_dir: Path, verbose: int = 0, listen: str | None = None) -> t
 
 
 def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0,
-                  listen: str | None = None) -> dict[str, Any] | None:
+                  listen: str | None = None,
+                  on_router: Callable[[str, str], Any] | None = None) -> dict[str, Any] | None:
     """The real thing: an embedded Zenoh router, the simulator and n agent daemons, each its own process.
-    ``listen``: the router's endpoint, for clients of the run (docs/wire.md); default a free loopback port."""
+    ``listen``: the router's endpoint, for clients of the run (docs/wire.md); default a free loopback port.
+    ``on_router(endpoint, run)``: called once the router listens, before the simulator starts (a live view)."""
     from net import keys
 
     run_dir = Path(run_dir)
@@ -319,6 +322,8 @@ def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbos
             return None
         # what a client of the run needs (docs/wire.md): the router and the key space
         print(f"coload run: router {endpoint}, keys coload/{run}/**", file=sys.stderr, flush=True)
+        if on_router is not None:
+            on_router(endpoint, run)
         common = [str(toml), "--connect", endpoint, "--run", run]
         sim = children.start("sim", [*py, "sim", *common, "--out", str(run_dir)])
         for i in range(scenario.n):
