@@ -27,11 +27,13 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
-#: Real time: a measurement may be ahead of this agent's first one by at most twice the wall-clock
-#: time since it, plus this many ticks (a simulator cannot run faster than the clock; a forgery far
-#: ahead would otherwise make every genuine measurement after it stale). The anchor never moves, so a
-#: burst of forgeries cannot walk it forward; the first measurement itself is trusted (keeping forged
-#: publishers out altogether is Zenoh access control's job).
+#: Real time: a measurement or a neighbour's state may be ahead of the anchor by at most twice the
+#: wall-clock time since it, plus this many ticks (a simulator cannot run faster than the clock; a
+#: forgery far ahead would otherwise make every genuine message after it stale: an agent blinded, a
+#: link cut). The anchor is the simulator's start notice (tick 0), or for an agent that joins a
+#: running team its first measurement; it never moves, so a burst of forgeries cannot walk it
+#: forward. A late joiner's first measurement is trusted (keeping forged publishers out altogether is
+#: Zenoh access control's job: docs/security.md).
 REALTIME_LEAD_SLACK = 50
 
 # Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
@@ -90,6 +92,8 @@ class AgentDaemon:
         self._k_state = keys.state(run, agent_id)
         self._k_wrench = keys.wrench(run, agent_id)
         self._k_estimate = keys.estimate(run, agent_id)
+        self._k_meas = keys.meas(run, agent_id)
+        self._k_control = keys.sim_control(run)
         self._state_keys = {keys.state(run, j): j for j in self.neighbours}  # parsed once, not per sample
         self._record_every = scenario.record.every_ticks
         self.ticks_stepped = 0
@@ -104,10 +108,10 @@ class AgentDaemon:
     # ---- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
         t, run, i = self.transport, self.run_name, self.id
-        self._subs.append(t.subscribe(keys.meas(run, i), self._on_meas))
+        self._subs.append(t.subscribe(self._k_meas, self._on_meas))
         for j in self.neighbours:
             self._subs.append(t.subscribe(keys.state(run, j), self._on_state))
-        self._subs.append(t.subscribe(keys.sim_control(run), self._on_control))
+        self._subs.append(t.subscribe(self._k_control, self._on_control))
         self._subs.append(t.watch_alive(keys.alive_all(run), self._on_alive))
         self._subs.append(t.declare_alive(keys.alive(run, "agent", i)))
         log.info("agent %d up: neighbours %s, mode %s", i, self.neighbours, self.mode)
@@ -177,7 +181,10 @@ class AgentDaemon:
             for key, payload in self._resend.items():
                 self.transport.publish(key, payload)
 
-    def _on_control(self, _key: str, payload: bytes) -> None:
+    def _on_control(self, key: str, payload: bytes) -> None:
+        if key != self._k_control:
+            self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            return
         msg = self._decode(payload, Control)
         if msg is None:
             return
@@ -189,6 +196,8 @@ class AgentDaemon:
             return
         if msg.kind == "start":
             self.seen_start = True
+            if self.mode == "realtime" and self._anchor is None:
+                self._anchor = (0, self.transport.loop.time())
         elif msg.kind == "done":
             self._finish.begin(msg.tick, self.last_from, self.expect)
 
@@ -206,7 +215,10 @@ class AgentDaemon:
         self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))
         self.done.set()
 
-    def _on_meas(self, _key: str, payload: bytes) -> None:
+    def _on_meas(self, key: str, payload: bytes) -> None:
+        if key != self._k_meas:
+            self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            return
         m = self._decode(payload, Measurement)
         if m is None:
             return
@@ -225,10 +237,9 @@ class AgentDaemon:
             self.drops["future"] += 1
             return
         if self.mode == "realtime":
-            now = self.transport.loop.time()
             if self._anchor is None:
-                self._anchor = (m.tick, now)
-            elif m.tick - self._anchor[0] > 2.0 * (now - self._anchor[1]) / self.scenario.dt + REALTIME_LEAD_SLACK:
+                self._anchor = (m.tick, self.transport.loop.time())
+            elif m.tick > self._horizon():
                 self.drops["future"] += 1
                 return
         if self.mode == "lockstep" and m.tick != self.last_meas + 1:
@@ -296,13 +307,16 @@ class AgentDaemon:
         self.next_tick = k
         self.expect = {j for j in self.neighbours if self.last_from[j] >= k - 1}
 
+    def _horizon(self) -> float:
+        """Real time: the furthest tick a genuine message can carry now (see REALTIME_LEAD_SLACK)."""
+        tick, t0 = self._anchor
+        return tick + 2.0 * (self.transport.loop.time() - t0) / self.scenario.dt + REALTIME_LEAD_SLACK
+
     def _on_state(self, key: str, payload: bytes) -> None:
         sender = self._state_keys.get(key)
         if sender is None:
-            parsed = keys.parse_agent_key(key)
-            sender = parsed[1] if parsed else None
-        if sender not in self.last_from:
-            self.drops["unknown_sender"] += 1
+            # a put on a wider key expression that this subscription matched (agent/*/state)
+            self.drops[keys.WRONG_KEY] += 1
             return
         msg = self._decode(payload, StateMsg, link=sender)
         if msg is None:
@@ -316,7 +330,7 @@ class AgentDaemon:
             return
         if msg.tick > self.next_tick + MAX_TICK_LEAD or (
             self.mode == "lockstep" and msg.tick != last + 1 and msg.tick > self.next_tick + 1
-        ):
+        ) or (self.mode == "realtime" and self._anchor is not None and msg.tick > self._horizon()):
             self.drops["future"] += 1
             return
         self.last_from[sender] = msg.tick

@@ -105,14 +105,16 @@ def write_compose(path: Path, n: int, scenario: str, run: str = "compose") -> Pa
     return path
 
 
-def check_alive(connect: list[str], key: str | None, timeout: float) -> bool:
-    """True if a client session opens on ``connect`` and, when ``key`` is given, a token matches it."""
+def check_alive(connect: list[str] | Any, key: str | None, timeout: float) -> bool:
+    """True if a client session opens on ``connect`` (endpoints, or a finished zenoh.Config: TLS)
+    and, when ``key`` is given, a token matches it."""
     import zenoh
 
     from net.zenoh_transport import zenoh_config
 
+    conf = zenoh_config(mode="client", connect=connect) if isinstance(connect, list) else connect
     try:
-        session = zenoh.open(zenoh_config(mode="client", connect=connect))
+        session = zenoh.open(conf)
     except zenoh.ZError:
         return False
     with session:
