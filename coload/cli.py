@@ -98,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scenario path inside the image (default: %(default)s); n is set to --agents")
     p.add_argument("--run", default="compose", help="run name (key-expression namespace)")
     p.add_argument("--out", type=Path, default=Path("docker/compose.yaml"), help="file to write (default: %(default)s)")
+    p.add_argument("--insecure", action="store_true",
+                   help="plain TCP, no keys (default: mutual TLS and access control, with the team's keys made "
+                        "in keys/ next to the compose file unless it holds them; docs/security.md)")
 
     p = sub.add_parser("alive", help="health check: exit 0 if the router answers (and a liveliness token matches)",
                        description="Exit 0 if a client session opens on --connect and, with --key, a liveliness "
@@ -465,12 +468,36 @@ def cmd_compose(args: argparse.Namespace) -> int:
     from coload.runs.compose import write_compose
 
     try:
-        path = write_compose(args.out, args.agents, args.scenario, args.run)
+        keys_dir = None
+        if not args.insecure:
+            keys_dir = "./keys"
+            _compose_keys(args.out.parent / "keys", args)
+        path = write_compose(args.out, args.agents, args.scenario, args.run, keys_dir=keys_dir)
     except ValueError as exc:
         print(f"coload compose: {exc}", file=sys.stderr)
         return 2
     print(f"wrote {path}: docker compose -f {path} up --build")
     return 0
+
+
+def _compose_keys(tls_dir: Path, args: argparse.Namespace) -> None:
+    """The compose team's keys: made unless ``tls_dir`` holds this team's already."""
+    import datetime as dt
+
+    from coload.certificates import MANIFEST, init_team, load_team
+
+    if args.agents < 2:
+        raise ValueError(f"--agents must be at least 2, a team (got {args.agents})")
+    if (tls_dir / MANIFEST).exists():
+        team = load_team(tls_dir)
+        if team.n != args.agents or team.run != args.run:
+            raise ValueError(f"{tls_dir} holds the keys of another team ({team.n} agents, run {team.run}); "
+                             "remove it or give another --out")
+        return
+    neighbours = load_scenario(args.scenario, [f"n={args.agents}"]).neighbours()
+    init_team(tls_dir, neighbours, run=args.run, endpoint="tls/router:7447",
+              now=dt.datetime.now(dt.timezone.utc))
+    print(f"made the team's keys in {tls_dir}")
 
 
 def cmd_alive(args: argparse.Namespace) -> int:
