@@ -27,14 +27,18 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
-#: Real time: a measurement or a neighbour's state may be ahead of the anchor by at most twice the
-#: wall-clock time since it, plus this many ticks (a simulator cannot run faster than the clock; a
-#: forgery far ahead would otherwise make every genuine message after it stale: an agent blinded, a
-#: link cut). The anchor is the simulator's start notice (tick 0), or for an agent that joins a
-#: running team its first measurement; it never moves, so a burst of forgeries cannot walk it
-#: forward. A late joiner's first measurement is trusted (keeping forged publishers out altogether is
-#: Zenoh access control's job: docs/security.md).
+#: Real time: how far ahead a measurement or a neighbour's state may be. Two bounds, both must hold:
+#: (1) ahead of the anchor by at most twice the wall-clock time since it plus the anchor's slack (a
+#: simulator cannot run faster than the clock). The anchor is the simulator's start notice (tick 0,
+#: slack START_SLACK_S: the notice may be handled late, after a stall of the agent's loop, with the
+#: first measurements right behind it) or, for an agent that joins a running team, its first
+#: measurement (slack REALTIME_LEAD_SLACK). It never moves, so a burst of forgeries cannot walk it
+#: forward. (2) Once a measurement is accepted, ahead of it by at most 1.5 times the clock since it
+#: plus REALTIME_LEAD_SLACK: one forgery far ahead is refused at once instead of making every genuine
+#: message after it stale (an agent blinded, a link cut). A late joiner's first measurement is
+#: trusted; keeping forged publishers out altogether is Zenoh access control's job (docs/security.md).
 REALTIME_LEAD_SLACK = 50
+START_SLACK_S = 2.0
 
 # Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
 # consumes a link-model draw). The simulator publishes measurements tick after tick on one key, and a
@@ -74,7 +78,8 @@ class AgentDaemon:
         self.timeouts = 0
         self.next_tick = 0  # the tick the core steps next
         self.last_meas = -1  # tick of the last accepted measurement
-        self._anchor: tuple[int, float] | None = None  # real time: (tick, loop time) of the first measurement
+        self._anchor: tuple[int, float, float] | None = None  # real time: (tick, loop time, slack in ticks)
+        self._last_meas_t = 0.0  # real time: loop time the last measurement was accepted
         self.seen_start = False  # the simulator's start notice arrived: we are in from tick 0
         self.pending_meas: dict[int, Measurement] = {}
         self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
@@ -197,7 +202,7 @@ class AgentDaemon:
         if msg.kind == "start":
             self.seen_start = True
             if self.mode == "realtime" and self._anchor is None:
-                self._anchor = (0, self.transport.loop.time())
+                self._anchor = (0, self.transport.loop.time(), START_SLACK_S / self.scenario.dt)
         elif msg.kind == "done":
             self._finish.begin(msg.tick, self.last_from, self.expect)
 
@@ -238,7 +243,7 @@ class AgentDaemon:
             return
         if self.mode == "realtime":
             if self._anchor is None:
-                self._anchor = (m.tick, self.transport.loop.time())
+                self._anchor = (m.tick, self.transport.loop.time(), REALTIME_LEAD_SLACK)
             elif m.tick > self._horizon():
                 self.drops["future"] += 1
                 return
@@ -258,6 +263,7 @@ class AgentDaemon:
                 log.info("agent %d joins the run at tick %d", self.id, m.tick)
             self._join_at(m.tick)
         self.last_meas = m.tick
+        self._last_meas_t = self.transport.loop.time()
         self._sim_lost = False
         if self._jump is not None and self._jump.tick <= m.tick:
             self._jump = None  # the real stream went past it: it was not ours (counted when held)
@@ -291,6 +297,7 @@ class AgentDaemon:
         self.drops["future"] -= 1
         self._join_at(m.tick)
         self.last_meas = m.tick
+        self._last_meas_t = self.transport.loop.time()
         self.pending_meas[m.tick] = m
         self._try_step()
 
@@ -309,8 +316,12 @@ class AgentDaemon:
 
     def _horizon(self) -> float:
         """Real time: the furthest tick a genuine message can carry now (see REALTIME_LEAD_SLACK)."""
-        tick, t0 = self._anchor
-        return tick + 2.0 * (self.transport.loop.time() - t0) / self.scenario.dt + REALTIME_LEAD_SLACK
+        tick, t0, slack = self._anchor
+        now, dt = self.transport.loop.time(), self.scenario.dt
+        horizon = tick + 2.0 * (now - t0) / dt + slack
+        if self.last_meas >= 0:
+            horizon = min(horizon, self.last_meas + 1.5 * (now - self._last_meas_t) / dt + REALTIME_LEAD_SLACK)
+        return horizon
 
     def _on_state(self, key: str, payload: bytes) -> None:
         sender = self._state_keys.get(key)

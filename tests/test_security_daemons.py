@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 
-from agents.daemon import REALTIME_LEAD_SLACK, AgentDaemon
+from agents.daemon import REALTIME_LEAD_SLACK, START_SLACK_S, AgentDaemon
 from config.loader import load_scenario
 from net import keys
 from net.memory import MemoryBus, MemoryTransport
@@ -84,7 +84,7 @@ def test_realtime_far_future_tick_neither_blinds_an_agent_nor_cuts_a_link():
         agent._on_control(keys.sim_control(RUN), encode(Control("start", 0, sc.ticks)))
         agent._on_meas(keys.meas(RUN, 1), encode(Measurement(FAR, 1, 9.0, 9.0)))
         agent._on_state(keys.state(RUN, 0), encode(_state(FAR, 0)))
-        agent._on_state(keys.state(RUN, 0), encode(_state(REALTIME_LEAD_SLACK + 30, 0)))  # within MAX_TICK_LEAD
+        agent._on_state(keys.state(RUN, 0), encode(_state(int(START_SLACK_S / sc.dt) + 30, 0)))  # < MAX_TICK_LEAD
         forged = dict(agent.drops)
         agent._on_state(keys.state(RUN, 0), encode(_state(0, 0)))
         agent._on_meas(keys.meas(RUN, 1), encode(Measurement(0, 1, 0.1, 0.0)))
@@ -98,21 +98,36 @@ def test_realtime_far_future_tick_neither_blinds_an_agent_nor_cuts_a_link():
 
 
 def test_realtime_horizon_grows_with_the_clock():
-    """A genuine run far along (tick 300 after 1.5 s of a 0.01 s tick) is not refused: the horizon
-    is twice the clock's pace plus the slack."""
+    """A genuine run far along (tick 150 after 1.5 s of a 0.01 s tick) is not refused: the horizon
+    is twice the clock's pace plus the slack; once a measurement is in, a state further ahead of it
+    than the slack is refused."""
 
     async def scene(agent: AgentDaemon, sc):
         loop = asyncio.get_running_loop()
-        agent._anchor = (0, loop.time() - 1.5)  # the start notice came 1.5 s ago
+        agent._anchor = (0, loop.time() - 1.5, REALTIME_LEAD_SLACK)  # the start notice came 1.5 s ago
         agent._on_meas(keys.meas(RUN, 1), encode(Measurement(int(1.5 / sc.dt), 1, 0.1, 0.0)))
         agent._on_state(keys.state(RUN, 0), encode(_state(int(1.5 / sc.dt), 0)))
-        too_far = int(2 * 1.5 / sc.dt + REALTIME_LEAD_SLACK + 50)
-        agent._on_state(keys.state(RUN, 2), encode(_state(too_far, 2)))
+        agent._on_state(keys.state(RUN, 2), encode(_state(150 + REALTIME_LEAD_SLACK + 20, 2)))
         return dict(agent.drops), agent.last_meas, agent.last_from
 
     drops, last_meas, last_from = _agent("realtime", scene)
     assert drops == {"future": 1}
     assert last_meas == 150 and last_from == {0: 150, 2: -1}
+
+
+def test_realtime_start_notice_handled_late_does_not_refuse_genuine_measurements():
+    """The loop stalled: the start notice is handled with 1.5 s of measurements right behind it
+    (START_SLACK_S covers it); a forgery 5 s ahead of the last measurement is still refused."""
+
+    async def scene(agent: AgentDaemon, sc):
+        agent._on_control(keys.sim_control(RUN), encode(Control("start", 0, sc.ticks)))
+        for k in range(0, 150, 10):
+            agent._on_meas(keys.meas(RUN, 1), encode(Measurement(k, 1, 0.1, 0.0)))
+        agent._on_meas(keys.meas(RUN, 1), encode(Measurement(150 + 500, 1, 9.0, 9.0)))
+        agent._on_meas(keys.meas(RUN, 1), encode(Measurement(150, 1, 0.1, 0.0)))
+        return dict(agent.drops), agent.last_meas
+
+    assert _agent("realtime", scene) == ({"future": 1}, 150)
 
 
 def test_simulator_refuses_puts_on_wider_key_expressions(tmp_path):
