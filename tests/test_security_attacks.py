@@ -210,3 +210,32 @@ def test_insecure_team_refuses_wider_key_expressions(tmp_path):
 
     summary = _run_team(tmp_path, None, endpoint, run, attack)
     assert summary["drops"] == dict(expected)
+
+
+def test_run_secure_is_bit_identical_to_inproc(tmp_path):
+    """``coload run --secure``: keys in the run directory, every member over mutual TLS under the
+    policy, and the same tables as the in-process engine."""
+    sets = ["--set", "duration=3.0"]
+    out = subprocess.run(coload_cmd("run", "quick", "--secure", *sets, "--out", str(tmp_path / "sec"), "--no-report",
+                                    "--no-batch-fit", "--quiet"), capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "router tls/127.0.0.1:" in out.stderr
+    assert certs.certificate_info(tmp_path / "sec" / "keys" / "router.pem")["cn"] == "router.g1"
+    ref = subprocess.run(coload_cmd("run", "quick", "--engine", "inproc", *sets, "--out", str(tmp_path / "ref"),
+                                    "--no-report", "--no-batch-fit", "--quiet"), capture_output=True, text=True,
+                         timeout=300)
+    assert ref.returncode == 0, ref.stderr
+    for name, nkeys in (("samples.csv", 2), ("estimates.csv", 2), ("pairs.csv", 3), ("truth.csv", 1)):
+        assert max_table_difference(tmp_path / "sec", tmp_path / "ref", name, nkeys) == 0.0, name
+
+
+def test_run_exits_1_naming_the_agents_that_did_not_report(tmp_path, monkeypatch, capsys):
+    import coload.runs.orchestrate as orchestrate
+    from coload.cli import main
+
+    def fake(scenario, run_dir, **kw):
+        return {"agents_reported": [0, 1, 3], "n": scenario.n}
+
+    monkeypatch.setattr(orchestrate, "run_processes", fake)
+    assert main(["run", "quick", "--out", str(tmp_path / "r"), "--no-report", "--no-batch-fit", "--quiet"]) == 1
+    assert "agents 2, 4 did not report at the end" in capsys.readouterr().err
