@@ -27,12 +27,18 @@ log = logging.getLogger("coload.agent")
 
 #: A measurement or state further ahead than this many ticks is treated as hostile.
 MAX_TICK_LEAD = 10_000
-#: Real time: a measurement may be ahead of this agent's first one by at most twice the wall-clock
-#: time since it, plus this many ticks (a simulator cannot run faster than the clock; a forgery far
-#: ahead would otherwise make every genuine measurement after it stale). The anchor never moves, so a
-#: burst of forgeries cannot walk it forward; the first measurement itself is trusted (keeping forged
-#: publishers out altogether is Zenoh access control's job).
+#: Real time: how far ahead a measurement or a neighbour's state may be. Two bounds, both must hold:
+#: (1) ahead of the anchor by at most twice the wall-clock time since it plus the anchor's slack (a
+#: simulator cannot run faster than the clock). The anchor is the simulator's start notice (tick 0,
+#: slack START_SLACK_S: the notice may be handled late, after a stall of the agent's loop, with the
+#: first measurements right behind it) or, for an agent that joins a running team, its first
+#: measurement (slack REALTIME_LEAD_SLACK). It never moves, so a burst of forgeries cannot walk it
+#: forward. (2) Once a measurement is accepted, ahead of it by at most 1.5 times the clock since it
+#: plus REALTIME_LEAD_SLACK: one forgery far ahead is refused at once instead of making every genuine
+#: message after it stale (an agent blinded, a link cut). A late joiner's first measurement is
+#: trusted; keeping forged publishers out altogether is Zenoh access control's job (docs/security.md).
 REALTIME_LEAD_SLACK = 50
+START_SLACK_S = 2.0
 
 # Lockstep tick discipline (validated here, at the edge, before a message reaches the core or
 # consumes a link-model draw). The simulator publishes measurements tick after tick on one key, and a
@@ -70,7 +76,8 @@ class AgentDaemon:
         self.timeouts = 0
         self.next_tick = 0  # the tick the core steps next
         self.last_meas = -1  # tick of the last accepted measurement
-        self._anchor: tuple[int, float] | None = None  # real time: (tick, loop time) of the first measurement
+        self._anchor: tuple[int, float, float] | None = None  # real time: (tick, loop time, slack in ticks)
+        self._last_meas_t = 0.0  # real time: loop time the last measurement was accepted
         self.seen_start = False  # the simulator's start notice arrived: we are in from tick 0
         self.pending_meas: dict[int, Measurement] = {}
         self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
@@ -88,6 +95,8 @@ class AgentDaemon:
         self._k_state = keys.state(run, agent_id)
         self._k_wrench = keys.wrench(run, agent_id)
         self._k_estimate = keys.estimate(run, agent_id)
+        self._k_meas = keys.meas(run, agent_id)
+        self._k_control = keys.sim_control(run)
         self._state_keys = {keys.state(run, j): j for j in self.neighbours}  # parsed once, not per sample
         self._record_every = view.record.every_ticks
         self.ticks_stepped = 0
@@ -102,10 +111,10 @@ class AgentDaemon:
     # ---- lifecycle -------------------------------------------------------------------------
     def start(self) -> None:
         t, run, i = self.transport, self.run_name, self.id
-        self._subs.append(t.subscribe(keys.meas(run, i), self._on_meas))
+        self._subs.append(t.subscribe(self._k_meas, self._on_meas))
         for j in self.neighbours:
             self._subs.append(t.subscribe(keys.state(run, j), self._on_state))
-        self._subs.append(t.subscribe(keys.sim_control(run), self._on_control))
+        self._subs.append(t.subscribe(self._k_control, self._on_control))
         self._subs.append(t.watch_alive(keys.alive_all(run), self._on_alive))
         self._subs.append(t.declare_alive(keys.alive(run, "agent", i)))
         log.info("agent %d up: neighbours %s, mode %s", i, self.neighbours, self.mode)
@@ -175,7 +184,10 @@ class AgentDaemon:
             for key, payload in self._resend.items():
                 self.transport.publish(key, payload)
 
-    def _on_control(self, _key: str, payload: bytes) -> None:
+    def _on_control(self, key: str, payload: bytes) -> None:
+        if key != self._k_control:
+            self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            return
         msg = self._decode(payload, Control)
         if msg is None:
             return
@@ -187,6 +199,8 @@ class AgentDaemon:
             return
         if msg.kind == "start":
             self.seen_start = True
+            if self.mode == "realtime" and self._anchor is None:
+                self._anchor = (0, self.transport.loop.time(), START_SLACK_S / self.scenario.dt)
         elif msg.kind == "done":
             self._finish.begin(msg.tick, self.last_from, self.expect)
 
@@ -204,7 +218,10 @@ class AgentDaemon:
         self.transport.publish(keys.report(self.run_name, self.id), encode(self.report()))
         self.done.set()
 
-    def _on_meas(self, _key: str, payload: bytes) -> None:
+    def _on_meas(self, key: str, payload: bytes) -> None:
+        if key != self._k_meas:
+            self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            return
         m = self._decode(payload, Measurement)
         if m is None:
             return
@@ -223,10 +240,9 @@ class AgentDaemon:
             self.drops["future"] += 1
             return
         if self.mode == "realtime":
-            now = self.transport.loop.time()
             if self._anchor is None:
-                self._anchor = (m.tick, now)
-            elif m.tick - self._anchor[0] > 2.0 * (now - self._anchor[1]) / self.scenario.dt + REALTIME_LEAD_SLACK:
+                self._anchor = (m.tick, self.transport.loop.time(), REALTIME_LEAD_SLACK)
+            elif m.tick > self._horizon():
                 self.drops["future"] += 1
                 return
         if self.mode == "lockstep" and m.tick != self.last_meas + 1:
@@ -245,6 +261,7 @@ class AgentDaemon:
                 log.info("agent %d joins the run at tick %d", self.id, m.tick)
             self._join_at(m.tick)
         self.last_meas = m.tick
+        self._last_meas_t = self.transport.loop.time()
         self._sim_lost = False
         if self._jump is not None and self._jump.tick <= m.tick:
             self._jump = None  # the real stream went past it: it was not ours (counted when held)
@@ -278,6 +295,7 @@ class AgentDaemon:
         self.drops["future"] -= 1
         self._join_at(m.tick)
         self.last_meas = m.tick
+        self._last_meas_t = self.transport.loop.time()
         self.pending_meas[m.tick] = m
         self._try_step()
 
@@ -294,13 +312,20 @@ class AgentDaemon:
         self.next_tick = k
         self.expect = {j for j in self.neighbours if self.last_from[j] >= k - 1}
 
+    def _horizon(self) -> float:
+        """Real time: the furthest tick a genuine message can carry now (see REALTIME_LEAD_SLACK)."""
+        tick, t0, slack = self._anchor
+        now, dt = self.transport.loop.time(), self.scenario.dt
+        horizon = tick + 2.0 * (now - t0) / dt + slack
+        if self.last_meas >= 0:
+            horizon = min(horizon, self.last_meas + 1.5 * (now - self._last_meas_t) / dt + REALTIME_LEAD_SLACK)
+        return horizon
+
     def _on_state(self, key: str, payload: bytes) -> None:
         sender = self._state_keys.get(key)
         if sender is None:
-            parsed = keys.parse_agent_key(key)
-            sender = parsed[1] if parsed else None
-        if sender not in self.last_from:
-            self.drops["unknown_sender"] += 1
+            # a put on a wider key expression that this subscription matched (agent/*/state)
+            self.drops[keys.WRONG_KEY] += 1
             return
         msg = self._decode(payload, StateMsg, link=sender)
         if msg is None:
@@ -314,7 +339,7 @@ class AgentDaemon:
             return
         if msg.tick > self.next_tick + MAX_TICK_LEAD or (
             self.mode == "lockstep" and msg.tick != last + 1 and msg.tick > self.next_tick + 1
-        ):
+        ) or (self.mode == "realtime" and self._anchor is not None and msg.tick > self._horizon()):
             self.drops["future"] += 1
             return
         self.last_from[sender] = msg.tick

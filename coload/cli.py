@@ -42,21 +42,9 @@ def _add_scenario_args(p: argparse.ArgumentParser) -> None:
 
 
 def _add_zenoh_args(p: argparse.ArgumentParser, router: bool = False) -> None:
-    g = p.add_argument_group("zenoh")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)"
-                        + ("; other routers of a mesh" if router else ""))
-    g.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="endpoint to listen on (repeatable)"
-                        + ("; default tcp/127.0.0.1:7447, or with --zenoh-config the file's listen.endpoints"
-                           if router else ""))
-    if not router:
-        g.add_argument("--zenoh-mode", choices=["client", "peer", "router"],
-                       help="Zenoh session mode (default: client, or a mode other than peer that the "
-                            "--zenoh-config file sets)")
-    g.add_argument("--zenoh-config", type=Path, metavar="FILE",
-                   help="a Zenoh JSON5 config file (TLS, lease, ...); its mode and endpoints are kept unless "
-                        "given here; multicast scouting stays off")
+    from coload.zenoh_flags import add_zenoh_args
+
+    add_zenoh_args(p, router=router)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -78,9 +66,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "processes; inproc: everything in this process with the in-memory link model")
     p.add_argument("--out", type=Path,
                    help="run directory (default: runs/NAME-seedS-DATE); a previous run in it is replaced, and said")
-    p.add_argument("--listen", metavar="ENDPOINT",
+    p.add_argument("-l", "--listen", metavar="ENDPOINT",
                    help="zenoh engine: the embedded router's endpoint, for clients that watch or join the run "
                         "(docs/wire.md), e.g. tcp/127.0.0.1:7447 (default: a free loopback port; printed)")
+    p.add_argument("--secure", action="store_true",
+                   help="zenoh engine: mutual TLS and a default-deny access-control list; the team's keys are "
+                        "made in RUN_DIR/keys (docs/security.md)")
     p.add_argument("--no-report", action="store_true", help="do not draw report.png at the end")
     p.add_argument("--view", nargs="?", type=int, const=VIEW_PORT, metavar="PORT",
                    help=f"zenoh engine: stream the load, the contact points and the estimates live to Foxglove's "
@@ -127,13 +118,48 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scenario path inside the image (default: %(default)s); n is set to --agents")
     p.add_argument("--run", default="compose", help="run name (key-expression namespace)")
     p.add_argument("--out", type=Path, default=Path("docker/compose.yaml"), help="file to write (default: %(default)s)")
+    p.add_argument("--insecure", action="store_true",
+                   help="plain TCP, no keys (default: mutual TLS and access control, with the team's keys made "
+                        "in keys/ next to the compose file unless it holds them; docs/security.md)")
 
     p = sub.add_parser("alive", help="health check: exit 0 if the router answers (and a liveliness token matches)",
                        description="Exit 0 if a client session opens on --connect and, with --key, a liveliness "
-                                   "token matching the key expression is alive; exit 1 otherwise.")
-    p.add_argument("--connect", action="append", required=True, metavar="ENDPOINT", help="router endpoint")
+                                   "token matching the key expression is alive; exit 1 otherwise. With "
+                                   "--tls-dir it connects with the team's monitor certificate (read-only).")
+    from coload.zenoh_flags import add_zenoh_args
+
+    add_zenoh_args(p, mode=False)
     p.add_argument("--key", help="liveliness key expression, e.g. coload/RUN/alive/agent/3")
     p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the token (default: %(default)s)")
+
+    p = sub.add_parser("keys", help="a team's keys: a run CA and a certificate per role (docs/security.md)",
+                       description="Make and renew the keys of a secure team: a CA, a key and certificate for the "
+                                   "router, the simulator, the monitor (read-only) and each agent, and team.json, "
+                                   "from which `--tls-dir DIR` builds each role's TLS settings and the router's "
+                                   "default-deny access-control list.")
+    ksub = p.add_subparsers(dest="keys_command", required=True, metavar="ACTION")
+    q = ksub.add_parser("init", help="make a team's CA and every role's key and certificate",
+                        description="Make DIR/ca.pem, DIR/ROLE.pem and DIR/ROLE.key for every role, and DIR/team.json.")
+    q.add_argument("dir", type=Path, help="directory to write (must not hold a team)")
+    q.add_argument("--agents", type=int, required=True, help="number of agents")
+    q.add_argument("--scenario", type=Path,
+                   help="scenario whose graph decides whose states each agent may hear (n set to --agents; "
+                        "default: every agent hears every agent)")
+    q.add_argument("--run", default="*", help="run name the policy is for (default: any run)")
+    q.add_argument("--endpoint", default="tls/127.0.0.1:7447",
+                   help="the router's endpoint, the default of every role (default: %(default)s)")
+    q.add_argument("--host", action="append", metavar="NAME",
+                   help="a name or address clients reach the router by (repeatable; default: localhost, "
+                        "127.0.0.1, router)")
+    q.add_argument("--days", type=float, default=30.0, help="certificate lifetime in days (default: %(default)s)")
+    q = ksub.add_parser("add", help="issue an agent's certificate: a replacement (the old one is revoked) or a joiner",
+                        description="Issue agent I's key and certificate under the next generation; the router's "
+                                    "policy (rebuilt from team.json when it starts) names only the newest, so the "
+                                    "replaced certificate may do nothing. For a new agent (I = n) give the grown "
+                                    "team's --scenario. Restart the router to apply.")
+    q.add_argument("dir", type=Path, help="a team's directory (coload keys init)")
+    q.add_argument("--agent", type=int, required=True, help="agent id")
+    q.add_argument("--scenario", type=Path, help="the grown team's scenario (its graph; n = I + 1 if larger)")
 
     p = sub.add_parser("observer", help="immersion-and-invariance speed observer (paper 004)",
                        description="Speed observer for Euler-Lagrange robots from joint positions only (paper 004).")
@@ -346,11 +372,10 @@ def _check_law(scenario, source: str, agents: Sequence[int]) -> None:
         raise ScenarioError(str(source), None, "control.law", str(exc).removeprefix("control.law ")) from None
 
 
-def _zenoh_conf(args: argparse.Namespace):
-    from net.zenoh_transport import zenoh_config
+def _zenoh_conf(args: argparse.Namespace, role: str):
+    from coload.zenoh_flags import zenoh_conf
 
-    return zenoh_config(mode=args.zenoh_mode, connect=args.connect, listen=args.listen,
-                        config_file=args.zenoh_config, mode_if_unset="client")
+    return zenoh_conf(args, role)
 
 
 class DaemonStartError(Exception):
@@ -384,13 +409,13 @@ async def _serve(coro_factory, transport_factory):
         transport.close()
 
 
-def _run_daemon(name: str, args: argparse.Namespace, coro_factory):
+def _run_daemon(name: str, args: argparse.Namespace, coro_factory, role: str):
     """Opens the daemon's Zenoh session and runs it; start-up errors are one line on stderr, exit 2."""
     from net.zenoh_transport import ZenohTransport
 
     try:
-        conf = _zenoh_conf(args)
-    except ValueError as exc:  # a bad --zenoh-config file
+        conf = _zenoh_conf(args, role)
+    except ValueError as exc:  # a bad config file, --cfg or --tls-dir
         print(f"coload {name}: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
     try:
@@ -415,7 +440,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
         daemon.append(AgentDaemon(scenario.agent_view(args.id), t, args.run))
         return daemon[0].run()
 
-    report = _run_daemon("agent", args, build)
+    report = _run_daemon("agent", args, build, f"agent-{args.id}")
     if daemon and daemon[0].failed:
         print(f"coload agent: {daemon[0].failed}", file=sys.stderr)
         return 1
@@ -432,7 +457,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
     scenario = _scenario(args)
     summary = _run_daemon("sim", args, lambda t: SimDaemon(
-        scenario, t, args.run, Recorder(args.out, scenario, ESTIMATE_NAMES)).run())
+        scenario, t, args.run, Recorder(args.out, scenario, ESTIMATE_NAMES)).run(), "sim")
     if summary is None:
         return 130
     complete_summary(args.out, scenario, summary)
@@ -443,9 +468,12 @@ def cmd_sim(args: argparse.Namespace) -> int:
 def cmd_router(args: argparse.Namespace) -> int:
     from net.zenoh_transport import run_router, zenoh_error_text
 
-    listen = args.listen or (None if args.zenoh_config else ["tcp/127.0.0.1:7447"])
+    from coload.zenoh_flags import zenoh_conf
+
+    listen = args.listen
     try:
-        return run_router(listen, config_file=args.zenoh_config, connect=args.connect)
+        conf = zenoh_conf(args, "router", mode="router", default_listen=["tcp/127.0.0.1:7447"])
+        return run_router(None, config=conf)
     except ValueError as exc:
         print(f"coload router: {exc}", file=sys.stderr)
         return 2
@@ -550,7 +578,11 @@ def cmd_compose(args: argparse.Namespace) -> int:
     from coload.runs.compose import write_compose
 
     try:
-        path = write_compose(args.out, args.agents, args.scenario, args.run)
+        keys_dir = None
+        if not args.insecure:
+            keys_dir = "./keys"
+            _compose_keys(args.out.parent / "keys", args)
+        path = write_compose(args.out, args.agents, args.scenario, args.run, keys_dir=keys_dir)
     except ValueError as exc:
         print(f"coload compose: {exc}", file=sys.stderr)
         return 2
@@ -558,10 +590,72 @@ def cmd_compose(args: argparse.Namespace) -> int:
     return 0
 
 
+def _compose_keys(tls_dir: Path, args: argparse.Namespace) -> None:
+    """The compose team's keys: made unless ``tls_dir`` holds this team's already."""
+    import datetime as dt
+
+    from coload.certificates import MANIFEST, init_team, load_team
+
+    if args.agents < 2:
+        raise ValueError(f"--agents must be at least 2, a team (got {args.agents})")
+    if (tls_dir / MANIFEST).exists():
+        team = load_team(tls_dir)
+        if team.n != args.agents or team.run != args.run:
+            raise ValueError(f"{tls_dir} holds the keys of another team ({team.n} agents, run {team.run}); "
+                             "remove it or give another --out")
+        return
+    neighbours = load_scenario(args.scenario, [f"n={args.agents}"]).neighbours()
+    init_team(tls_dir, neighbours, run=args.run, endpoint="tls/router:7447",
+              now=dt.datetime.now(dt.timezone.utc))
+    print(f"made the team's keys in {tls_dir}")
+
+
 def cmd_alive(args: argparse.Namespace) -> int:
     from coload.runs.compose import check_alive
+    from coload.zenoh_flags import zenoh_conf
 
-    return 0 if check_alive(args.connect, args.key, args.timeout) else 1
+    try:
+        conf = zenoh_conf(args, "monitor", mode="client")
+    except ValueError as exc:
+        print(f"coload alive: {exc}", file=sys.stderr)
+        return 2
+    return 0 if check_alive(conf, args.key, args.timeout) else 1
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    import datetime as dt
+
+    from coload.certificates import KeysError, add_agent, init_team
+
+    now = dt.datetime.now(dt.timezone.utc)
+    try:
+        if args.keys_command == "init":
+            if args.agents < 1:
+                raise KeysError(f"--agents must be at least 1 (got {args.agents})")
+            if args.scenario is not None:
+                neighbours = load_scenario(args.scenario, [f"n={args.agents}"]).neighbours()
+            else:
+                neighbours = [[j for j in range(args.agents) if j != i] for i in range(args.agents)]
+            from coload.certificates import DEFAULT_HOSTS
+
+            team = init_team(args.dir, neighbours, run=args.run, endpoint=args.endpoint,
+                             hosts=args.host or DEFAULT_HOSTS, days=args.days, now=now)
+            print(f"{args.dir}: a CA and keys for {', '.join(team.generations)} (valid {args.days:g} days)")
+        else:
+            neighbours = None
+            if args.scenario is not None:
+                sc = load_scenario(args.scenario)
+                if args.agent >= sc.n:
+                    sc = load_scenario(args.scenario, [f"n={args.agent + 1}"])
+                neighbours = sc.neighbours()
+            team = add_agent(args.dir, args.agent, neighbours=neighbours, now=now)
+            role = f"agent-{args.agent}"
+            print(f"{args.dir}: {role} generation {team.generations[role]}; restart the router to revoke the "
+                  "older certificate")
+    except (KeysError, ValueError) as exc:
+        print(f"coload keys {args.keys_command}: {exc}", file=sys.stderr)
+        return 2
+    return 0
 
 
 def cmd_observer(args: argparse.Namespace) -> int:
@@ -723,9 +817,10 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
         print(f"coload hinf {args.hinf_command}: {exc}", file=sys.stderr)
         return 2
     if args.hinf_command == "agent":
-        rep = _run_daemon("hinf agent", args, lambda t: HinfAgentDaemon(setup, args.id, t, args.run).run())
+        rep = _run_daemon("hinf agent", args, lambda t: HinfAgentDaemon(setup, args.id, t, args.run).run(),
+                          f"agent-{args.id}")
         return 0 if rep is not None else 130
-    res = _run_daemon("hinf sim", args, lambda t: HinfSimDaemon(setup, t, args.run).run())
+    res = _run_daemon("hinf sim", args, lambda t: HinfSimDaemon(setup, t, args.run).run(), "sim")
     if res is None:
         return 130
     trace, info = res
@@ -753,6 +848,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.view is not None and args.engine != "zenoh":
         print("coload run: --view is for --engine zenoh (the live view listens on the run's router)", file=sys.stderr)
         return 2
+    if args.secure and args.engine != "zenoh":
+        print("coload run: --secure is for --engine zenoh (the in-process engine has no network)", file=sys.stderr)
+        return 2
+    if args.secure and args.listen and not args.listen.startswith("tls/"):
+        print(f"coload run: --secure needs a tls/ endpoint (--listen {args.listen})", file=sys.stderr)
+        return 2
+    if args.secure and args.view is not None:
+        print("coload run: --view does not join a --secure run yet; watch it with `coload view --tls-dir "
+              "RUN_DIR/keys` (the monitor's key)", file=sys.stderr)
+        return 2
     view = _start_view(scenario, args.view) if args.view is not None else None
     try:
         note = prepare_run_dir(run_dir)
@@ -766,7 +871,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         try:
             summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen,
-                                    on_router=view.attach if view else None)
+                                    secure=args.secure, on_router=view.attach if view else None)
         finally:
             if view:
                 view.close()
@@ -789,6 +894,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"coload run: {', '.join(failed)} failed during the run and the run went on without them "
               f"(logs in {run_dir / 'logs'}); first: {next(iter(failed.values()))}", file=sys.stderr)
         return 1
+    if "agents_reported" in summary:
+        silent = sorted(set(range(scenario.n)) - set(summary["agents_reported"]))
+        if silent:
+            print(f"coload run: agents {', '.join(map(str, silent))} did not report at the end "
+                  f"(logs in {run_dir / 'logs'})", file=sys.stderr)
+            return 1
     return 0
 
 
@@ -852,7 +963,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         return watch(transport, args.run, scene, sink.log, stop)
 
     try:
-        counts = _run_daemon("view", args, build)
+        counts = _run_daemon("view", args, build, "monitor")
     finally:
         sink.close()
     if counts is None:
@@ -862,8 +973,9 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
-            "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
-            "arms": cmd_arms, "diagnose": cmd_diagnose, "export": cmd_export, "view": cmd_view}
+            "compose": cmd_compose, "alive": cmd_alive, "keys": cmd_keys, "campaign": cmd_campaign,
+            "observer": cmd_observer, "hinf": cmd_hinf, "arms": cmd_arms, "diagnose": cmd_diagnose,
+            "export": cmd_export, "view": cmd_view}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

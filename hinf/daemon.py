@@ -109,15 +109,19 @@ class HinfSimDaemon:
         self.last_u = [setup.input_law(k, np.zeros(setup.net.n[k]), setup.zeta0[k]) for k in range(self.N)]
         self.waiter = _Waiter()
         self._subs: list = []
-        self._ids = {keys.hinf(run, k, kind): k for k in range(self.N) for kind in ("input", "report")}
+        self._ids = {keys.hinf(run, k, kind): (k, kind) for k in range(self.N) for kind in ("input", "report")}
         self._meas_keys = [keys.hinf(run, k, "meas") for k in range(self.N)]
         self.wall_s = 0.0
 
-    def _agent_of(self, key: str) -> int | None:
-        k = self._ids.get(key)
-        if k is None:
-            self.drops["unknown_sender"] += 1
-        return k
+    def _agent_of(self, key: str, kind: str) -> int | None:
+        """The estimator whose ``kind`` key ``key`` is; None (counted) for a put on a wider key
+        expression (``wrong_key``) or an estimator this run does not have (``unknown_sender``)."""
+        known = self._ids.get(key)
+        if known is not None and known[1] == kind:
+            return known[0]
+        parsed = keys.parse_hinf_key(key)
+        self.drops["unknown_sender" if parsed is not None and parsed.kind == kind else keys.WRONG_KEY] += 1
+        return None
 
     def _decode(self, payload: bytes, kind: type):
         return decode_counted(payload, kind, self.drops)
@@ -130,7 +134,7 @@ class HinfSimDaemon:
         self.waiter.poke()
 
     def _on_input(self, key: str, payload: bytes) -> None:
-        k = self._agent_of(key)
+        k = self._agent_of(key, "input")
         msg = self._decode(payload, HinfInput) if k is not None else None
         if msg is None:
             return
@@ -159,7 +163,7 @@ class HinfSimDaemon:
         self.waiter.poke()
 
     def _on_report(self, key: str, payload: bytes) -> None:
-        k = self._agent_of(key)
+        k = self._agent_of(key, "report")
         rep = self._decode(payload, AgentReport) if k is not None else None
         if rep is None:
             return
@@ -290,6 +294,8 @@ class HinfAgentDaemon:
         self._subs: list = []
         self._k_input = keys.hinf(run, k, "input")
         self._k_state = keys.hinf(run, k, "state")
+        self._k_meas = keys.hinf(run, k, "meas")
+        self._k_control = keys.hinf_control(run)
         self._state_keys = {keys.hinf(run, j, "state"): j for j in self.nbrs}
         self.nz = setup.net.r * len(self.nbrs)
         self.ticks_stepped = 0
@@ -337,7 +343,10 @@ class HinfAgentDaemon:
         self._try_step()
         self._finish.check(self.last_from, self.expect)
 
-    def _on_control(self, _key: str, payload: bytes) -> None:
+    def _on_control(self, key: str, payload: bytes) -> None:
+        if key != self._k_control:
+            self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            return
         msg = self._decode(payload, Control)
         if msg is None:
             return
@@ -351,7 +360,10 @@ class HinfAgentDaemon:
         self.transport.publish(keys.hinf(self.run_name, self.id, "report"), encode(self.report()))
         self.done.set()
 
-    def _on_meas(self, _key: str, payload: bytes) -> None:
+    def _on_meas(self, key: str, payload: bytes) -> None:
+        if key != self._k_meas:
+            self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            return
         m = self._decode(payload, HinfMeas)
         if m is None:
             return
@@ -410,7 +422,7 @@ class HinfAgentDaemon:
     def _on_state(self, key: str, payload: bytes) -> None:
         sender = self._state_keys.get(key)
         if sender is None:
-            self.drops["unknown_sender"] += 1
+            self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression (hinf/*/state)
             return
         msg = self._decode(payload, HinfState, link=sender)
         if msg is None:

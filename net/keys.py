@@ -28,6 +28,11 @@ ROOT: Final = "coload"
 AGENT_KINDS: Final = ("meas", "wrench", "state", "estimate", "report")
 AgentKind = Literal["meas", "wrench", "state", "estimate", "report"]
 MAX_CHUNK: Final = 128
+WRONG_KEY: Final = "wrong_key"
+"""Drop reason of a message that arrived on another key than its own: a put on a wider key expression
+(``coload/{run}/agent/*/meas``, ``coload/{run}/**``) that a subscription matched. Zenoh delivers such
+a put to every matching subscriber under the key it was put on; a daemon accepts a message only on
+the exact key of its kind and sender, so a deny rule on an exact key cannot be bypassed that way."""
 _FORBIDDEN: Final = frozenset("/*$#?")
 
 

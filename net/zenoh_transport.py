@@ -254,15 +254,21 @@ def run_router(
     on_ready: Callable[[], None] | None = None,
     config_file: str | Path | None = None,
     connect: Sequence[str] | None = None,
+    config: zenoh.Config | None = None,
 ) -> int:
     """Run an embedded router until ``stop`` is set, or SIGTERM/SIGINT arrive; returns exit status 0.
+
+    ``config``: a finished router config (TLS, access control, ...) instead of building one from
+    ``listen``, ``lease_ms``, ``config_file`` and ``connect``.
 
     Meant to be the whole of a router process (``coload router``). Once the router listens,
     ``on_ready`` is called; by default it prints ``ready <endpoints>`` on stdout, the line a parent
     process waits for instead of sleeping. Without ``stop``, and on the main thread, SIGTERM and
     SIGINT close the router cleanly.
     """
-    conf = router_config(listen, lease_ms, config_file, connect)
+    conf = router_config(listen, lease_ms, config_file, connect) if config is None else config
+    if not router_endpoints(conf):
+        raise ValueError("a router needs at least one listen endpoint (--listen, or listen.endpoints in its config)")
     session = open_session(conf)  # first: a router that cannot listen leaves the signal handlers alone
     if stop is None:
         stop = threading.Event()

@@ -111,7 +111,7 @@ class SimDaemon:
         self._waiting: tuple[Callable[[], bool], asyncio.Future[None]] | None = None
         # keys built and parsed once: agent keys of this run -> agent id (anything else is parsed)
         self._meas_keys = [keys.meas(run, i) for i in range(self.n)]
-        self._agent_ids = {keys.agent(run, i, kind): i for i in range(self.n)
+        self._agent_ids = {keys.agent(run, i, kind): (i, kind) for i in range(self.n)
                            for kind in ("wrench", "estimate", "report")}
         self._meas_out: list[bytes] | None = None  # lockstep: this tick's measurements while its wrenches are awaited
         # restart: the journal, what it said was alive, and the tick the run resumed at (-1: not resumed)
@@ -126,15 +126,18 @@ class SimDaemon:
     def _decode(self, payload: bytes, kind: type):
         return decode_counted(payload, kind, self.drops)
 
-    def _agent_of(self, key: str) -> int | None:
-        i = self._agent_ids.get(key)
-        if i is not None:
-            return i
+    def _agent_of(self, key: str, kind: str) -> int | None:
+        """The agent whose ``kind`` key ``key`` is; None (counted) for a put on a wider key expression
+        (``wrong_key``) or for an agent this run does not have (``unknown_sender``)."""
+        known = self._agent_ids.get(key)
+        if known is not None and known[1] == kind:
+            return known[0]
         parsed = keys.parse_agent_key(key)
-        if parsed is None or not 0 <= parsed[1] < self.n:
-            self.drops["unknown_sender"] += 1
+        if parsed is None or parsed.run != self.run_name or parsed.kind != kind:
+            self.drops[keys.WRONG_KEY] += 1
             return None
-        return parsed[1]
+        self.drops["unknown_sender"] += 1
+        return None
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)
@@ -162,7 +165,7 @@ class SimDaemon:
         self._write_journal({"ev": ev})
 
     def _on_wrench(self, key: str, payload: bytes) -> None:
-        i = self._agent_of(key)
+        i = self._agent_of(key, "wrench")
         w = self._decode(payload, Wrench) if i is not None else None
         if w is None:
             return
@@ -199,7 +202,7 @@ class SimDaemon:
         return self.alive <= self.wrenches.keys()
 
     def _on_estimate(self, key: str, payload: bytes) -> None:
-        i = self._agent_of(key)
+        i = self._agent_of(key, "estimate")
         est = self._decode(payload, Estimate) if i is not None else None
         if est is None:
             return
@@ -229,7 +232,7 @@ class SimDaemon:
             self._stop.see(est.tick, est.agent, est.values.get("phase", math.nan))
 
     def _on_report(self, key: str, payload: bytes) -> None:
-        i = self._agent_of(key)
+        i = self._agent_of(key, "report")
         rep = self._decode(payload, AgentReport) if i is not None else None
         if rep is None:
             return

@@ -1,8 +1,13 @@
 """``coload compose``: a docker-compose file for one run: a Zenoh router, the simulator and n agents.
 
-One image serves every role (``docker/Dockerfile``). Endpoints are explicit (``tcp/router:7447``);
+One image serves every role (``docker/Dockerfile``). Endpoints are explicit (``tls/router:7447``);
 nothing relies on multicast scouting. Health checks use Zenoh itself: the router is healthy once a
 client session opens, the simulator and each agent once their liveliness token is visible.
+
+Secure by default (``keys_dir``): every service speaks mutual TLS with its own certificate, mounted
+read-only with the team's CA certificate and ``team.json`` (the router builds its access-control list
+from it); the health checks use the monitor's read-only certificate. Without ``keys_dir``: plain TCP
+(docs/security.md).
 """
 
 from __future__ import annotations
@@ -14,16 +19,30 @@ from typing import Any
 ROUTER_PORT = 7447
 
 
+KEYS_MOUNT = "/keys"
+
+
 def compose_spec(n: int, scenario: str, run: str = "compose", image: str = "coload:latest",
-                 runs_dir: str = "./runs") -> dict[str, Any]:
-    """The compose document as plain data. ``scenario`` is a path inside the image (or a mounted one)."""
+                 runs_dir: str = "./runs", keys_dir: str | None = None) -> dict[str, Any]:
+    """The compose document as plain data. ``scenario`` is a path inside the image (or a mounted one);
+    ``keys_dir`` (relative to the compose file) holds the team's keys (``coload keys init``)."""
     if n < 2:
         raise ValueError(f"--agents must be at least 2, a team (got {n})")
-    endpoint = f"tcp/router:{ROUTER_PORT}"
+    proto = "tls" if keys_dir is not None else "tcp"
+    endpoint = f"{proto}/router:{ROUTER_PORT}"
+    tls = ["--tls-dir", KEYS_MOUNT] if keys_dir is not None else []
+
+    def mounts(role: str) -> list[str]:
+        """The CA, team.json, the role's own key and the monitor's (for the health check), read-only."""
+        if keys_dir is None:
+            return []
+        files = ["ca.pem", "team.json", f"{role}.pem", f"{role}.key", "monitor.pem", "monitor.key"]
+        return [f"{keys_dir}/{f}:{KEYS_MOUNT}/{f}:ro" for f in files]
 
     def alive(role: str, ident: int) -> dict[str, Any]:
         return {
-            "test": ["CMD", "coload", "alive", "--connect", endpoint, "--key", f"coload/{run}/alive/{role}/{ident}"],
+            "test": ["CMD", "coload", "alive", *tls, "--connect", endpoint, "--key",
+                     f"coload/{run}/alive/{role}/{ident}"],
             "interval": "5s", "timeout": "4s", "retries": 12, "start_period": "10s",
         }
 
@@ -32,18 +51,19 @@ def compose_spec(n: int, scenario: str, run: str = "compose", image: str = "colo
     services: dict[str, Any] = {
         "router": {
             **common,
+            **({"volumes": mounts("router")} if keys_dir is not None else {}),
             "build": {"context": "..", "dockerfile": "docker/Dockerfile"},
-            "command": ["coload", "router", "--listen", f"tcp/0.0.0.0:{ROUTER_PORT}"],
+            "command": ["coload", "router", *tls, "--listen", f"{proto}/0.0.0.0:{ROUTER_PORT}"],
             "healthcheck": {
-                "test": ["CMD", "coload", "alive", "--connect", f"tcp/127.0.0.1:{ROUTER_PORT}"],
+                "test": ["CMD", "coload", "alive", *tls, "--connect", f"{proto}/127.0.0.1:{ROUTER_PORT}"],
                 "interval": "2s", "timeout": "4s", "retries": 15,
             },
         },
         "sim": {
             **common,
-            "command": ["coload", "sim", scenario, "--set", f"n={n}", "--connect", endpoint, "--run", run,
+            "command": ["coload", "sim", scenario, "--set", f"n={n}", *tls, "--connect", endpoint, "--run", run,
                         "--out", f"/runs/{run}"],
-            "volumes": [f"{runs_dir}:/runs"],
+            "volumes": [f"{runs_dir}:/runs", *mounts("sim")],
             "depends_on": after_router,
             "healthcheck": alive("sim", 0),
         },
@@ -51,8 +71,9 @@ def compose_spec(n: int, scenario: str, run: str = "compose", image: str = "colo
     for i in range(n):
         services[f"agent-{i}"] = {
             **common,
-            "command": ["coload", "agent", "--id", str(i), scenario, "--set", f"n={n}", "--connect", endpoint,
+            "command": ["coload", "agent", "--id", str(i), scenario, "--set", f"n={n}", *tls, "--connect", endpoint,
                         "--run", run],
+            **({"volumes": mounts(f"agent-{i}")} if keys_dir is not None else {}),
             "depends_on": after_router,
             "healthcheck": alive("agent", i),
         }
@@ -96,23 +117,28 @@ def _scalar(value: Any) -> str:
     return json.dumps(str(value))
 
 
-def write_compose(path: Path, n: int, scenario: str, run: str = "compose") -> Path:
+def write_compose(path: Path, n: int, scenario: str, run: str = "compose", keys_dir: str | None = None) -> Path:
+    """Write the compose file; ``keys_dir`` (relative to it) must hold the team's keys."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    header = (f"# Generated by `coload compose --agents {n}`: a Zenoh router, the simulator and {n} agents.\n"
+    secure = (f"; mutual TLS with the keys in {keys_dir}/ (coload keys init, made by coload compose)"
+              if keys_dir is not None else "; plain TCP (--insecure)")
+    header = (f"# Generated by `coload compose --agents {n}`: a Zenoh router, the simulator and {n} agents{secure}.\n"
               "# From the repository root: docker compose -f docker/compose.yaml up --build\n")
-    path.write_text(header + to_yaml(compose_spec(n, scenario, run)) + "\n", encoding="utf-8")
+    path.write_text(header + to_yaml(compose_spec(n, scenario, run, keys_dir=keys_dir)) + "\n", encoding="utf-8")
     return path
 
 
-def check_alive(connect: list[str], key: str | None, timeout: float) -> bool:
-    """True if a client session opens on ``connect`` and, when ``key`` is given, a token matches it."""
+def check_alive(connect: list[str] | Any, key: str | None, timeout: float) -> bool:
+    """True if a client session opens on ``connect`` (endpoints, or a finished zenoh.Config: TLS)
+    and, when ``key`` is given, a token matches it."""
     import zenoh
 
     from net.zenoh_transport import zenoh_config
 
+    conf = zenoh_config(mode="client", connect=connect) if isinstance(connect, list) else connect
     try:
-        session = zenoh.open(zenoh_config(mode="client", connect=connect))
+        session = zenoh.open(conf)
     except zenoh.ZError:
         return False
     with session:

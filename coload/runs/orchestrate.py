@@ -230,9 +230,12 @@ def _read_line(stream: IO[bytes], timeout: float) -> str | None:
         sel.close()
 
 
-def start_router(children: _Children, py: list[str], endpoint: str, run_dir: Path, cmd: str) -> bool:
-    """Starts the embedded router and waits (30 s) for its ``ready`` line; False, said on stderr, if not."""
-    router = children.start("router", [*py, "router", "--listen", endpoint], pipe_stdout=True)
+def start_router(children: _Children, py: list[str], endpoint: str, run_dir: Path, cmd: str,
+                 tls_dir: Path | None = None) -> bool:
+    """Starts the embedded router (with ``tls_dir``: mutual TLS and the team's access-control list) and
+    waits (30 s) for its ``ready`` line; False, said on stderr, if not."""
+    secure = ["--tls-dir", str(tls_dir)] if tls_dir is not None else []
+    router = children.start("router", [*py, "router", "--listen", endpoint, *secure], pipe_stdout=True)
     line = _read_line(router.stdout, 30.0)
     if not line or not line.startswith("ready"):
         print(f"{cmd}: the router did not come up (see {run_dir / 'logs' / 'router.log'})", file=sys.stderr)
@@ -242,7 +245,7 @@ def start_router(children: _Children, py: list[str], endpoint: str, run_dir: Pat
 
 def watch_simulator(
     children: _Children, sim: subprocess.Popen, endpoint: str, control_key: str, ticks: int, budget: float,
-    bar: ProgressBar, run_dir: Path, cmd: str,
+    bar: ProgressBar, run_dir: Path, cmd: str, tls_dir: Path | None = None,
 ) -> bool:
     """Shows progress from the simulator's control messages until it exits.
 
@@ -269,6 +272,10 @@ def watch_simulator(
         progressed.set()
 
     conf = zenoh_config(mode="client", connect=[endpoint], listen=[])
+    if tls_dir is not None:  # the monitor's certificate: it may hear the control notices and estimates only
+        from net import access_policy
+
+        conf.insert_json5("transport/link/tls", json.dumps(access_policy.tls_block(tls_dir, access_policy.MONITOR)))
     with zenoh.open(conf) as session:
         session.declare_subscriber(control_key, on_control)
         deadline = time.monotonic() + budget
@@ -305,33 +312,53 @@ def process_run(run_dir: Path, verbose: int = 0, listen: str | None = None) -> t
 
 
 def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0,
-                  listen: str | None = None,
+                  listen: str | None = None, secure: bool = False,
                   on_router: Callable[[str, str], Any] | None = None) -> dict[str, Any] | None:
     """The real thing: an embedded Zenoh router, the simulator and n agent daemons, each its own process.
     ``listen``: the router's endpoint, for clients of the run (docs/wire.md); default a free loopback port.
+    ``secure``: a team's keys are made in ``run_dir/keys`` for this run (certificates valid one day),
+    and every member speaks mutual TLS under the team's default-deny access-control list.
     ``on_router(endpoint, run)``: called once the router listens, before the simulator starts (a live view)."""
     from net import keys
 
     run_dir = Path(run_dir)
+    if secure and listen is None:
+        from net.zenoh_transport import free_tcp_port
+
+        listen = f"tls/127.0.0.1:{free_tcp_port()}"
     endpoint, run, py, children = process_run(run_dir, verbose, listen)
     toml = run_dir / "run.toml"
     toml.write_text(dump_scenario(scenario), encoding="utf-8")
+    tls_dir = None
+    if secure:
+        import datetime as _dtm
+        import shutil
+
+        from coload.certificates import init_team
+
+        tls_dir = run_dir / "keys"
+        shutil.rmtree(tls_dir, ignore_errors=True)  # a previous run's keys: this run gets its own CA
+        host = endpoint.split("/", 1)[1].rsplit(":", 1)[0].strip("[]")
+        init_team(tls_dir, scenario.neighbours(), run=run, endpoint=endpoint,
+                  hosts=sorted({"localhost", "127.0.0.1", host}), days=1.0,
+                  now=_dtm.datetime.now(_dtm.timezone.utc))
     bar = ProgressBar(f"{scenario.name} (zenoh, {scenario.n} agents)", quiet)
     try:
-        if not start_router(children, py, endpoint, run_dir, "coload run"):
+        if not start_router(children, py, endpoint, run_dir, "coload run", tls_dir):
             return None
         # what a client of the run needs (docs/wire.md): the router and the key space
         print(f"coload run: router {endpoint}, keys coload/{run}/**", file=sys.stderr, flush=True)
         if on_router is not None:
             on_router(endpoint, run)
-        common = [str(toml), "--connect", endpoint, "--run", run]
+        common = [str(toml), "--connect", endpoint, "--run", run,
+                  *(["--tls-dir", str(tls_dir)] if tls_dir is not None else [])]
         sim = children.start("sim", [*py, "sim", *common, "--out", str(run_dir)])
         for i in range(scenario.n):
             children.start(f"agent-{i}", [*py, "agent", "--id", str(i), *common])
         # generous: start-up of n + 2 interpreters plus the run itself
         budget = 120.0 + scenario.timing.startup_timeout_s + 50.0 * scenario.duration
         if not watch_simulator(children, sim, endpoint, keys.sim_control(run), scenario.ticks, budget, bar,
-                               run_dir, "coload run"):
+                               run_dir, "coload run", tls_dir):
             return None
         check_terminated()  # a SIGTERM whose raise zenoh swallowed as the watch ended
         if sim.returncode != 0:
