@@ -104,4 +104,4 @@ class FlowAverage:
                     fl[c] = flow_step(fl[c], fji[c], eps, x[c] - xj[c])
             for c in range(self.nch):
                 tot[c] += fl[c]
-        self.x = [u - t for u, t in zip(self.u, tot)]
+        self.x = [u - t for u, t in zip(self.u, tot, strict=True)]

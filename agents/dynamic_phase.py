@@ -30,7 +30,16 @@ from agents.stage_agreement import StageBarrier
 from agents.stage_agreement import decode as decode_barrier
 from agents.tick_records import DynamicFeedback, DynamicMsg, DynamicOut, KinematicTick
 from config.agent_params import DynamicsSpec
-from net.vocabulary import BACKGROUND, DONE, J_AVERAGE, J_EXCITE, KINEMATIC, M_AVERAGE, M_EXCITE, SPINUP
+from net.vocabulary import (
+    BACKGROUND,
+    DONE,
+    J_AVERAGE,
+    J_EXCITE,
+    KINEMATIC,
+    M_AVERAGE,
+    M_EXCITE,
+    SPINUP,
+)
 
 # Flow-average channels: the mean force (FX, FY: world-fixed, so a common force passes through at once);
 # JG: g_i = k_z q_i . (q_i - z_C), whose mean times s(t) is the J stage's torque (rotation-invariant, fed
@@ -587,7 +596,7 @@ class DynamicPhase:
     # ------------------------------------------------------------------ outputs
     def _shared(self) -> dict[str, float]:
         """The StateMsg.shared entries of the dynamical phase."""
-        out = dict(zip(CH_KEYS, self.avg.x))
+        out = dict(zip(self.ch_keys, self.avg.x, strict=True))
         out["dg"] = float(self.avg.deg)
         out["Sk"] = float(self.stage_tick)
         out["ps"] = self.psi if self.psi == self.psi else 0.0
