@@ -16,7 +16,7 @@ from unittest import mock
 
 import numpy as np
 
-from net.estimator_core import CoreCase
+from net.estimator_core import CoreCase, EstimatorCore
 
 _CLOCKS = ("time", "time_ns", "monotonic", "monotonic_ns", "perf_counter", "perf_counter_ns",
            "process_time", "process_time_ns", "sleep")
@@ -36,6 +36,7 @@ def no_clock() -> Iterator[None]:
 
 def _run(case: CoreCase, seed: int, ticks: int) -> list[str]:
     core = case.make(seed)
+    assert isinstance(core, EstimatorCore), f"{case.name}: the core has no step"
     return [repr(case.step(core, t, m, inbox)) for t, m, inbox in case.inputs(seed, ticks)]
 
 

@@ -11,11 +11,12 @@ to build, feed and read one. See docs/agent-step.md ("Conformance").
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 
+@runtime_checkable
 class EstimatorCore(Protocol):
-    """What every core has: a step from one tick's inputs to its outputs."""
+    """What every core has: a step from one tick's inputs to its outputs (checked on every core built)."""
 
     def step(self, tick: int, *inputs: Any) -> Any: ...
 

@@ -100,12 +100,17 @@ class HinfCase:
 
 
 class _ArmObserverCore:
-    """Paper 004's speed observer on one arm, stepped on sampled encoders (its state held here)."""
+    """Paper 004's speed observer on one arm, stepped on sampled encoders every 1 ms (its state held here)."""
 
     def __init__(self) -> None:
         self.ob = make_observer(ArmModel(0.8, 0.8, 4.0, 2.0), 20.0, 8.0, 25.0, 1e-3, 8, seed=0)
         q0 = np.array([0.3, 1.4])
         self.state = self.ob.start(q0, np.zeros(2), q0, np.zeros(2), 0.01)
+
+    def step(self, tick: int, y: Any, u: Any) -> list[float]:
+        """The joint-speed estimate after the encoder sample ``y`` under the held input ``u``."""
+        self.state = self.ob.step(self.state, y, u, 1e-3)
+        return self.ob.estimate(self.state.vector(), y).tolist()
 
 
 class ArmCase:
@@ -125,8 +130,7 @@ class ArmCase:
         return [(k, (q[k], u[k]), []) for k in range(ticks)]
 
     def step(self, core: _ArmObserverCore, tick: int, measurement: Any, inbox: Any) -> Any:
-        core.state = core.ob.step(core.state, measurement[0], measurement[1], 1e-3)
-        return core.ob.estimate(core.state.vector(), measurement[0]).tolist()
+        return core.step(tick, measurement[0], measurement[1])
 
     def malformed(self, entry: Any) -> Any:  # pragma: no cover - no inbox
         raise NotImplementedError
