@@ -1,4 +1,4 @@
-"""A planar two-link arm as a paper-000 agent's front end (issue 7): encoders in, contact velocity out.
+"""A planar two-link arm as a paper-000 agent's front end: encoders in, contact velocity out.
 
 The arm is horizontal (SCARA-like: gravity is normal to the plane), sits on a fixed base and holds
 the load at its contact point through a free pivot. It has joint encoders and a wrist force sensor,

@@ -21,30 +21,30 @@ from config.agent_params import ControlSpec
 class KinematicControl:
     """Precomputed constants of the control law; :meth:`wrench` is O(1) and allocation-free."""
 
-    __slots__ = ("_fx", "_fy", "_switch", "_spin", "_target", "_k", "_tmax")
+    __slots__ = ("_fx", "_fy", "_switch", "spin", "_target", "_k", "_tmax")
 
     def __init__(self, spec: ControlSpec, dt: float) -> None:
         self._fx = spec.force * math.cos(spec.force_angle)
         self._fy = spec.force * math.sin(spec.force_angle)
         self._switch = max(1, int(round(spec.switch_period / dt)))
-        self._spin = spec.spin_torque
+        self.spin = spec.spin_torque
         sgn = 1.0 if spec.spin_torque >= 0.0 else -1.0
         self._target = sgn * spec.omega_target
         self._k = spec.k_omega
         self._tmax = spec.torque_max
 
-    def wrench(self, tick: int, omega_hat: float, regulate: bool) -> tuple[float, float, float]:
-        """(fx, fy, tau) for [tick, tick+1)."""
+    def wrench(self, tick: int, omega_hat: float, regulate: bool, target: float | None = None) -> tuple[float, float, float]:
+        """(fx, fy, tau) for [tick, tick+1); ``target`` replaces omega_target (the team's omega boost)."""
         if (tick // self._switch) & 1:
             fx, fy = -self._fx, -self._fy
         else:
             fx, fy = self._fx, self._fy
         if regulate:
-            tau = self._k * (self._target - omega_hat)
+            tau = self._k * ((self._target if target is None else target) - omega_hat)
             if tau > self._tmax:
                 tau = self._tmax
             elif tau < -self._tmax:
                 tau = -self._tmax
         else:
-            tau = self._spin
+            tau = self.spin
         return fx, fy, tau

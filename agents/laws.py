@@ -1,5 +1,4 @@
-"""Control laws of your own, where the algorithm allows one (issue 3: "any user control law can be
-plugged in where the algorithm allows it"); docs/control-laws.md.
+"""Control laws of your own, plugged in where the algorithm allows one; docs/control-laws.md.
 
 Where: Algorithm 1 (``dynamics.algorithm = "sequential"``) once the team is done, instead of the
 kinematic control (or Prop. 7 braking); Algorithm 2 (``"background"``) from its background stage on,

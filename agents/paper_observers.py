@@ -1,49 +1,20 @@
-"""Paper 000's own estimator blocks of the dynamical phase, as pure reference implementations.
+"""Paper 000's own estimator blocks of the dynamical phase and its consensus, as pure reference implementations.
 
-The running agents use a 7-state EKF instead (``agents/dynamic.py``, ``docs/dynamics.md`` says
-why); these blocks exist so that the paper's method can be run, tested and compared as printed
-(with the garbled equations rederived, see ``docs/paper-observers.md``). Every function takes its
-inputs as numbers for one tick; time enters only as the injected step ``dt``; no clock, no RNG.
-States are small frozen dataclasses and every ``*_step`` returns a new one (filterpy style).
-
-Symbols (paper 000, world frame, SI units; q^perp = (-q_y, q_x), a +90 degree rotation, and
-a x b = a_x b_y - a_y b_x = a^perp . b):
-
-- n: number of agents (contact points C_i).
-- p_C: position of the load's centre of mass C; p_Ci: position of contact point i.
-- p_G = (1/n) sum_i p_Ci: centroid of the contact points.
-- z_i = p_Ci - p_G: contact point i relative to the centroid (Result 3).
-- z_C = p_G - p_C: the centroid relative to the CoM (time-varying, constant norm).
-- v_C: velocity of the CoM; v_Ci: measured velocity of contact point i.
-- omega: angular rate of the load (Result 4); the observers' output y.
-- m, J: mass and moment of inertia about C; mu = 1/m, iota = 1/J.
-- f_i, tau_i: force (world frame) and torque agent i applies at C_i.
-- f_mean = (1/n) sum_i f_i (12); sum_i z_i = 0 and sum_i z_i^perp^T (f_i - f_mean) = sum_i z_i x f_i (13).
-- f_bar = n f_mean / J; eta_1 = (1/J) sum_i z_i x f_i; eta_2 = (1/J) sum_i tau_i; eta = eta_1 + eta_2
-  (Results 6-8; each is a team average times n/J, computed by dynamic consensus).
-- f_tilde = n f_mean; eta_tilde = sum_i z_i x f_i + sum_i tau_i (Result 11: the same without 1/J).
-- k_e: output-injection gain of (18)/(24); k_1, k_2: gains of (26); k_z: gain of Result 5's force.
-
-Rigid-body model used throughout (rederived, signs checked numerically against the plant):
-    omega_dot = z_C x f_bar + eta                       (15)
-    z_C_dot   = omega z_C^perp                          (16)
-    v_C       = v_Ci - omega (z_C + z_i)^perp           (20)
-    v_C_dot   = mu n f_mean                             (21)
-    omega_dot = iota k_z sum_i |z_i|^2  under f_i = k_z z_i^perp, tau_i = 0   (11)
-
-Discretisation: each observer is the continuous-time observer of the paper held over one tick
-(zero-order hold): the rotation part (16) is applied exactly, R(y dt), and the other terms by one
-Euler step. This is the discrete step of the project's plant (pymunk: the pose advances with
-omega_k, then the velocities with the wrench of tick k), so on noise-free data the estimation
-errors follow exact discrete error dynamics and go to zero, not to an O(dt) floor.
+The running agents use the EKF of ``agents/rigid_filter.py`` and the consensus of ``agents/consensus.py``
+instead (docs/dynamics.md says why); these blocks exist so that the paper's method can be run, tested and
+compared as printed (with the garbled equations rederived: docs/paper-observers.md, which also lists the
+symbols and the rigid-body model). One tick per call, time only as the injected step ``dt``; no clock,
+no RNG. States are small frozen dataclasses and every ``*_step`` returns a new one (filterpy style).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
+
+from agents.consensus import average_step, disagreement
 
 Vec2 = tuple[float, float]
 
@@ -62,6 +33,42 @@ def cross(a: Vec2, b: Vec2) -> float:
 def _rotate(q: Vec2, angle: float) -> Vec2:
     c, s = math.cos(angle), math.sin(angle)
     return (c * q[0] - s * q[1], s * q[0] + c * q[1])
+
+
+# ---------------------------------------------------------------- the paper's consensus (ref. [19], [23])
+def centroid_step(x_i: complex, neighbours: Iterable[tuple[complex, complex]], eps: float) -> complex:
+    """One centroid-estimation update of ref. [19] (Result 3): x_i += eps sum_j (x_j - x_i + e_ij) with an
+    antisymmetric edge term e_ij = (z_ij - z_ji)/2 from both ends' estimates, so sum_i x_i stays 0. The
+    agent runs its flow form instead (:func:`agents.consensus.flow_step`), which keeps the sum under
+    lost and delayed messages."""
+    acc = 0j
+    for x_j, e_ij in neighbours:
+        acc += x_j - x_i + e_ij
+    return x_i + eps * acc
+
+
+def fodac_step(x_i: float, neighbours: Iterable[float], eps: float, du_i: float) -> float:
+    """One first-order input dynamic consensus update (ref. [23]); du_i = u_i(k+1) - u_i(k). It passes each
+    agent's input noise straight through and a lost message breaks its invariant for good, so the agent
+    runs :func:`agents.consensus.lowpass_step` and :class:`agents.consensus.FlowAverage` instead."""
+    return x_i + eps * disagreement(x_i, neighbours) + du_i
+
+
+def run_average(x0: Sequence[float], nbrs: Sequence[Sequence[int]], eps: float, iters: int) -> list[float]:
+    """Synchronous static average consensus over a whole graph."""
+    x = list(x0)
+    for _ in range(iters):
+        x = [average_step(x[i], (x[j] for j in nbrs[i]), eps) for i in range(len(x))]
+    return x
+
+
+def run_centroid(z: dict[tuple[int, int], complex], nbrs: Sequence[Sequence[int]], eps: float, iters: int) -> list[complex]:
+    """Synchronous ref. [19] over a whole graph; ``z[(i, j)]`` is agent i's estimate of z_ij."""
+    n = len(nbrs)
+    x = [0j] * n
+    for _ in range(iters):
+        x = [centroid_step(x[i], ((x[j], 0.5 * (z[(i, j)] - z[(j, i)])) for j in nbrs[i]), eps) for i in range(n)]
+    return x
 
 
 # ------------------------------------------------------------ Results 6-8 and 11: observer inputs
@@ -379,11 +386,13 @@ __all__ = [
     "Mass26",
     "Zc18",
     "Zc24",
+    "centroid_step",
     "cross",
     "eta",
     "eta1",
     "eta2",
     "f_bar",
+    "fodac_step",
     "inputs_18",
     "inputs_24",
     "j_force",
@@ -396,6 +405,8 @@ __all__ = [
     "mean_force",
     "paper25_io",
     "perp",
+    "run_average",
+    "run_centroid",
     "vc_from_contact",
     "zc18_step",
     "zc24_start",

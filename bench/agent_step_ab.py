@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import gc
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -78,8 +77,7 @@ def main() -> None:
 
     core.step = recording_step
     try:
-        with tempfile.TemporaryDirectory() as tmp:
-            other["engine"].run_inproc(scenario(other), Path(tmp) / "run")
+        other["engine"].run_inproc(scenario(other), None)  # no run directory: nothing imported late
     finally:
         core.step = plain_step
 

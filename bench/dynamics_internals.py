@@ -21,8 +21,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from agents import dynamic as D  # noqa: E402
+from agents import dynamic_phase as D  # noqa: E402
 from agents.factory import build_agent  # noqa: E402
+from agents.rigid_filter import RigidEKF  # noqa: E402
 from coload.runs.team import team_ticks  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 from simulator.plant import Plant  # noqa: E402
@@ -34,13 +35,13 @@ def run(sc) -> dict[str, np.ndarray]:
     plant = Plant(sc)
     agents = [build_agent(sc.agent_view(i)) for i in range(n)]
     seen: dict[int, float] = {}
-    predict = D.RigidEKF.predict
+    predict = RigidEKF.predict
 
     def spy(self, force, torque, dt):  # the torque each filter is given
         seen[id(self)] = torque
         return predict(self, force, torque, dt)
 
-    D.RigidEKF.predict = spy
+    RigidEKF.predict = spy
     rec = {"s": np.full((T, n, 7), np.nan), "stage": np.zeros((T, n), int), "tq": np.full((T, n), np.nan),
            "true_tq": np.zeros(T), "q": np.zeros((T + 1, n, 2)), "om": np.zeros(T + 1), "vc": np.zeros((T + 1, 2))}
 
@@ -63,7 +64,7 @@ def run(sc) -> dict[str, np.ndarray]:
             rec["true_tq"][k] = float(np.sum(q[:, 0] * w[:, 1] - q[:, 1] * w[:, 0] + w[:, 2]))
         truth(T)
     finally:
-        D.RigidEKF.predict = predict
+        RigidEKF.predict = predict
     rec["mass"], rec["inertia"] = np.array(plant.mass), np.array(plant.inertia)
     return rec
 

@@ -43,7 +43,7 @@ class _Strict(BaseModel):
 
 
 class EstimatorSpec(_Strict):
-    """Tuning of the kinematic-phase estimators (z_ij, z_i, omega; see ``agents/kinematic.py``)."""
+    """Tuning of the kinematic-phase estimators (z_ij, z_i, omega; see ``agents/kinematic_phase.py`` and ``agents/pair_estimator.py``)."""
 
     sigma_v: float | None = Field(
         None, ge=0, description="velocity-sensor noise the agents assume (m/s); default: the scenario's noise"
@@ -158,7 +158,7 @@ class ControlSpec(_Strict):
 
 
 class DynamicsSpec(_Strict):
-    """The dynamical phase (paper 000 Sec. V-VI; see ``agents/dynamic.py`` and docs/dynamics.md)."""
+    """The dynamical phase (paper 000 Sec. V-VI; see ``agents/dynamic_phase.py`` and docs/dynamics.md)."""
 
     algorithm: Literal["none", "sequential", "background"] = Field(
         "none",
@@ -240,13 +240,13 @@ class DynamicsSpec(_Strict):
                                "running mean of the own velocity's normalised innovation squared (2 for a "
                                "consistent filter) exceeds this, the filter has locked onto a wrong (q_i, "
                                "omega) and is restarted, on trial, from a fit of its own contact velocities "
-                               "(measured at sigma 0.8-0.9, n = 20: 11-300 for lost filters, 2.0-2.9 "
-                               "for the others); 0: never",
+                               "(at sigma 0.8-0.9, n = 20 a lost filter's mean runs at 11-300, a consistent one's "
+                               "at 2.0-2.9: docs/high-noise.md); 0: never",
     )
     lock_tau_s: float = Field(2.0, gt=0, description="time constant of that running mean (s)")
     lock_window_s: float = Field(
         2.0, gt=0, description="the restart point (omega, q_i) is fitted to the own contact velocities of this "
-                               "last window (agents.dynamic.fit_rotation; the neighbours' median omega_hat and the "
+                               "last window (agents.rigid_filter.fit_rotation; the neighbours' median omega_hat and the "
                                "kinematic z_i + z_C before the window is full, or when the load turned by less "
                                "than 2 rad in it) (s)",
     )

@@ -307,7 +307,7 @@ class ArmObserverSpec(_Strict):
 
 
 class ArmsSpec(_Strict):
-    """Agents that are planar two-link arms on fixed bases (issue 7; ``coload arms run``).
+    """Agents that are planar two-link arms on fixed bases (``coload arms run``).
 
     Horizontal (SCARA-like) arms with uniform links hold the load at the contact points through free
     pivots, sense joint angles and the wrist force, and have no speed sensor. Only ``coload arms run``

@@ -317,19 +317,32 @@ class EstimatorCore:
             self.nb[j] = (-1, x0, setup.input_law(j, x0, setup.zeta0[j]), setup.zeta0[j])
         self.u = setup.input_law(k, self.xhat[:nk], self.zeta)
         self.held = 0  # ticks at which some neighbour's data was older than the tick (counted)
+        self.dropped = 0  # inbox entries of the wrong shape or not finite (counted, skipped)
+        self.last_tick = -1
 
     def absorb(self, inbox: list[HinfState]) -> None:
         """Keep the newest data per neighbour (the line may hold duplicates or reordered copies)."""
         for msg in inbox:
             cur = self.nb.get(msg.sender)
             if cur is not None and msg.tick > cur[0]:
-                self.nb[msg.sender] = (msg.tick, np.asarray(msg.xhat), np.asarray(msg.u), np.asarray(msg.zeta))
+                new = (msg.tick, np.asarray(msg.xhat), np.asarray(msg.u), np.asarray(msg.zeta))
+                try:
+                    ok = all(a.shape == b.shape and np.all(np.isfinite(a)) for a, b in zip(new[1:], cur[1:]))
+                except TypeError:  # not numbers
+                    ok = False
+                if not ok:
+                    self.dropped += 1
+                    continue
+                self.nb[msg.sender] = new
 
     def input_msg(self, tick: int) -> HinfInput:
         """u_k, x^(k) and zeta_k of the current (prior) state, as the input message for ``tick``."""
         return HinfInput(tick, self.k, tuple(self.u.tolist()), tuple(self.xhat.tolist()), tuple(self.zeta.tolist()))
 
     def step(self, tick: int, z: tuple[float, ...], inbox: list[HinfState]) -> tuple[HinfInput, HinfState]:
+        if tick <= self.last_tick:
+            raise ValueError(f"ticks must increase: got {tick} after {self.last_tick}")
+        self.last_tick = tick
         self.absorb(inbox)
         k = self.k
         u_now = self.u

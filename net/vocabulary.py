@@ -29,7 +29,7 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "pairs_ready",  # neighbours whose z_ij is estimated
     "dropped_unknown",  # messages from senders not in neighbours (count)
     "dropped_stale",  # duplicates / not newer than already used / from the future / malformed (count)
-    # dynamical phase (agents/dynamic.py; NaN while not estimated, or without it)
+    # dynamical phase (agents/dynamic_phase.py; NaN while not estimated, or without it)
     "J",  # moment of inertia about the CoM after the averaging consensus (kg m^2)
     "m",  # mass after the averaging consensus (kg)
     "zc_x",  # z_C = p_G - p_C, world frame (m)

@@ -13,8 +13,8 @@ endpoints given (coload runs on loopback or on the hosts named in the compose fi
 Dead links (a cable pulled, a robot out of range): Zenoh sets ``SO_LINGER`` = 10 s on its TCP
 sockets (a compile-time constant, no config key). When a lease expires on a link whose peer is
 unreachable, the socket still holds unsent data, so closing it blocks the closing thread for 10 s;
-a router closes on its RX runtime threads (two of them), so two dead links froze the whole router
-for 10 s (measured: tests/test_netns.py, docs/faults.md; upstream eclipse-zenoh/zenoh#1101).
+a router closes on its RX runtime threads (two of them), so two dead links freeze the whole router
+for 10 s (tests/test_netns.py, docs/faults.md; upstream eclipse-zenoh/zenoh#1101).
 :class:`_LingerGuard` turns the linger off on this process's TCP sockets, so a close returns at once
 and the kernel flushes or drops the data in the background. Every session and router opened here
 runs it.
@@ -298,8 +298,8 @@ class ZenohTransport(Transport):
     build it at daemon start-up. ``loop`` defaults to the running loop. Publishers are declared once
     per key and cached, reliable, congestion control BLOCK (lockstep equality with the in-process
     engine needs Zenoh itself never to drop: losses come from the link model only). ``express``
-    (no batching) is off by default: measured on a 2-core machine, an express put costs ~85 us of
-    CPU against ~6 us batched, and a lockstep n = 10 run was ~15 % faster batched.
+    (no batching) is off by default: an express put costs an order of magnitude more CPU than a
+    batched one (docs/wire.md).
     """
 
     def __init__(
@@ -391,8 +391,8 @@ class ZenohTransport(Transport):
         # zenoh-python runs a plain callable on a Python thread of its own per subscriber (an
         # "indirect" callback): the Zenoh rx thread never waits for the GIL. Running it directly
         # on the rx thread (Callback(..., indirect=False)) saves that thread hop but makes the rx
-        # thread take the GIL and build a fresh Python thread state per sample; measured on the
-        # n = 10 lockstep run it was no faster, so the default stays.
+        # thread take the GIL and build a fresh Python thread state per sample, for no gain on a
+        # lockstep run (docs/wire.md), so the default stays.
         zsub = self._session.declare_subscriber(key_expr, on_zenoh_sample)
         # Gotcha: a subscriber declared with a callback lives on when its Python object is dropped;
         # only undeclare() (or closing the session) stops it.

@@ -1,4 +1,4 @@
-"""Two-link arms in the plant's pymunk space, holding the load at its contact points (issue 7).
+"""Two-link arms in the plant's pymunk space, holding the load at its contact points.
 
 Each arm is two rigid links (uniform rods, pymunk bodies without shapes: nothing collides, the
 arms are SCARA-like and move above the load) joined by pivot joints: ground - upper link at the

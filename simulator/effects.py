@@ -2,7 +2,7 @@
 
 Configured per scenario in ``[plant]`` (:class:`config.scenario.PlantSpec`) and never told to the
 agents. :class:`simulator.plant.Plant` builds an :class:`Effects` only when some effect is set, so
-a nominal run takes exactly the old code path (same cost, bit-identical outputs). Pure: no clock,
+a nominal run takes exactly the nominal code path (same cost, bit-identical outputs). Pure: no clock,
 no RNG of its own (the sensor noise stays the plant's one draw per tick).
 
 Conventions (paper 000's discrete plant, see ``simulator/plant.py``): the wrench of tick k and the

@@ -1,6 +1,6 @@
 """When a run may end early: a set time after every agent has reached the done stage.
 
-Algorithm 1 ends at a stage the agents agree on (``agents.dynamic.DONE``), often well before the
+Algorithm 1 ends at a stage the agents agree on (``net.vocabulary.DONE``), often well before the
 scenario's duration; what follows is the braking phase, which a campaign does not need. Both engines
 apply the same rule to the same data -- the ``phase`` of the estimates the agents publish on the
 recording grid -- so a Zenoh run and an in-process run of one scenario end on the same tick. The end

@@ -117,8 +117,7 @@ def team_averages(rec: Recording, zi: np.ndarray | None = None, eps: float = 0.3
     Agent i first updates its force channels, then forms z_i x (f_i - f_mean_i) with its new f_mean
     estimate (so a common force step leaves that channel at 0). ``zi`` defaults to the true z_i.
     """
-    from agents.consensus import fodac_step
-    from agents.paper_observers import local_channels
+    from agents.paper_observers import fodac_step, local_channels
 
     n, T = rec.n, len(rec.t)
     zi = rec.zi if zi is None else zi

@@ -184,7 +184,7 @@ def run_closed_loop(
         load.step(forces, taus, dt)
     p = load.contact_positions()
     rad = np.array(
-        [abs(agents[i]._nbrs[j].pair.r / abs(p[i] - p[j]) - 1.0) for i, j in directed]
+        [abs(agents[i].pairs[j].r / abs(p[i] - p[j]) - 1.0) for i, j in directed]
     )
     return LoopResult(
         np.array(rec_t), np.array(rec_om), np.array(rec_omh), np.array(rec_eerd), np.array(rec_emax),

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import math
-from dataclasses import fields
-
 import numpy as np
 import pytest
 
-from agents.agent import ESTIMATE_NAMES, AgentCore, StepResult, _fast_factory
+from agents.agent import ESTIMATE_NAMES, AgentCore, StepResult
 from config.agent_params import ControlSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
 from rigid_truth import line_neighbours, reference_load, run_closed_loop
@@ -56,18 +54,6 @@ def test_api_and_outputs() -> None:
         AgentCore(1, [1, 2], 3, 0.01, 0.3, EstimatorSpec(), ControlSpec())
 
 
-def test_fast_constructors_build_equal_objects() -> None:
-    for cls, args in (
-        (StateMsg, (3, 1, 0.5, -0.5, 1, {"om": 1.0}, {2: (1.0, 2.0)})),
-        (Estimate, (3, 1, {"omega": 1.0}, {2: (1.0, 2.0)})),
-        (Wrench, (3, 1, 1.0, 2.0, 3.0)),
-    ):
-        fast = _fast_factory(cls)(*args)
-        assert fast == cls(*args)
-        assert type(fast) is cls
-        assert [getattr(fast, f.name) for f in fields(cls)] == list(args)
-
-
 def test_determinism_two_instances_identical() -> None:
     rng = np.random.default_rng(4)
     a = AgentCore(1, [0, 2], 3, 0.01, 0.3, EstimatorSpec(), ControlSpec())
@@ -77,7 +63,7 @@ def test_determinism_two_instances_identical() -> None:
                           {"om": 0.0, "oi": 0.0, "ph": 0.0, "yx": 0.0, "yy": 0.0}, {1: (0.0, 0.0)}) for j in (0, 2)]
         vx, vy = float(rng.normal()), float(rng.normal())
         ra, rb = a.step(k, vx, vy, inbox), b.step(k, vx, vy, inbox)
-        assert ra == rb or (ra.estimate.values.keys() == rb.estimate.values.keys() and repr(ra) == repr(rb))
+        assert repr(ra) == repr(rb)  # (NaN estimates compare unequal: by repr)
 
 
 def test_closed_loop_is_reproducible(clean) -> None:
@@ -163,7 +149,7 @@ def test_missing_neighbour_never_blocks() -> None:
 
     r = _faulty(silence_2)
     a1 = r.agents[1]
-    assert a1._nbrs[0].pair.ready and not a1._nbrs[2].pair.ready
+    assert a1.pairs[0].ready and not a1.pairs[2].ready
     assert math.isfinite(a1.omega) and abs(a1.omega - r.omega[-1]) < 0.2
 
 
@@ -171,5 +157,5 @@ def test_cost_does_not_depend_on_n() -> None:
     """Per-agent state depends on the neighbours only."""
     small = AgentCore(1, [0, 2], 5, 0.01, 0.3, EstimatorSpec(), ControlSpec())
     large = AgentCore(1, [0, 2], 10_000, 0.01, 0.3, EstimatorSpec(), ControlSpec())
-    assert len(small._vbuf) == len(large._vbuf) == EstimatorSpec().history_ticks
-    assert len(small._nbrs) == len(large._nbrs) == 2
+    assert len(small._kin.vbuf) == len(large._kin.vbuf) == EstimatorSpec().history_ticks
+    assert len(small.pairs) == len(large.pairs) == 2

@@ -1,4 +1,5 @@
-"""Consensus primitives: average preservation, centroid estimation (ref. [19]), dynamic consensus."""
+"""Consensus primitives (agents/consensus.py) and the paper's (agents/paper_observers.py): average
+preservation, centroid estimation (ref. [19]), dynamic consensus."""
 
 from __future__ import annotations
 
@@ -6,14 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.consensus import (
-    average_step,
-    centroid_step,
-    fodac_step,
-    lowpass_step,
-    run_average,
-    run_centroid,
-)
+from agents.consensus import average_step, lowpass_step
+from agents.paper_observers import centroid_step, fodac_step, run_average, run_centroid
 
 
 def _random_connected_graph(rng: np.random.Generator, n: int, extra: int) -> list[list[int]]:

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from agents.agent import AgentCore
-from config.agent_params import ControlSpec, EstimatorSpec
+from agents.tick_records import DynamicFeedback, DynamicOut, KinematicTick
+from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from rigid_truth import line_neighbours, reference_load, run_closed_loop
 from test_agent_core import Links
 
@@ -67,30 +68,15 @@ class _FeedForward:
     """Stands in for the dynamical phase: its only effect here is a known angular acceleration that
     AgentCore feeds forward into omega_hat (``alpha``); the wrench passes through unchanged."""
 
-    stage = 1
-    om_meas = float("nan")  # no filter omega (DynamicsSpec.filter_omega): omega_hat measures eq. (9)
-    q_held = None  # the shape is not held (no control law, no braking)
-
     def __init__(self) -> None:
         self.alpha = 0.0
 
-    def receive(self, *args: object) -> None:
-        pass
-
-    def note_late(self, t: int, zz: float) -> None:  # a late eq. (9) sample for the filter: none here
-        pass
-
-    def step(self, tick, v, u, u_den, omega_hat, phi, zi, trusted, om_init, wrench):  # noqa: ANN001, ANN201
-        return wrench
-
-    def shared(self, out: dict) -> None:
-        pass
-
-    def flows_to(self, j: int) -> tuple:
-        return ()
-
-    def snapshot(self) -> None:
+    def decode(self, *args: object) -> None:
         return None
+
+    def step(self, kin: KinematicTick) -> DynamicOut:
+        return DynamicOut(kin.wrench, 1, {}, {j: () for j, _, _ in kin.pairs}, {},
+                          DynamicFeedback(alpha=self.alpha))
 
 
 def _ramp_onset_error(delay: int, seed: int) -> float:
@@ -102,9 +88,10 @@ def _ramp_onset_error(delay: int, seed: int) -> float:
     load.omega = 1.0
     nbrs = line_neighbours(10)
     n = len(nbrs)
-    agents = [AgentCore(i, nbrs[i], n, DT, 0.3, EstimatorSpec(), ControlSpec()) for i in range(n)]
+    dyn = DynamicsSpec(algorithm="sequential")
+    agents = [AgentCore(i, nbrs[i], n, DT, 0.3, EstimatorSpec(), ControlSpec(), dyn) for i in range(n)]
     for a in agents:
-        a._dyn = _FeedForward()
+        a._dyn = _FeedForward()  # the dynamical phase replaced: a known feed-forward only
     due: dict[int, list] = {}
     worst = 0.0
     zero_f = np.zeros(n, dtype=complex)
@@ -112,6 +99,7 @@ def _ramp_onset_error(delay: int, seed: int) -> float:
         ramp = 0.3 if k * DT >= 15.0 else 0.0
         for a in agents:
             a._dyn.alpha = ramp
+            a._fb = DynamicFeedback(alpha=ramp)  # this tick's, as the dynamical phase would have left it
         meas = load.contact_velocities() + rng.normal(0.0, 0.3, n) + 1j * rng.normal(0.0, 0.3, n)
         inboxes = due.pop(k, [[] for _ in range(n)])
         states = [agents[i].step(k, float(meas[i].real), float(meas[i].imag), inboxes[i]).state for i in range(n)]
@@ -166,7 +154,7 @@ def test_reordered_samples_are_used_not_dropped(jitter: int) -> None:
     r = run_closed_loop(reference_load(), line_neighbours(10), sigma=0.3, seconds=18.0, seed=1, record_every=50,
                         deliver=Links(2, loss=0.0, delay=1, jitter=jitter, dup=0.0))
     for a in r.agents:
-        assert a.dropped_stale <= 2 * jitter * len(a._nbrs)
-        assert all(nb.pair.ready for nb in a._nbrs.values())
+        assert a.dropped_stale <= 2 * jitter * len(a.pairs)
+        assert all(pe.ready for pe in a.pairs.values())
     assert r.eerd_ratio[-1] < 0.01
     assert r.zi_rms[-1] < 0.1

@@ -1,4 +1,4 @@
-"""The dynamical phase (agents/dynamic.py): consensus, stage agreement, and the closed loop against truth.
+"""The dynamical phase (agents/dynamic_phase.py): consensus, stage agreement, and the closed loop against truth.
 
 The closed-loop checks run the whole of Algorithm 1 / 2 on the in-process engine against the plant's
 truth; tolerances are the issue's targets with the spread measured over seeds (docs/dynamics.md).
@@ -16,7 +16,10 @@ from conftest import ROOT as REPO
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from agents import dynamic as D
+from agents import dynamic_phase as D
+from agents.consensus import FlowAverage
+from agents.rigid_filter import RigidEKF, fit_rotation
+from agents.stage_agreement import StageBarrier
 from coload.runs.engine import run_inproc
 from config.agent_params import DynamicsSpec
 from config.loader import load_scenario
@@ -44,7 +47,7 @@ def _connected_graph(n: int, extra: list[tuple[int, int]], rng: random.Random) -
 def _run_flow(nbrs, inputs, ticks, loss, rng, loss_until):
     """Synchronous rounds with a one-tick exchange; each directed message lost with prob ``loss``."""
     n = len(nbrs)
-    avgs = [D.FlowAverage(nbrs[i]) for i in range(n)]
+    avgs = [FlowAverage(nbrs[i], 1) for i in range(n)]
     msgs: list[tuple[list[float], dict[int, list[float]]] | None] = [None] * n
     means = []
     for k in range(ticks):
@@ -105,7 +108,7 @@ def test_stage_barrier_agrees_on_one_switch_tick(n, seed, loss):
     rng = random.Random(seed)
     nbrs = _connected_graph(n, [(rng.randrange(n), rng.randrange(n)) for _ in range(n // 3)], rng)
     horizon = 100
-    bars = [D.StageBarrier(i, n, horizon) for i in range(n)]
+    bars = [StageBarrier(i, n, horizon) for i in range(n)]
     ready = [rng.randrange(0, 50) for _ in range(n)]
     learnt = [-1] * n
     wire: list[dict[str, float]] = [{} for _ in range(n)]
@@ -119,8 +122,7 @@ def test_stage_barrier_agrees_on_one_switch_tick(n, seed, loss):
             if bars[i].switch >= 0 and learnt[i] < 0:
                 learnt[i] = k
         for i in range(n):
-            wire[i] = {}
-            bars[i].encode(wire[i])
+            wire[i] = bars[i].encode()
     expect = max(ready) + horizon
     assert [b.switch for b in bars] == [expect] * n
     assert all(0 <= t for t in learnt)
@@ -130,7 +132,7 @@ def test_stage_barrier_agrees_on_one_switch_tick(n, seed, loss):
 
 
 def test_stage_barrier_rejects_a_malformed_mask():
-    b = D.StageBarrier(0, 3, 10)
+    b = StageBarrier(0, 3, 10)
     for bad in ({"B0": -1.0, "Bt": 0.0, "Bs": -1.0}, {"B0": 0.5, "Bt": 0.0, "Bs": -1.0}, {"Bt": 0.0, "Bs": -1.0}):
         with pytest.raises((ValueError, KeyError)):
             b.decode(bad)
@@ -142,7 +144,7 @@ def test_rigid_ekf_recovers_mass_and_inertia_of_a_noise_free_body():
     q = complex(1.2, -0.7)
     vc = 0.3 + 0.1j
     om = 1.5
-    kf = D.RigidEKF(0.01, DynamicsSpec(kf_angle_walk=0.0, kf_v_walk=0.0, omega_walk=0.0, u_bias_walk=0.0), False)
+    kf = RigidEKF(0.01, DynamicsSpec(kf_angle_walk=0.0, kf_v_walk=0.0, omega_walk=0.0, u_bias_walk=0.0), False)
     kf.start(vc + om * 1j * q + 0.05, q + 0.2, om + 0.1)
     for k in range(6000):
         force = 20.0 * complex(math.cos(0.5), math.sin(0.5)) * (1 if (k // 300) % 2 == 0 else -1)
@@ -237,7 +239,7 @@ def test_rigid_ekf_matches_the_plant_step_and_finds_J_under_the_j_stage_forces()
     sc = load_scenario(FIG4, ["noise.sigma_v=0.0", "initial.omega=1.5"])
     plant = Plant(sc)
     n, dt = sc.n, sc.dt
-    kf = D.RigidEKF(0.01, DynamicsSpec(kf_angle_walk=0.0, kf_v_walk=0.0, omega_walk=0.0), False)
+    kf = RigidEKF(0.01, DynamicsSpec(kf_angle_walk=0.0, kf_v_walk=0.0, omega_walk=0.0), False)
     tr = plant.truth()
     q0 = complex(*tr.zi[0]) + complex(*tr.zc)
     kf.start(complex(*plant.velocities()[0]) + 0.05, q0 + 0.3, tr.omega + 0.05)
@@ -273,7 +275,7 @@ def _j_stage_with_delayed_u(d: int, model_delay: bool, u_bias_walk: float | None
     plant = Plant(sc)
     n, dt = sc.n, sc.dt
     spec = DynamicsSpec() if u_bias_walk is None else DynamicsSpec(u_bias_walk=u_bias_walk)
-    kf = D.RigidEKF(0.01, spec, False)
+    kf = RigidEKF(0.01, spec, False)
     tr = plant.truth()
     kf.start(complex(*plant.velocities()[0]) + 0.05, complex(*tr.zi[0]) + complex(*tr.zc) + 0.3, tr.omega + 0.05)
     omegas: list[float] = []  # true omega of each tick
@@ -335,7 +337,7 @@ def _rigid_ekf_under_a_drifting_rate(u_bias_walk: float, seed: int) -> tuple[flo
     dt, om, sigma, T = 0.01, 1.5, 0.9, 3000
     q, vc = complex(0.8, -0.6), complex(0.2, 0.1)
     u_var = 2.0 * sigma**2 / 1.8  # 2 sigma^2 / sum_j |z_ij|^2 of a middle agent of the n = 5 grid runs
-    kf = D.RigidEKF(sigma, DynamicsSpec(u_bias_walk=u_bias_walk), False)
+    kf = RigidEKF(sigma, DynamicsSpec(u_bias_walk=u_bias_walk), False)
     kf.start(vc + om * 1j * q, q, om)
     err = []
     for k in range(T):
@@ -450,7 +452,7 @@ def test_fit_rotation_finds_omega_and_q_from_one_contact_velocity(speed, ccw, r,
     t = np.arange(n) * dt
     v = (0.3 - 0.2j) + mu * f + 1j * om * np.exp(1j * om * t) * q0
     v = v + sigma * (rng.standard_normal(n) + 1j * rng.standard_normal(n))
-    om_fit, q_last, rms = D.fit_rotation(v, f, dt, 6.0)
+    om_fit, q_last, rms = fit_rotation(v, f, dt, 6.0)
     snr = speed * r / max(sigma, 1e-3)
     assert abs(om_fit - om) < 6.0 / snr + 0.02
     assert abs(q_last - q0 * np.exp(1j * om * t[-1])) < r * (3.0 / snr) + 0.02

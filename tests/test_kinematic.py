@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from agents.kinematic import PairEstimator
+from agents.pair_estimator import PairEstimator
 from config.agent_params import EstimatorSpec
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from agents.geometry import CircleSums, solve3
-from agents.kinematic import PairEstimator
+from agents.pair_estimator import PairEstimator
 from config.agent_params import EstimatorSpec
 
 

@@ -19,7 +19,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.dynamic import N_CH, N_CH_AUG, FlowAverage, RigidEKF
+from agents.consensus import FlowAverage
+from agents.dynamic_phase import N_CH, N_CH_AUG
+from agents.rigid_filter import RigidEKF
 from coload.runs.engine import run_inproc
 from config.agent_params import DynamicsSpec
 from config.loader import ScenarioError, load_scenario
@@ -96,7 +98,7 @@ def test_extra_channels_never_touch_the_nominal_ones(inputs, losses):
     """Three agents on a line; the same exchanges (with losses) in an 11-channel and a 13-channel average:
     channels 0..10 stay bit-identical (every update is per channel)."""
     ids = [[1], [0, 2], [1]]
-    small = [FlowAverage(nb) for nb in ids]
+    small = [FlowAverage(nb, N_CH) for nb in ids]
     big = [FlowAverage(nb, N_CH_AUG) for nb in ids]
     for i in range(3):
         small[i].u[:] = inputs[i][:N_CH]

@@ -5,7 +5,7 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agents.dynamic import DONE, J_AVERAGE
+from net.vocabulary import DONE, J_AVERAGE
 from simulator.stop import DoneStop
 
 

@@ -347,14 +347,14 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
         out["eerd_ratio_per_agent"] = [_ratio(_num(share[i]), _num(s.eerd_agent_ref[0, i])) for i in range(n)]
 
     if est.has("phase"):
-        # Algorithm 1 done (stage 6 in agents.dynamic) at every agent: the first recorded time
+        # Algorithm 1 done (stage 6, net.vocabulary.DONE) at every agent: the first recorded time
         # from which all agents report it; None if the run ended before
         done = np.all(est.columns["phase"] == 6.0, axis=1)
         out["finished_s"] = float(s.est_t[int(np.argmax(done))]) if done.any() else None
 
     if est.has("filter_restarts") and np.isfinite(est.columns["filter_restarts"]).any():
         # restarts of the dynamical phase's filters by their lock check, summed over the agents (0 in a
-        # run where every filter stayed consistent: agents/dynamic.py, DynamicsSpec.lock_nis)
+        # run where every filter stayed consistent: agents/dynamic_phase.py, DynamicsSpec.lock_nis)
         last, _ = last_finite(est.columns["filter_restarts"])
         out["filter_restarts"] = int(np.nansum(last))
 

@@ -1,34 +1,8 @@
 """Per-neighbour estimation of z_ij = p_Ci - p_Cj (paper 000 Sec. IV-A, blocks 1-4 of Fig. 2).
 
-Why this shape:
-
-* |z_ij| (= |d_ij|) comes from a circle fit in *integral* form, not from the LLS on eq. (7): the
-  trapezoidal integral s(t) of the relative velocity v_Ci - v_Cj equals z_ij(t) - z_ij(t0) (rigid
-  body, eq. (4)), so it lies on a circle of radius |z_ij|. Fitting that circle needs no derivative of
-  noisy velocities, no normalised noisy axis (the errors-in-variables bias of (7)) and no sign: the
-  fitted centre c gives z_ij(t) = s(t) - c directly, sign included (Result 2 without the two-observer
-  trick). The integral random-walks (increments of std sigma*sqrt(2)*dt per component), so the fit
-  runs over windows that are re-anchored (s := 0) each time a window covering ``fit_arc`` radians of
-  rotation is accepted; the radius is the inverse-residual-weighted mean over accepted windows.
-* The direction of z_ij is tracked between fits by rotating the estimate with the agent's omega_hat
-  (prediction) and correcting its angle with Result 1 in linear form (``angle_meas = "linear"``): for
-  a rigid body w / z_ij = i omega e^{i delta} (w = v_Ci - v_Cj, delta the prediction's angle error), so
-  the radial part -Re(w / z_ij) = omega sin(delta) + zero-mean noise of variance 2 sigma^2 / |z_ij|^2.
-  The correction is a scalar Kalman filter on the angle with H = omega_hat, process noise
-  ``angle_walk``^2 dt (the error of omega_hat integrated by the prediction). No gate and no sign rule:
-  the weight goes to 0 with omega_hat. The former form (``"axis"``) normalised w to the axis
-  perp(w), took the sign nearer the prediction and needed a gate (below); at high noise that gate
-  closed for every pair, the angles were dead-reckoned with omega_hat, and eq. (9) (omega cos(delta)
-  < omega) fed omega_hat's lag back until lock was lost (docs/spinup.md).
-* Each accepted window also yields the position s - c of z_ij, which is fed to the same angle
-  filter as a measurement; if it disagrees by more than ~30 degrees the tracker has lost lock and is
-  re-anchored on it (needed when omega changes faster than omega_hat follows, e.g. at spin-up).
-* Window acceptance gates: covered arc >= ``fit_arc``, radius > 4x the residual and > 4x the
-  integrated noise of the window, mean tangential speed above the per-sample noise (rejects the
-  small "circles" that the integrated noise draws while the load is at rest).
-* Gate of the ``"axis"`` form: angle corrections only when |omega_hat| |z_ij| >= gate_snr * sigma*sqrt(2)
-  -- a gate that scales with sigma (the paper's fixed 0.5 m/s lets pure noise through at sigma = 0.3).
-  With omega_hat = 0 either form only rotates by omega_hat (0), i.e. the estimate freezes.
+|z_ij| from a circle fit of the integrated relative velocity in re-anchored windows, the direction
+tracked by rotation with omega_hat and corrected by Result 1 in linear form. Pure, O(1) per sample.
+Why this shape: docs/agent-step.md ("The pair estimator"); the high-noise spin-up: docs/spinup.md.
 """
 
 from __future__ import annotations

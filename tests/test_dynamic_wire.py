@@ -1,0 +1,76 @@
+"""The dynamical phase's wire: its message decoder and the stage barrier's wire form; one flow edge.
+
+A neighbour's dynamical states are decoded and checked before anything of them is kept; the barrier's
+wire form round-trips; one flow exchange removes the asymmetry a lost message leaves.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents import dynamic_phase as D
+from agents import stage_agreement as SA
+from agents.consensus import flow_step
+
+finite = st.floats(min_value=-1e6, max_value=1e6, allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(f_ij=finite, f_ji=finite, eps=st.floats(0.0, 0.5), d=finite)
+def test_flow_edge_is_antisymmetric_after_one_exchange(f_ij: float, f_ji: float, eps: float, d: float) -> None:
+    """Both ends update from each other's previous flows with opposite differences: whatever asymmetry
+    F_ij + F_ji a lost message left, it is gone after the exchange (the network sum is exact again)."""
+    a = flow_step(f_ij, f_ji, eps, d)
+    b = flow_step(f_ji, f_ij, eps, -d)
+    assert abs(a + b) <= 1e-9 * (1 + abs(f_ij) + abs(f_ji) + abs(d))
+    assert flow_step(f_ij, f_ji, eps, None) == 0.5 * (f_ij - f_ji)
+
+
+def test_dynamic_decode_rejects_malformed_states_and_keeps_nothing() -> None:
+    from config.agent_params import DynamicsSpec
+
+    dyn = D.DynamicPhase(1, [0, 2], 3, 0.01, 0.1, DynamicsSpec())
+    out = dyn._shared()
+    flows = [0.5] * dyn.avg.nch
+    m = dyn.decode(0, 5, D.KINEMATIC, dict(out), flows)
+    assert m.x == [float(out[k]) for k in dyn.ch_keys]
+    assert m.flows == flows and m.flows is not flows
+    assert (m.psi, m.tick) == (out["ps"], 5)
+    assert dyn.decode(0, 5, D.KINEMATIC, dict(out), None).flows == [0.0] * dyn.avg.nch  # none sent for us yet
+    for bad in ({"c3": math.nan}, {"ps": math.inf}, {"dg": 0.0}, {"B0": 0.5}, {"B0": -1.0}):
+        with pytest.raises(ValueError):
+            dyn.decode(2, 6, D.KINEMATIC, {**out, **bad}, flows)
+    for missing in ("c0", "ps", "dg", "Bt", "Bs", "B0", "Sk"):
+        with pytest.raises(KeyError):
+            dyn.decode(2, 6, D.KINEMATIC, {k: v for k, v in out.items() if k != missing}, flows)
+    with pytest.raises(ValueError):
+        dyn.decode(2, 6, D.KINEMATIC, dict(out), flows[:-1])
+    with pytest.raises(ValueError):
+        dyn.decode(2, 6, D.KINEMATIC, dict(out), ["x"] * dyn.avg.nch)
+    assert not dyn.avg.nx and not dyn.nbr_stage  # decoding keeps nothing
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(2, 120),
+    steps=st.lists(st.tuples(st.sampled_from(["ready", "merge", "reset"]), st.integers(0, 119), st.integers(-1, 500)),
+                   max_size=12),
+)
+def test_stage_barrier_wire_form_round_trips(n: int, steps: list[tuple[str, int, int]]) -> None:
+    bar = SA.StageBarrier(0, n, 7)
+    other = SA.StageBarrier(1, n, 7)
+    for kind, who, tick in steps:
+        if kind == "ready":
+            bar.set_ready(tick)
+        elif kind == "merge":
+            bar.merge((1 << (who % n)) | 1, tick, -1 if tick % 3 else tick)
+        else:
+            bar.reset()
+        wire = bar.encode()
+        assert set(wire) == {*SA.mask_keys(n), "Bt", "Bs"}
+        assert all(float(v).is_integer() and 0 <= v < 2.0**SA.MASK_BITS for k, v in wire.items() if k.startswith("B") and k[1:].isdigit())
+        assert other.decode(wire) == (bar.mask, bar.tmax, bar.switch)
