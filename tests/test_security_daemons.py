@@ -34,7 +34,7 @@ def _agent(mode: str, scene):
     async def main():
         bus = MemoryBus()
         t = MemoryTransport(bus)
-        agent = AgentDaemon(sc, 1, t, RUN)  # neighbours 0 and 2
+        agent = AgentDaemon(sc.agent_view(1), t, RUN)  # neighbours 0 and 2
         agent.start()
         try:
             return await scene(agent, sc)
