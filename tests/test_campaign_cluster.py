@@ -1,5 +1,6 @@
 """``coload campaign --executor dask://``: a real Dask LocalCluster (worker processes on loopback) gives
-the local pool's table bit for bit, and a worker killed mid-grid loses no run."""
+the local pool's table bit for bit, and a worker killed mid-grid loses no run; the sweep loop's bound on
+the tasks in flight; a run directory as data (coload.runs.sweep)."""
 
 from __future__ import annotations
 
@@ -75,7 +76,7 @@ def test_a_dask_cluster_gives_the_local_table_and_survives_a_lost_worker(tmp_pat
         assert sorted(p.name for p in mine.iterdir()) == ["logs", "run.toml", "summary.json"]
         assert (mine / "run.toml").read_bytes() == (theirs / "run.toml").read_bytes()
         assert cp.finished_summary(r) is not None
-    # resume through the cluster's command line, now without a cluster: nothing is left to run
+    # resume with the cluster gone: nothing is left to run, so no scheduler is asked
     again = cp.run_campaign(runs, out, executor=executor, plots=False)
     assert (again.reused, again.ran) == (len(sigmas), 0)
 
