@@ -155,7 +155,8 @@ def test_secure_team_refuses_every_forgery_and_eavesdropper(tmp_path):
             monitor.declare_subscriber(keys.agent_all(run, "estimate"), lambda s: estimates.update([str(s.key_expr)]))
             compromised = _session(endpoint, ap.tls_block(tls_dir, "agent-1"))
             old = ap.tls_block(tls_dir, "agent-4")
-            old.update(connect_certificate=str(revoked / "agent-4.pem"), connect_private_key=str(revoked / "agent-4.key"))
+            old.update(connect_certificate=str(revoked / "agent-4.pem"),
+                       connect_private_key=str(revoked / "agent-4.key"))
             replaced = _session(endpoint, old)  # the CA signed it: it connects, and may do nothing
             for who, s in (("compromised", compromised), ("replaced", replaced)):
                 for ke in (f"coload/{run}/**", keys.meas(run, 0), keys.agent_all(run, "estimate")):
