@@ -256,3 +256,28 @@ def test_keys_cli(tmp_path):
     bad = subprocess.run(coload_cmd("router", "--tls-dir", str(tmp_path / "none")), capture_output=True, text=True,
                          timeout=60)
     assert bad.returncode == 2 and "team.json: cannot read it" in bad.stderr and bad.stderr.count("\n") == 1
+
+
+def test_generated_role_configs_work_with_plain_config_flags(tmp_path):
+    """``DIR/ROLE.json5`` alone (``-c``, no ``--tls-dir``) gives the same secure team."""
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    d = tmp_path / "keys"
+    certs.init_team(d, LINE, run=RUN, endpoint=endpoint, now=NOW)
+    router = open_session(zenoh_conf(_args(zenoh_config=d / "router.json5"), "router", mode="router"))
+    sessions = []
+    try:
+        sim, a0, a2 = (open_session(zenoh_conf(_args(zenoh_config=d / f"{r}.json5"), r)) for r in ("sim", "agent-0",
+                                                                                                    "agent-2"))
+        sessions = [sim, a0, a2]
+        wr, wr_has = _collector(sim, keys.agent_all(RUN, "wrench"))
+        for _ in range(3):
+            a0.put(keys.wrench(RUN, 0), b"w0")
+            if wr_has(b"w0", 2.0):
+                break
+        a2.put(keys.wrench(RUN, 0), b"forged")  # agent 2 speaking for agent 0
+        a0.put(keys.wrench(RUN, 0), b"w0-again")
+        assert wr_has(b"w0-again") and b"forged" not in wr
+    finally:
+        for s in sessions:
+            close_session(s)
+        close_session(router)
