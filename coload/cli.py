@@ -768,8 +768,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
-            "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
-            "arms": cmd_arms, "diagnose": cmd_diagnose, "keys": cmd_keys}
+            "compose": cmd_compose, "alive": cmd_alive, "keys": cmd_keys, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
+            "arms": cmd_arms, "diagnose": cmd_diagnose}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
