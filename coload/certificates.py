@@ -2,8 +2,9 @@
 
 ``init_team`` writes into a directory ``ca.pem``/``ca.key`` (the team's certificate authority),
 ``{role}.pem``/``{role}.key`` for the router, the simulator, the monitor (read-only) and every agent,
-and ``team.json`` (the run name the policy is for, the graph, every role's current generation and
-the router's endpoint). ``add_agent`` issues a certificate for a late joiner or replaces an agent's:
+``team.json`` (the run name the policy is for, the graph, every role's current generation and
+the router's endpoint) and ``{role}.json5``, each role's Zenoh config (for ``-c``, or Zenoh's own
+tools; absolute paths to the files). ``add_agent`` issues a certificate for a late joiner or replaces an agent's:
 the replacement's common name carries the next generation, and the policy (built from ``team.json``)
 names only current generations, so the replaced certificate may do nothing once the router runs the
 new policy. Certificates expire after ``days``. The clock is an argument; keys come from the OS's
@@ -61,6 +62,28 @@ class Team:
         return json.dumps({"format": FORMAT, "run": self.run, "neighbours": self.neighbours,
                            "generations": self.generations, "endpoint": self.endpoint, "hosts": self.hosts,
                            "days": self.days}, indent=1) + "\n"
+
+
+def role_config(tls_dir: str | Path, team: Team, role: str) -> dict[str, Any]:
+    """A role's whole Zenoh config: client (or router), the team's endpoint, no scouting, mutual TLS
+    and, for the router, the access-control list."""
+    router = role == ap.ROUTER
+    conf: dict[str, Any] = {
+        "mode": "router" if router else "client",
+        "connect": {"endpoints": [] if router else [team.endpoint]},
+        "listen": {"endpoints": [team.endpoint] if router else []},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": ap.tls_block(tls_dir, role)}},
+    }
+    if router:
+        conf["access_control"] = ap.access_control(team.run, team.neighbours, team.common_names())
+    return conf
+
+
+def _write_configs(tls_dir: Path, team: Team) -> None:
+    for role in team.generations:
+        text = json.dumps(role_config(tls_dir, team, role), indent=1) + "\n"
+        _write(tls_dir / f"{role}.json5", text.encode(), private=False)
 
 
 def load_team(tls_dir: str | Path) -> Team:
@@ -168,6 +191,7 @@ def init_team(tls_dir: str | Path, neighbours: Sequence[Sequence[int]], *, run: 
     for role, cn in team.common_names().items():
         _issue(d, role, cn, team.hosts, now, days)
     _write(d / MANIFEST, team.to_json().encode(), private=False)
+    _write_configs(d, team)
     return team
 
 
@@ -191,6 +215,7 @@ def add_agent(tls_dir: str | Path, i: int, *, neighbours: Sequence[Sequence[int]
         team.generations[r] += 1  # a joiner's first generation, a replacement's next
         _issue(d, r, ap.common_name(r, team.generations[r]), team.hosts, now, team.days)
     _write(d / MANIFEST, team.to_json().encode(), private=False)
+    _write_configs(d, team)
     return team
 
 

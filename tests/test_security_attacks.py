@@ -155,7 +155,8 @@ def test_secure_team_refuses_every_forgery_and_eavesdropper(tmp_path):
             monitor.declare_subscriber(keys.agent_all(run, "estimate"), lambda s: estimates.update([str(s.key_expr)]))
             compromised = _session(endpoint, ap.tls_block(tls_dir, "agent-1"))
             old = ap.tls_block(tls_dir, "agent-4")
-            old.update(connect_certificate=str(revoked / "agent-4.pem"), connect_private_key=str(revoked / "agent-4.key"))
+            old.update(connect_certificate=str(revoked / "agent-4.pem"),
+                       connect_private_key=str(revoked / "agent-4.key"))
             replaced = _session(endpoint, old)  # the CA signed it: it connects, and may do nothing
             for who, s in (("compromised", compromised), ("replaced", replaced)):
                 for ke in (f"coload/{run}/**", keys.meas(run, 0), keys.agent_all(run, "estimate")):
@@ -239,3 +240,44 @@ def test_run_exits_1_naming_the_agents_that_did_not_report(tmp_path, monkeypatch
     monkeypatch.setattr(orchestrate, "run_processes", fake)
     assert main(["run", "quick", "--out", str(tmp_path / "r"), "--no-report", "--no-batch-fit", "--quiet"]) == 1
     assert "agents 2, 4 did not report at the end" in capsys.readouterr().err
+
+
+def test_realtime_far_future_tick_neither_blinds_nor_cuts(tmp_path):
+    """Real time, insecure team: a measurement for agent 2 and a state of agent 2, each 5000 ticks
+    (50 s) ahead, well inside MAX_TICK_LEAD. Both are refused (three ``future`` drops: agent 2, and
+    agents 1 and 3 for the state); agent 2 goes on estimating and its links keep delivering."""
+    run = "rt-attack"
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    overrides = ['mode="realtime"', "duration=5.0"]
+    sc = load_scenario(SCENARIOS / "quick.toml", overrides)
+    sets = [x for o in overrides for x in ("--set", o)]
+    common = [str(SCENARIOS / "quick.toml"), *sets, "--run", run, "--connect", endpoint]
+    out = tmp_path / "run"
+    procs = Processes(tmp_path)
+    attacked = {}
+    try:
+        router = procs.start("router", coload_cmd("router", "--listen", endpoint), stdout=subprocess.PIPE)
+        assert router.stdout.readline().decode().startswith("ready")
+        watch = Watch(sc.ticks)
+        with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as s:
+            s.declare_subscriber(keys.sim_control(run), watch.on_control)
+            sim = procs.start("sim", coload_cmd("sim", *common, "--out", str(out)))
+            agents = [procs.start(f"agent{i}", coload_cmd("agent", "--id", str(i), *common)) for i in range(sc.n)]
+            now = watch.wait(100, 120)
+            attacked["tick"] = now
+            s.put(keys.meas(run, 2), encode(Measurement(now + 5000, 2, 9.0, 9.0)))
+            s.put(keys.state(run, 2), encode(_state(now + 5000, 2)))
+            assert sim.wait(120) == 0
+        for a in agents:
+            assert a.wait(30) == 0
+    finally:
+        procs.kill_all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["agents_reported"] == list(range(sc.n))
+    assert summary["drops"].get("future") == 3, summary["drops"]
+    links = summary["links"]
+    for cut in ("2->1", "2->3"):
+        assert links[cut]["delivered"] >= 0.9 * links["0->1"]["delivered"], (cut, links)
+    rows = [line.split(",") for line in (out / "estimates.csv").read_text().splitlines()[1:]]
+    late = [r for r in rows if float(r[1]) == 2 and float(r[0]) > (attacked["tick"] + 200) * sc.dt]  # t, agent
+    assert late, "agent 2 stopped estimating after the forged measurement"

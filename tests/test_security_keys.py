@@ -112,7 +112,8 @@ def test_policy_is_default_deny_and_names_only_current_generations(tmp_path):
     names = {s["id"]: s["cert_common_names"] for s in acl["subjects"]}
     assert names["agent-1"] == ["agent-1.g2"] and names["agent-0"] == ["agent-0.g1"]
     rules = {r["id"]: r for r in acl["rules"]}
-    assert rules["agent-0/put"]["key_exprs"] == sorted(keys.agent(RUN, 0, k) for k in ("wrench", "state", "estimate", "report"))
+    own = ("wrench", "state", "estimate", "report")
+    assert rules["agent-0/put"]["key_exprs"] == sorted(keys.agent(RUN, 0, k) for k in own)
     assert rules["agent-0/hear"]["key_exprs"] == sorted([keys.meas(RUN, 0), keys.state(RUN, 1), keys.sim_control(RUN)])
     assert rules["agent-1/hear"]["key_exprs"] == sorted([keys.meas(RUN, 1), keys.state(RUN, 0), keys.state(RUN, 2),
                                                          keys.sim_control(RUN)])
@@ -134,7 +135,8 @@ def test_the_router_lets_each_role_say_only_its_own(team):
         ctl, ctl_has = _collector(a0, keys.sim_control(RUN))
         wr, wr_has = _collector(sim, keys.agent_all(RUN, "wrench"))
         est, est_has = _collector(mon, keys.agent_all(RUN, "estimate"))
-        sim_est, sim_est_has = _collector(sim, keys.agent_all(RUN, "estimate"))  # the monitor's own put loops back to it
+        # the monitor's own put loops back to its own subscriber: the simulator's tells what passed
+        sim_est, sim_est_has = _collector(sim, keys.agent_all(RUN, "estimate"))
         sneak, _ = _collector(mon, keys.agent_all(RUN, "meas"))  # the monitor may not hear measurements
         sneak1, _ = _collector(a1, keys.meas(RUN, 0))  # nor agent 1 agent 0's
         # forgeries first: each from a certificate that may not say it
@@ -222,8 +224,9 @@ def test_zenoh_flags(tmp_path, monkeypatch, caplog):
                                                                              ("mode", '"peer"')]
     with pytest.raises(ValueError, match="expected KEY:VALUE"):
         parse_cfg(["lease"])
-    assert insecure_endpoints(["tcp/127.0.0.1:7447", "tcp/localhost:1", "tls/10.0.0.2:7447", "tcp/10.0.0.2:7447",
-                               "tcp/[::1]:7447", "udp/robot.local:7447"]) == ["tcp/10.0.0.2:7447", "udp/robot.local:7447"]
+    endpoints = ["tcp/127.0.0.1:7447", "tcp/localhost:1", "tls/10.0.0.2:7447", "tcp/10.0.0.2:7447", "tcp/[::1]:7447",
+                 "udp/robot.local:7447"]
+    assert insecure_endpoints(endpoints) == ["tcp/10.0.0.2:7447", "udp/robot.local:7447"]
     f = tmp_path / "z.json5"
     f.write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:7001"] } }')
     monkeypatch.setenv("ZENOH_CONFIG", str(f))
@@ -245,10 +248,36 @@ def test_keys_cli(tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert certs.load_team(d).neighbours == [[1], [0, 2], [1, 3], [2, 4], [3]]
-    again = subprocess.run(coload_cmd("keys", "init", str(d), "--agents", "5"), capture_output=True, text=True, timeout=60)
+    again = subprocess.run(coload_cmd("keys", "init", str(d), "--agents", "5"), capture_output=True, text=True,
+                           timeout=60)
     assert again.returncode == 2 and again.stderr.strip().count("\n") == 0 and "holds a team already" in again.stderr
     add = subprocess.run(coload_cmd("keys", "add", str(d), "--agent", "2"), capture_output=True, text=True, timeout=60)
     assert add.returncode == 0 and "agent-2 generation 2" in add.stdout
     bad = subprocess.run(coload_cmd("router", "--tls-dir", str(tmp_path / "none")), capture_output=True, text=True,
                          timeout=60)
     assert bad.returncode == 2 and "team.json: cannot read it" in bad.stderr and bad.stderr.count("\n") == 1
+
+
+def test_generated_role_configs_work_with_plain_config_flags(tmp_path):
+    """``DIR/ROLE.json5`` alone (``-c``, no ``--tls-dir``) gives the same secure team."""
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    d = tmp_path / "keys"
+    certs.init_team(d, LINE, run=RUN, endpoint=endpoint, now=NOW)
+    router = open_session(zenoh_conf(_args(zenoh_config=d / "router.json5"), "router", mode="router"))
+    sessions = []
+    try:
+        sim, a0, a2 = (open_session(zenoh_conf(_args(zenoh_config=d / f"{r}.json5"), r)) for r in ("sim", "agent-0",
+                                                                                                    "agent-2"))
+        sessions = [sim, a0, a2]
+        wr, wr_has = _collector(sim, keys.agent_all(RUN, "wrench"))
+        for _ in range(3):
+            a0.put(keys.wrench(RUN, 0), b"w0")
+            if wr_has(b"w0", 2.0):
+                break
+        a2.put(keys.wrench(RUN, 0), b"forged")  # agent 2 speaking for agent 0
+        a0.put(keys.wrench(RUN, 0), b"w0-again")
+        assert wr_has(b"w0-again") and b"forged" not in wr
+    finally:
+        for s in sessions:
+            close_session(s)
+        close_session(router)
