@@ -3,8 +3,9 @@
 The recording is cut into windows of ``window_s`` (and at every gap in the stamps); each window starts
 from its own state and is simulated open loop by :func:`ident.model.simulate`, so a small model error
 cannot grow over more than one window. The body angle is continuous from one window to the next (a
-soft constraint, ``theta_sigma``): it pins the scale of the contact geometry against the rotation
-rate, which a window alone determines only weakly. The global parameters (geometry, 1/m, 1/J,
+soft constraint, ``theta_sigma``), and so is the angular rate (``omega_sigma``): the angle pins the
+scale of the contact geometry against the rate, which a window alone determines only weakly, and the
+rate carries the torque's information on J across windows. The global parameters (geometry, 1/m, 1/J,
 effects) are shared. Residuals are measured minus predicted velocities and/or positions, each divided
 by its channel's noise floor; nothing is differentiated. Levenberg-Marquardt on the normal equations
 (a window's states touch only its own residuals and its links); the Jacobian is a batched forward
@@ -35,6 +36,7 @@ class FitOptions:
     gap_factor: float = 5.0  # a stamp interval this many times the median starts a new, unlinked window
     max_step: float = 0.05  # longest RK4 substep (s)
     theta_sigma: float = 0.01  # rad: the body angle's continuity between windows
+    omega_sigma: float = 0.002  # rad/s: the angular rate's continuity between windows
     coulomb_speed: float | None = None  # smoothing speed of the Coulomb term; None: from the data
     max_iter: int = 30
 
@@ -53,6 +55,7 @@ class Problem:
     last: np.ndarray  # (S,) index of each window's last stamp (its link stamp when linked)
     link: np.ndarray  # (S - 1,) bool: window s + 1 starts where window s ends (no gap)
     theta_sigma: float = 0.01
+    omega_sigma: float = 0.002
 
     def residual(self, g: np.ndarray, x: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
         """(B, S, M) weighted measurement residuals (0 where not measured) and (B, S - 1) continuity
@@ -67,11 +70,12 @@ class Problem:
         if pos is not None:
             m = w.pmask[None, ..., None] * ax
             parts.append(((w.pos[None] - pos) * m / self.sigma_p).reshape(g.shape[0], w.S, -1))
-        rc = np.zeros((g.shape[0], max(w.S - 1, 0)))
-        if lay.rotation and w.S > 1:
-            th_end = XS[:, np.arange(w.S - 1), self.last[:-1], 3]
-            gap = np.mod(th_end - XS[:, 1:, 0, 3] + np.pi, 2 * np.pi) - np.pi  # an angle: modulo a turn
-            rc = gap * self.link / self.theta_sigma
+        rc = np.zeros((g.shape[0], 0))
+        if lay.rotation and w.S > 1:  # rows (window s, [theta, omega]) of the links
+            end = XS[:, np.arange(w.S - 1), self.last[:-1]]
+            gap = np.mod(end[..., 3] - XS[:, 1:, 0, 3] + np.pi, 2 * np.pi) - np.pi  # an angle: modulo a turn
+            rc = np.stack((gap / self.theta_sigma, (end[..., 2] - XS[:, 1:, 0, 2]) / self.omega_sigma), axis=-1)
+            rc = (rc * self.link[None, :, None]).reshape(g.shape[0], -1)
         return np.concatenate(parts, axis=-1), rc
 
     @property
@@ -148,7 +152,8 @@ def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions
                   rotation=rot, axes=np.array(axes), hold=rec.hold)  # fmt: skip
     base = Layout(n=n, rotation=rot, axes=(axes[0], axes[1]), positions=pos is not None)
     return Problem(win=win, base=base, sigma_v=sigma_v, sigma_p=sigma_p, coulomb_speed=opt.coulomb_speed or 0.0,
-                   max_step=opt.max_step, t0=tw[:, 0], last=last, link=link, theta_sigma=opt.theta_sigma)  # fmt: skip
+                   max_step=opt.max_step, t0=tw[:, 0], last=last, link=link, theta_sigma=opt.theta_sigma,
+                   omega_sigma=opt.omega_sigma)  # fmt: skip
 
 
 @dataclass
@@ -158,10 +163,10 @@ class Lin:
     r: np.ndarray  # (S, M)
     Jg: np.ndarray  # (S, M, G)
     Jx: np.ndarray  # (S, M, K)
-    rc: np.ndarray  # (S - 1,) continuity residuals
-    Jcg: np.ndarray  # (S - 1, G)
-    Jcx: np.ndarray  # (S - 1, K) with respect to the window's own state
-    Jcn: np.ndarray  # (S - 1, K) with respect to the next window's state
+    rc: np.ndarray  # (R,) continuity residuals, rows (window s, [theta, omega]) of each link s -> s + 1
+    Jcg: np.ndarray  # (R, G)
+    Jcx: np.ndarray  # (R, K) with respect to window s's state
+    Jcn: np.ndarray  # (R, K) with respect to window s + 1's state
 
     @property
     def cost(self) -> float:
@@ -247,19 +252,21 @@ def linearise(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, cols: np.n
     Jx = (r0[None] - R[1 + cols.size :]).transpose(1, 2, 0) / hx
     Jcg = np.zeros((rc0.size, G))
     Jcg[:, cols] = ((rc0[None] - RC[1 : 1 + cols.size]) / hg[:, None]).T
-    # the residual th_end(s) - th0(s + 1) perturbed in every window at once: split own and next
+    # a link's residual end(s) - start(s + 1) perturbed in every window at once: split own and next
     Jcx = np.zeros((rc0.size, K))
     Jcn = np.zeros((rc0.size, K))
     if lay.rotation and rc0.size:
         ti = _theta_index(lay)
-        dall = ((rc0[None] - RC[1 + cols.size :]) / hx[:, None]).T  # (S - 1, K)
-        Jcn[:, ti] = pb.link.astype(float) / pb.theta_sigma  # -d rc / d theta0(s + 1)
+        dall = ((rc0[None] - RC[1 + cols.size :]) / hx[:, None]).T  # (R, K)
+        link = pb.link.astype(float)
+        Jcn[0::2, ti] = link / pb.theta_sigma  # -d rc / d theta0(s + 1)
+        Jcn[1::2, ti - 1] = link / pb.omega_sigma  # -d rc / d omega0(s + 1)
         Jcx[:] = dall - Jcn
     if lay.rotation:  # gauge: the body frame is the world frame at the first window's start
         ti = _theta_index(lay)
         Jx[0, :, ti] = 0.0
         if rc0.size:
-            Jcx[0, ti] = 0.0
+            Jcx[0:2, ti] = 0.0
     return Lin(r0, Jg, Jx, rc0, Jcg, Jcx, Jcn)
 
 
@@ -281,14 +288,15 @@ def normal_equations(lin: Lin) -> tuple[np.ndarray, np.ndarray]:
         H[sl, :G] = Bm[s]
         H[:G, sl] = Bm[s].T
         rhs[sl] = c[s]
-    for s in range(lin.rc.size):  # continuity rows: [Jcg, Jcx at window s, Jcn at window s + 1]
+    for j in range(lin.rc.size):  # continuity rows: [Jcg, Jcx at window s, Jcn at window s + 1]
+        s = j // 2
         row = np.zeros(P)
-        row[:G] = lin.Jcg[s]
-        row[G + s * K : G + (s + 1) * K] = lin.Jcx[s]
-        row[G + (s + 1) * K : G + (s + 2) * K] = lin.Jcn[s]
+        row[:G] = lin.Jcg[j]
+        row[G + s * K : G + (s + 1) * K] = lin.Jcx[j]
+        row[G + (s + 1) * K : G + (s + 2) * K] = lin.Jcn[j]
         nz = np.flatnonzero(row)
         H[np.ix_(nz, nz)] += np.outer(row[nz], row[nz])
-        rhs[nz] += row[nz] * lin.rc[s]
+        rhs[nz] += row[nz] * lin.rc[j]
     return H, rhs
 
 
@@ -342,12 +350,12 @@ def lm_fit(pb: Problem, lay: Layout, g0: np.ndarray, x0: np.ndarray, *, max_iter
 def fit_robust(pb: Problem, lay: Layout, g0: np.ndarray, x0: np.ndarray, *, max_iter: int = 30,
                misfit: float = 1.3) -> Fit:
     """:func:`lm_fit` from (g0, x0); if the residual stays above ``misfit`` x the noise floor, also from the
-    solution of a loosely linked fit (the body angle's continuity at 10 x ``theta_sigma``, which a poor
+    solution of a loosely linked fit (the rotation's continuity at 10 x its sigma, which a poor
     start's angle can follow), and keep the better of the two."""
     best = lm_fit(pb, lay, g0, x0, max_iter=max_iter)
     if not lay.rotation or best.sigma2 <= misfit**2:
         return best
-    loose = replace(pb, theta_sigma=10 * pb.theta_sigma)
+    loose = replace(pb, theta_sigma=10 * pb.theta_sigma, omega_sigma=10 * pb.omega_sigma)
     f1 = lm_fit(loose, lay, g0, x0, max_iter=max_iter)
     f2 = lm_fit(pb, lay, f1.g, f1.x, max_iter=max_iter)
     return f2 if f2.lin.cost < best.lin.cost else best

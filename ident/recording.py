@@ -100,6 +100,12 @@ def _num(cell: str, where: str, name: str) -> float:
     return v
 
 
+def default_hold(cfg: dict) -> str:
+    """The wrench's hold when run.toml does not say: a coload scenario (a ``[load]`` table: the recording
+    of coload's simulator, whose step holds each tick's wrench) is held, anything else first-order."""
+    return "zoh" if isinstance(cfg.get("load"), dict) else "foh"
+
+
 def read_config(path: Path) -> dict:
     """run.toml: ``n`` (positive integer) is required; ``dt``, ``edges``, ``input_hold`` optional."""
     if not path.exists():
@@ -114,7 +120,7 @@ def read_config(path: Path) -> dict:
     dt = cfg.get("dt")
     if dt is not None and (isinstance(dt, bool) or not isinstance(dt, (int, float)) or not dt > 0):
         raise RecordingError(f"{path}: field 'dt': expected a positive number (s), got {dt!r}")
-    hold = cfg.get("input_hold", "foh")
+    hold = cfg.get("input_hold", default_hold(cfg))
     if hold not in HOLDS:
         raise RecordingError(f"{path}: field 'input_hold': expected one of {list(HOLDS)}, got {hold!r}")
     return cfg
@@ -135,17 +141,14 @@ def read_recording(path: str | Path) -> Recording:
     has_p = "x" in cols and "y" in cols
     stamps, inv = np.unique(t, return_inverse=True)
     T = stamps.size
-    if T < 10:
-        raise RecordingError(f"{csv_path}: {T} distinct stamps, need at least 10")
-    seen = np.zeros((T, n), bool)
-    dup = seen.copy()
-    np.add.at(dup, (inv, agent), True)
     cnt = np.zeros((T, n), int)
     np.add.at(cnt, (inv, agent), 1)
     if (cnt > 1).any():
         k, i = np.argwhere(cnt > 1)[0]
         line = 2 + int(np.flatnonzero((inv == k) & (agent == i))[1])
-        raise RecordingError(f"{csv_path}:{line}: field 't': agent {i} has two rows at t = {stamps[k]!r}")
+        raise RecordingError(f"{csv_path}:{line}: field 't': agent {i} has two rows at t = {float(stamps[k])!r}")
+    if T < 10:
+        raise RecordingError(f"{csv_path}: {T} distinct stamps, need at least 10")
 
     def grid(names):
         out = np.full((T, n, len(names)), np.nan)
@@ -163,7 +166,7 @@ def read_recording(path: str | Path) -> Recording:
     if tpath.exists():
         truth, w = _read_truth(tpath)
         warns += w
-    rec = recording_from_arrays(stamps, wrench, vel, pos, hold=cfg.get("input_hold", "foh"),
+    rec = recording_from_arrays(stamps, wrench, vel, pos, hold=cfg.get("input_hold", default_hold(cfg)),
                                 dt=float(cfg["dt"]) if "dt" in cfg else None, truth=truth)  # fmt: skip
     rec.warnings[:0] = warns
     if rec.dt is not None:

@@ -291,8 +291,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         raise DiagnoseError(f"cannot identify the nominal model: {exc}") from None
     warns += w0
     if cs is None:  # the Coulomb term's smoothing speed: small against the typical speed of the load
-        sim_v, _, _ = simulate(pb.win, pb.base, g0[None], x0[None], coulomb_speed=0.0, max_step=pb.max_step)
-        if sim_v is not None:
+        if rec.vel is not None:
             speed = float(np.sqrt(np.nanmean(np.nansum(rec.vel**2, axis=-1))))
         else:
             speed = float(np.sqrt(np.mean(np.sum(np.diff(np.nan_to_num(rec.pos[:, 0]), axis=0) ** 2, axis=-1)))) / dtm
