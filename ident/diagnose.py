@@ -39,7 +39,8 @@ def read_recording(path: str | Path) -> Recording:
 
 
 def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
-                 progress: Callable[[str], None] | None = None, validate: str | Path | None = None) -> Diagnosis:  # fmt: skip
+                 progress: Callable[[str], None] | None = None,
+                 validate: str | Path | None = None) -> Diagnosis:  # fmt: skip
     """Read a recording directory and diagnose it; with ``validate`` (another recording directory) also
     report the models' errors on it (``Diagnosis.validation``)."""
     rec = read_recording(path)

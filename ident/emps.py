@@ -28,7 +28,8 @@ def read_emps(path: str | Path) -> Recording:
         raise RecordingError(f"{path}: not a readable MATLAB v5 file: {exc}") from None
     missing = [k for k in REQUIRED if k not in d]
     if missing:
-        raise RecordingError(f"{path}: variable(s) {', '.join(missing)} missing (an EMPS file has {', '.join(REQUIRED)})")
+        raise RecordingError(f"{path}: variable(s) {', '.join(missing)} missing "
+                             f"(an EMPS file has {', '.join(REQUIRED)})")
     t = np.asarray(d["t"], float).ravel()
     q = np.asarray(d["qm"], float).ravel()
     vir = np.asarray(d["vir"], float).ravel()

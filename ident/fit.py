@@ -19,7 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ident.model import Layout, Windows, expand, simulate
+from ident.model import Layout, Windows, simulate
 from ident.recording import Recording
 
 Z95 = 1.959963984540054
@@ -89,7 +89,9 @@ class Problem:
         return n
 
 
-def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions, rotation: bool | None = None) -> Problem:
+def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions,
+                 rotation: bool | None = None) -> Problem:
+    """Cut ``rec`` into windows (and at its gaps); channel weights 1/sigma; rotation modelled when n >= 2."""
     t = rec.t
     dts = np.diff(t)
     med = float(np.median(dts))
@@ -101,7 +103,8 @@ def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions
             cuts.append(k)
     cuts.append(t.size)
     spans = [(a, b) for a, b in zip(cuts[:-1], cuts[1:])]
-    if len(spans) > 1 and spans[-1][1] - spans[-1][0] < 0.5 * (spans[0][1] - spans[0][0]) and spans[-1][0] not in gapset:
+    short = spans[-1][1] - spans[-1][0] < 0.5 * (spans[0][1] - spans[0][0])
+    if len(spans) > 1 and short and spans[-1][0] not in gapset:
         spans[-2:] = [(spans[-2][0], spans[-1][1])]  # a short trailing window joins the one before it
     spans = [(a, b) for a, b in spans if b - a >= 3]
     if not spans:

@@ -200,7 +200,8 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
             return g[:, lay.slot(name)]
         return None
 
-    cv, fc, cr, d = eff("viscous_friction"), eff("coulomb_friction"), eff("rotational_damping"), eff("measurement_delay")
+    cv, fc = eff("viscous_friction"), eff("coulomb_friction")
+    cr, d = eff("rotational_damping"), eff("measurement_delay")
     fb = np.zeros((B, 2))
     if "force_bias" in lay.effects:
         fb[:, iax] = g[:, lay.slot("force_bias")]

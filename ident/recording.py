@@ -172,7 +172,8 @@ def read_recording(path: str | Path) -> Recording:
     if rec.dt is not None:
         med = float(np.median(np.diff(stamps)))
         if abs(med - rec.dt) > 0.01 * rec.dt:
-            rec.warnings.append(f"sample period {med:.6g} s differs from run.toml dt = {rec.dt:g} s: the stamps are used")
+            rec.warnings.append(f"sample period {med:.6g} s differs from run.toml dt = {rec.dt:g} s: "
+                                "the stamps are used")
     return rec
 
 

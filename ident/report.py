@@ -32,7 +32,8 @@ class ModelReport:
 
     def as_dict(self) -> dict[str, Any]:
         out = {
-            "m": _f(self.m), "J": _f(self.J), "residual_rms": _f(self.residual_rms), "whiteness_p": _f(self.whiteness_p),
+            "m": _f(self.m), "J": _f(self.J), "residual_rms": _f(self.residual_rms),
+            "whiteness_p": _f(self.whiteness_p),
             "m_ci95": _f(self.m_ci95), "J_ci95": _f(self.J_ci95), "zc": [_f(v) for v in self.zc],
             "heldout_rms": _f(self.heldout_rms), "bic": _f(self.bic), "effects": list(self.effects),
             "residual_over_floor": _f(self.residual_over_floor),
@@ -126,8 +127,9 @@ def format_diagnosis(r: Diagnosis) -> str:
         v = r.validation
         for key in ("nominal", "augmented"):
             m = v[key]
-            lines.append(f"validation {key:9s}: rms {m['rms']:.4g} ({m['channel']}), {m['ratio_to_identification']:.3g} x "
-                         f"the identification residual, whiteness p {m['whiteness_p']:.3g}")  # fmt: skip
+            lines.append(f"validation {key:9s}: rms {m['rms']:.4g} ({m['channel']}), "
+                         f"{m['ratio_to_identification']:.3g} x the identification residual, "
+                         f"whiteness p {m['whiteness_p']:.3g}")  # fmt: skip
         lines.append(f"validation flagged: {str(v['flagged']).lower()}"
                      + (" (the other recording holds a force or effect the models lack)" if v["flagged"] else ""))
     lines += [f"warning   {w}" for w in r.warnings]

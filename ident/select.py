@@ -10,7 +10,6 @@ outside any model) if the named effects remove nearly all of the nominal model's
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -372,7 +371,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             if p1 >= alpha_k or p2 >= alpha_k:
                 ambiguous.append([best, c2])
                 warns.append(f"{best} and {c2}: the data cannot separate them (BIC within "
-                             f"{trials[c2][0].bic - fb_.bic:.1f}, neither adds to the other); naming neither")  # fmt: skip
+                             f"{trials[c2][0].bic - fb_.bic:.1f}, neither adds to the other); "
+                             "naming neither")  # fmt: skip
                 remaining.remove(c2)
         accepted.append(best)
         remaining.remove(best)

@@ -12,7 +12,10 @@ from ident.recording import RecordingError, read_recording, recording_from_array
 from tests.conftest import coload_cmd
 
 
-def write(tmp: Path, rows: list[str], header="t,agent,vx,vy,fx,fy,tau", toml="n = 2\ndt = 0.01\nedges = [[0, 1]]\n") -> Path:
+TOML = "n = 2\ndt = 0.01\nedges = [[0, 1]]\n"
+
+
+def write(tmp: Path, rows: list[str], header="t,agent,vx,vy,fx,fy,tau", toml=TOML) -> Path:
     (tmp / "run.toml").write_text(toml)
     (tmp / "samples.csv").write_text("\n".join([header, *rows]) + "\n")
     return tmp
