@@ -9,6 +9,7 @@ judged against the plant's truth. One markdown row per (rate, noise, effect) ove
     python bench/bench_ident.py --seeds 1 2 3            # the full grid (5 rates x 3 noise levels x 9 cases)
     python bench/bench_ident.py --rates 50 200 --sigmas 0.02 --effects clean viscous_friction
     python bench/bench_ident.py --time                   # the time case: 120 s, 10 agents, 100 Hz
+    python bench/bench_ident.py --bound --rates 50 200   # what an ideal estimator could do (Cramer-Rao)
 
 Columns: named correctly (the effect alone; none for clean and for velocity_bias from velocities
 alone, which equals an initial velocity; ``unexplained`` and none for the effects outside the
@@ -20,6 +21,7 @@ over the estimated noise floor, how many residuals are white (Ljung-Box p > 0.01
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import subprocess
@@ -123,6 +125,53 @@ HEADER = ("| rate Hz | sigma m/s | effect | named correctly | value error % (med
           "|---|---|---|---|---|---|---|---|---|---|---|---|")  # fmt: skip
 
 
+def ideal_half_width(truth: dict[str, Any], name: str, sigma: float) -> tuple[float, float, float]:
+    """Cramer-Rao bound of an estimator that knows the true model structure: 95 % half-widths relative to
+    the truth of the effect's value, m and J, from the plant's own sensitivities (finite differences of
+    the parameters m, J, contacts, initial heading and velocities and the effect's values)."""
+    load, inp, traj, t = truth["load"], truth["inputs"], truth["trajectory"], truth["t"]
+    t0 = traj.breaks[0]
+    x0 = traj.state(np.array([t0]))[0]
+    ev = np.atleast_1d(np.asarray(truth["effects"][name], dtype=float))
+    n = load.n
+
+    def predict(p: np.ndarray) -> np.ndarray:
+        eff = dict(truth["effects"])
+        eff[name] = p[6 + 2 * n :].tolist() if ev.size > 1 else float(p[-1])
+        e = ctplant.Effects.from_dict(eff)
+        ld = dataclasses.replace(load, m=p[0], J=p[1], r=p[6 : 6 + 2 * n].reshape(n, 2))
+        x = np.array([x0[0], x0[1], *p[2:6]])
+        _, v = ctplant.simulate(ld, inp, e, x, t0, float(t[-1]) + 0.01, 0.02).contacts(t - e.delay)
+        return (v + np.asarray(e.vbias)).ravel()
+
+    p = np.concatenate(([load.m, load.J], x0[2:6], load.r.ravel(), ev))
+    y0 = predict(p)
+    cols = []
+    for k in range(p.size):
+        q = p.copy()
+        q[k] += 1e-5 * max(abs(p[k]), 1e-2)
+        cols.append((predict(q) - y0) / (q[k] - p[k]))
+    jac = np.array(cols).T
+    sd = sigma * np.sqrt(np.diag(np.linalg.pinv(jac.T @ jac)))
+    k = 6 + 2 * n
+    return (1.96 * float(np.linalg.norm(sd[k:]) / np.linalg.norm(ev)), 1.96 * sd[0] / load.m, 1.96 * sd[1] / load.J)
+
+
+def bound_table(args: argparse.Namespace) -> None:
+    print("| rate Hz | sigma m/s | effect | ideal 95 % half-width %: value, m, J (median over seeds) |")
+    print("|---|---|---|---|")
+    for rate in args.rates:
+        for sigma in args.sigmas:
+            for case in args.effects:
+                if case == "clean" or case in ctplant.OUTSIDE:
+                    continue
+                hw = np.median([ideal_half_width(ctplant.make_recording(
+                    None, n=args.n, rate_hz=rate, duration_s=args.duration, sigma_v=sigma, seed=seed, effects=[case]),
+                    case, sigma) for seed in args.seeds], axis=0)  # fmt: skip
+                print(f"| {rate:g} | {sigma:g} | {case} | {100 * hw[0]:.2g}, {100 * hw[1]:.2g}, {100 * hw[2]:.2g} |",
+                      flush=True)  # fmt: skip
+
+
 def time_case(seed: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         rec = Path(tmp) / "rec"
@@ -150,12 +199,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=20.0, help="recording length, s (default: %(default)s)")
     ap.add_argument("--quick", action="store_true", help="50 Hz, 0.02 m/s, clean and each vocabulary effect, seed 1")
     ap.add_argument("--time", action="store_true", help="only the time case: 120 s, 10 agents, 100 Hz")
+    ap.add_argument("--bound", action="store_true",
+                    help="no diagnosis: the Cramer-Rao half-widths an estimator with the true model structure gets")
     args = ap.parse_args(argv)
     if args.time:
         time_case(args.seeds[0])
         return 0
     if args.quick:
         args.rates, args.sigmas, args.effects, args.seeds = [50.0], [0.02], ["clean", *VOCAB[:5]], [1]
+    if args.bound:
+        bound_table(args)
+        return 0
     print(HEADER, flush=True)
     for rate in args.rates:
         for sigma in args.sigmas:
