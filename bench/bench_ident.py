@@ -152,7 +152,15 @@ def ideal_half_width(truth: dict[str, Any], name: str, sigma: float) -> tuple[fl
         q[k] += 1e-5 * max(abs(p[k]), 1e-2)
         cols.append((predict(q) - y0) / (q[k] - p[k]))
     jac = np.array(cols).T
+    norm = np.linalg.norm(jac, axis=0)
+    _, sv, vh = np.linalg.svd(jac / norm, full_matrices=False)
     sd = sigma * np.sqrt(np.diag(np.linalg.pinv(jac.T @ jac)))
+    # a direction the data do not see (e.g. a velocity offset against the initial velocity, without
+    # velocity-dependent forces): the parameters in it are not identifiable (the finite differences
+    # leave ~1e-5 of a column, so a relative singular value below 1e-4 counts as zero)
+    for s_, v_ in zip(sv, vh, strict=True):
+        if s_ < 1e-4 * sv[0]:
+            sd[np.abs(v_) > 1e-3] = math.inf
     k = 6 + 2 * n
     return (1.96 * float(np.linalg.norm(sd[k:]) / np.linalg.norm(ev)), 1.96 * sd[0] / load.m, 1.96 * sd[1] / load.J)
 
