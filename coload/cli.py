@@ -237,6 +237,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", action="store_true",
                    help="draw RECORDING/diagnose.png: residual before/after and its autocorrelation with bounds")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--validate", type=Path, metavar="OTHER",
+                   help="also predict the recording OTHER (same plant) with the nominal and the augmented model and "
+                        "report both errors")
+
+    p = sub.add_parser("import", help="convert a dataset into a recording (measured-data format)",
+                       description="Write a recording directory (run.toml + samples.csv) from a published dataset "
+                                   "(docs/diagnose.md, 'EMPS').")
+    isub = p.add_subparsers(dest="format", required=True)
+    q = isub.add_parser("emps", help="the EMPS benchmark's .mat file: one agent, position x = qm, fx = gtau * vir",
+                        description="Import DATA_EMPS.mat or DATA_EMPS_PULSES.mat (Janot, Gautier, Brunot 2019).")
+    q.add_argument("file", type=Path, help="the .mat file")
+    q.add_argument("--out", type=Path, required=True, metavar="DIR", help="recording directory to write")
     return parser
 
 
@@ -423,7 +435,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     )
 
     try:
-        result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress())
+        result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress(),
+                              validate=args.validate)
     except DiagnoseError as exc:
         print(f"coload diagnose: {exc}", file=sys.stderr)
         return 2
@@ -433,6 +446,19 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
         print(f"json: {args.json}")
     if args.plot:
         print(f"plot: {plot_diagnosis(result, args.recording / 'diagnose.png')}")
+    return 0
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from ident.emps import import_emps
+    from ident.recording import RecordingError
+
+    try:
+        out = import_emps(args.file, args.out)
+    except RecordingError as exc:
+        print(f"coload import: {exc}", file=sys.stderr)
+        return 2
+    print(f"recording: {out}")
     return 0
 
 
@@ -661,7 +687,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
             "compose": cmd_compose, "alive": cmd_alive, "campaign": cmd_campaign, "observer": cmd_observer, "hinf": cmd_hinf,
-            "arms": cmd_arms, "diagnose": cmd_diagnose}
+            "arms": cmd_arms, "diagnose": cmd_diagnose, "import": cmd_import}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
