@@ -67,7 +67,7 @@ def run_diagnose(rec: Path) -> tuple[dict[str, Any], float]:
 def floor_of(d: dict[str, Any]) -> float:
     nf = d.get("noise_floor", d.get("noise_sigma"))
     if isinstance(nf, dict):
-        nf = nf.get("velocity", nf.get("sigma", nf.get("value")))
+        nf = nf.get("velocity")
     return float(nf) if nf is not None else math.nan
 
 

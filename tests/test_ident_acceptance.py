@@ -40,11 +40,12 @@ def diagnose(rec: Path, timeout: float = 600.0) -> dict[str, Any]:
 
 
 def noise_floor(d: dict[str, Any]) -> float:
-    """The estimated noise floor (m/s per component): ``noise_floor`` if the JSON has it, else ``noise_sigma``."""
+    """The estimated velocity noise floor (m/s per component): ``noise_floor.velocity``, else ``noise_sigma``;
+    NaN for a recording without velocities."""
     nf = d.get("noise_floor", d.get("noise_sigma"))
     if isinstance(nf, dict):
-        nf = nf.get("velocity", nf.get("sigma", nf.get("value")))
-    return float(nf)
+        nf = nf.get("velocity")
+    return math.nan if nf is None else float(nf)
 
 
 def named(d: dict[str, Any]) -> list[str]:
