@@ -204,7 +204,10 @@ def score(pb: Problem, fit: Fit, name: str) -> _Score:
     cov = np.linalg.pinv(H, rcond=1e-13, hermitian=True)
     ce = np.diag(cov)[eff_cols]
     raw = np.diag(H)[eff_cols]
-    collinear = float(1.0 - (1.0 / np.maximum(ce * raw, 1e-300)).min()) if np.all(raw > 0) else 1.0
+    # the share of the candidate's information the model's own parameters already carry (Schur complement)
+    Hoe = H[np.ix_(keep, eff_cols)]
+    schur = H[np.ix_(eff_cols, eff_cols)] - Hoe.T @ np.linalg.lstsq(H[np.ix_(keep, keep)], Hoe, rcond=1e-13)[0]
+    collinear = float(1.0 - (np.diag(schur) / np.maximum(raw, 1e-300)).min()) if np.all(raw > 0) else 1.0
     half = float(Z95 * np.sqrt(fit.sigma2 * np.clip(ce, 0, None)).max())
     rss0 = lin2.cost
     corr = [float(math.copysign(math.sqrt(max(dec, 0.0) / max(rss0, 1e-300) / q), v)) for v in d_full[eff_cols]]
