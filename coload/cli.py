@@ -282,11 +282,24 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Fit the nominal rigid-body model to a recording, test its residual (whiteness, "
                                    "signatures), select missing effects from a candidate library, re-fit and report "
                                    "before and after (docs/diagnose.md).")
-    p.add_argument("recording", type=Path, help="directory with run.toml (n, dt, edges) and samples.csv")
+    p.add_argument("recording", type=Path, help="directory with run.toml (n; dt, edges, input_hold optional) and "
+                   "samples.csv (t, agent, vx,vy and/or x,y, fx, fy, tau)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the diagnosis as JSON (schema in docs/diagnose.md)")
     p.add_argument("--plot", action="store_true",
                    help="draw RECORDING/diagnose.png: residual before/after and its autocorrelation with bounds")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--validate", type=Path, metavar="OTHER",
+                   help="also predict the recording OTHER (same plant) with the nominal and the augmented model and "
+                        "report both errors")
+
+    p = sub.add_parser("import", help="convert a dataset into a recording (measured-data format)",
+                       description="Write a recording directory (run.toml + samples.csv) from a published dataset "
+                                   "(docs/diagnose.md, 'EMPS').")
+    isub = p.add_subparsers(dest="format", required=True)
+    q = isub.add_parser("emps", help="the EMPS benchmark's .mat file: one agent, position x = qm, fx = gtau * vir",
+                        description="Import DATA_EMPS.mat or DATA_EMPS_PULSES.mat (Janot, Gautier, Brunot 2019).")
+    q.add_argument("file", type=Path, help="the .mat file")
+    q.add_argument("--out", type=Path, required=True, metavar="DIR", help="recording directory to write")
 
     p = sub.add_parser("export", help="write a run directory in a standard viewer's format (MCAP: Foxglove, Rerun)",
                        description="Write a run directory as an MCAP file (JSON channels with Foxglove's schemas: "
@@ -466,9 +479,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from net.zenoh_transport import run_router, zenoh_error_text
-
     from coload.zenoh_flags import zenoh_conf
+    from net.zenoh_transport import run_router, zenoh_error_text
 
     listen = args.listen
     try:
@@ -537,7 +549,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if _refuse_unwritable("diagnose", ("--json", args.json)):
         return 2
     try:
-        result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress())
+        result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress(),
+                              validate=args.validate)
     except DiagnoseError as exc:
         print(f"coload diagnose: {exc}", file=sys.stderr)
         return 2
@@ -571,6 +584,19 @@ def cmd_export(args: argparse.Namespace) -> int:
         return 2
     print(f"{sum(counts.values())} messages on {len(counts)} channels")
     print(f"mcap: {out}")
+    return 0
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from ident.emps import import_emps
+    from ident.recording import RecordingError
+
+    try:
+        out = import_emps(args.file, args.out)
+    except RecordingError as exc:
+        print(f"coload import: {exc}", file=sys.stderr)
+        return 2
+    print(f"recording: {out}")
     return 0
 
 
@@ -975,7 +1001,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
             "compose": cmd_compose, "alive": cmd_alive, "keys": cmd_keys, "campaign": cmd_campaign,
             "observer": cmd_observer, "hinf": cmd_hinf, "arms": cmd_arms, "diagnose": cmd_diagnose,
-            "export": cmd_export, "view": cmd_view}
+            "export": cmd_export, "view": cmd_view, "import": cmd_import}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

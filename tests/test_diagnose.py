@@ -148,9 +148,10 @@ def test_cli_reports_bad_input_with_exit_code_2(tmp_path):
 
 
 def test_missing_run_toml_key_is_named(tmp_path):
-    (tmp_path / "run.toml").write_text("n = 2\nedges = [[0, 1]]\n")
+    """n is the one required key of a recording's run.toml (dt and edges are optional: the stamps say when)."""
+    (tmp_path / "run.toml").write_text("dt = 0.01\nedges = [[0, 1]]\n")
     (tmp_path / "samples.csv").write_text("t,agent,vx,vy,fx,fy,tau\n")
-    with pytest.raises(DiagnoseError, match=r"run.toml: missing top-level key 'dt'"):
+    with pytest.raises(DiagnoseError, match=r"run.toml: field 'n': expected a positive integer"):
         read_recording(tmp_path)
 
 

@@ -1,0 +1,589 @@
+"""Output-error fit of the rigid-body model over windows (multiple shooting).
+
+The recording is cut into windows of ``window_s`` (and at every gap in the stamps); each window starts
+from its own state and is simulated open loop by :func:`ident.model.simulate`, so a small model error
+cannot grow over more than one window. The body angle is continuous from one window to the next (a
+soft constraint, ``theta_sigma``), and so is the angular rate (``omega_sigma``): the angle pins the
+scale of the contact geometry against the rate, which a window alone determines only weakly, and the
+rate carries the torque's information on J across windows. The global parameters (geometry, 1/m, 1/J,
+effects) are shared. Residuals are measured minus predicted velocities and/or positions, each divided
+by its channel's noise floor; nothing is differentiated. Levenberg-Marquardt on the normal equations
+(a window's states touch only its own residuals and its links); the Jacobian is a batched forward
+difference (a window-state column is one simulation for every window at once). See docs/batch-fit.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ident.model import Layout, Windows, simulate
+from ident.recording import Recording
+
+Z95 = 1.959963984540054
+
+
+class FitError(ValueError):
+    """The recording cannot be fitted; the message says why."""
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    window_s: float = 2.5  # window length (s): short enough that an open-loop error stays small
+    window_stamps: int = 250  # and at most this many stamps (the simulation loops over a window's stamps)
+    gap_factor: float = 5.0  # a stamp interval this many times the median starts a new, unlinked window
+    max_step: float = 0.05  # longest RK4 substep (s)
+    theta_sigma: float = 0.01  # rad: the body angle's continuity between windows
+    omega_sigma: float = 0.002  # rad/s: the angular rate's continuity between windows
+    coulomb_speed: float | None = None  # smoothing speed of the Coulomb term; None: from the data
+    max_iter: int = 30
+
+
+@dataclass
+class Problem:
+    """A recording prepared for fitting: windows, links between them, channel weights."""
+
+    win: Windows
+    base: Layout
+    sigma_v: float  # noise floor of the velocity channel (m/s) or nan
+    sigma_p: float  # of the position channel (m) or nan
+    coulomb_speed: float
+    max_step: float
+    t0: np.ndarray  # (S,) window start stamps
+    last: np.ndarray  # (S,) index of each window's last stamp (its link stamp when linked)
+    link: np.ndarray  # (S - 1,) bool: window s + 1 starts where window s ends (no gap)
+    theta_sigma: float = 0.01
+    omega_sigma: float = 0.002
+
+    def residual(self, g: np.ndarray, x: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
+        """(B, S, M) weighted measurement residuals (0 where not measured) and (B, S - 1) continuity
+        residuals of the body angle (0 where not linked or without rotation)."""
+        vel, pos, XS = simulate(self.win, lay, g, x, coulomb_speed=self.coulomb_speed, max_step=self.max_step)
+        parts = []
+        w = self.win
+        ax = np.array(self.base.axes, float)
+        if vel is not None:
+            m = w.vmask[None, ..., None] * ax
+            parts.append(((w.vel[None] - vel) * m / self.sigma_v).reshape(g.shape[0], w.S, -1))
+        if pos is not None:
+            m = w.pmask[None, ..., None] * ax
+            parts.append(((w.pos[None] - pos) * m / self.sigma_p).reshape(g.shape[0], w.S, -1))
+        rc = np.zeros((g.shape[0], 0))
+        if lay.rotation and w.S > 1:  # rows (window s, [theta, omega]) of the links
+            end = XS[:, np.arange(w.S - 1), self.last[:-1]]
+            gap = np.mod(end[..., 3] - XS[:, 1:, 0, 3] + np.pi, 2 * np.pi) - np.pi  # an angle: modulo a turn
+            rc = np.stack((gap / self.theta_sigma, (end[..., 2] - XS[:, 1:, 0, 2]) / self.omega_sigma), axis=-1)
+            rc = (rc * self.link[None, :, None]).reshape(g.shape[0], -1)
+        return np.concatenate(parts, axis=-1), rc
+
+    @property
+    def N(self) -> int:
+        ax = int(sum(self.base.axes))
+        n = 0
+        if self.win.vel is not None:
+            n += int(self.win.vmask.sum()) * ax
+        if self.win.pos is not None:
+            n += int(self.win.pmask.sum()) * ax
+        return n
+
+
+def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions,
+                 rotation: bool | None = None) -> Problem:
+    """Cut ``rec`` into windows (and at its gaps); channel weights 1/sigma; rotation modelled when n >= 2."""
+    t = rec.t
+    dts = np.diff(t)
+    med = float(np.median(dts))
+    wlen = min(opt.window_s, opt.window_stamps * med)
+    gapset = set((np.flatnonzero(dts > opt.gap_factor * med) + 1).tolist())
+    cuts = [0]
+    for k in range(1, t.size):
+        if k in gapset or t[k] - t[cuts[-1]] >= wlen - 1e-9 * wlen:
+            cuts.append(k)
+    cuts.append(t.size)
+    spans = [(a, b) for a, b in zip(cuts[:-1], cuts[1:])]
+    short = spans[-1][1] - spans[-1][0] < 0.5 * (spans[0][1] - spans[0][0])
+    if len(spans) > 1 and short and spans[-1][0] not in gapset:
+        spans[-2:] = [(spans[-2][0], spans[-1][1])]  # a short trailing window joins the one before it
+    spans = [(a, b) for a, b in spans if b - a >= 3]
+    if not spans:
+        raise FitError("no window with at least 3 stamps")
+    S = len(spans)
+    link = np.array([spans[s][1] == spans[s + 1][0] for s in range(S - 1)], bool)
+    # a linked window runs one stamp further, to the next window's first stamp (not measured there)
+    ends = [b + 1 if s < S - 1 and link[s] else b for s, (a, b) in enumerate(spans)]
+    L = max(e - a for (a, _), e in zip(spans, ends))
+    n = rec.n
+    tw = np.empty((S, L))
+    fx = np.zeros((S, L, n))
+    fy = np.zeros((S, L, n))
+    tq = np.zeros((S, L))
+    last = np.zeros(S, int)
+    wr = rec.wrench
+    for s, ((a, b), e) in enumerate(zip(spans, ends)):
+        k = e - a
+        tw[s, :k], tw[s, k:] = t[a:e], t[e - 1]
+        fx[s, :k], fy[s, :k], tq[s, :k] = wr[a:e, :, 0], wr[a:e, :, 1], wr[a:e, :, 2].sum(axis=1)
+        fx[s, k:], fy[s, k:], tq[s, k:] = fx[s, k - 1], fy[s, k - 1], tq[s, k - 1]
+        last[s] = k - 1
+    F = np.stack((fx.sum(axis=2), fy.sum(axis=2)), axis=-1)
+
+    def meas(arr):
+        if arr is None:
+            return None, None
+        y = np.zeros((S, L, n, 2))
+        m = np.zeros((S, L, n))
+        for s, (a, b) in enumerate(spans):
+            y[s, : b - a] = np.nan_to_num(arr[a:b])
+            m[s, : b - a] = ~np.isnan(arr[a:b]).any(axis=-1)
+        return y, m
+
+    vel, vmask = meas(rec.vel)
+    pos, pmask = meas(rec.pos)
+    u = np.concatenate((wr[:, :, :2].sum(axis=1), wr[:, :, 0], wr[:, :, 1], wr[:, :, 2].sum(axis=1)[:, None]), axis=1)
+    # an axis with neither force nor motion is left out (one agent pushing along x: y is idle)
+    axes = []
+    for c in range(2):
+        moving = any(a is not None and np.nanmax(a[..., c], initial=-np.inf) - np.nanmin(a[..., c], initial=np.inf) > 0
+                     for a in (rec.vel, rec.pos))  # fmt: skip
+        axes.append(bool(np.abs(wr[..., c]).max() > 0 or moving))
+    if not any(axes):
+        raise FitError("no force and no motion on either axis: nothing to fit")
+    rot = (n >= 2) if rotation is None else rotation
+    win = Windows(t=tw, F=F, fx=fx, fy=fy, tau=tq, vel=vel, vmask=vmask, pos=pos, pmask=pmask, u_t=t, u=u,
+                  rotation=rot, axes=np.array(axes), hold=rec.hold)  # fmt: skip
+    base = Layout(n=n, rotation=rot, axes=(axes[0], axes[1]), positions=pos is not None)
+    return Problem(win=win, base=base, sigma_v=sigma_v, sigma_p=sigma_p, coulomb_speed=opt.coulomb_speed or 0.0,
+                   max_step=opt.max_step, t0=tw[:, 0], last=last, link=link, theta_sigma=opt.theta_sigma,
+                   omega_sigma=opt.omega_sigma)  # fmt: skip
+
+
+@dataclass
+class Lin:
+    """The residuals and their derivatives at one point (derivatives of the prediction = -d residual)."""
+
+    r: np.ndarray  # (S, M)
+    Jg: np.ndarray  # (S, M, G)
+    Jx: np.ndarray  # (S, M, K)
+    rc: np.ndarray  # (R,) continuity residuals, rows (window s, [theta, omega]) of each link s -> s + 1
+    Jcg: np.ndarray  # (R, G)
+    Jcx: np.ndarray  # (R, K) with respect to window s's state
+    Jcn: np.ndarray  # (R, K) with respect to window s + 1's state
+
+    @property
+    def cost(self) -> float:
+        return float((self.r * self.r).sum() + (self.rc * self.rc).sum())
+
+
+@dataclass
+class Fit:
+    """A fitted model: global parameters ``g`` with covariance ``cov``, window states ``x``."""
+
+    lay: Layout
+    g: np.ndarray
+    x: np.ndarray  # (S, K)
+    cov: np.ndarray  # (G, G)
+    rss: float  # weighted measurement residual sum of squares
+    N: int
+    res: np.ndarray  # (S, M) weighted residual
+    nfev: int
+    lin: Lin | None = None
+
+    @property
+    def P(self) -> int:
+        return self.lay.G + self.x.size
+
+    @property
+    def sigma2(self) -> float:
+        return self.rss / max(self.N - self.P, 1)
+
+    @property
+    def bic(self) -> float:
+        return self.N * math.log(self.rss / self.N) + self.P * math.log(self.N)
+
+    def param(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        sl = self.lay.slot(name)
+        return self.g[sl], Z95 * np.sqrt(np.clip(np.diag(self.cov)[sl], 0, None))
+
+    def mj(self) -> dict[str, float]:
+        lay = self.lay
+        a = self.g[lay.ia]
+        sa = math.sqrt(max(self.cov[lay.ia, lay.ia], 0.0))
+        out = {"m": 1 / a if a > 0 else math.nan, "m_ci95": Z95 * sa / a**2 if a > 0 else math.nan,
+               "J": math.nan, "J_ci95": math.nan}  # fmt: skip
+        if lay.rotation:
+            b = self.g[lay.ib]
+            sb = math.sqrt(max(self.cov[lay.ib, lay.ib], 0.0))
+            out["J"] = 1 / b if b > 0 else math.nan
+            out["J_ci95"] = Z95 * sb / b**2 if b > 0 else math.nan
+        return out
+
+
+def _scales(lay: Layout, g: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    sg = np.maximum(np.abs(g), 1e-3)
+    if lay.rotation:
+        sg[: lay.n_geom] = np.maximum(np.abs(g[: lay.n_geom]), 0.1)
+    sg[lay.ia] = max(abs(g[lay.ia]), 1e-5)
+    if "measurement_delay" in lay.effects:
+        sg[lay.slot("measurement_delay")] = np.maximum(np.abs(g[lay.slot("measurement_delay")]), 0.01)
+    sx = np.maximum(np.abs(x).max(axis=0) if x.size else np.ones(lay.K), 1e-3)
+    return sg, sx
+
+
+def _theta_index(lay: Layout) -> int:
+    return int(sum(lay.axes)) + 1
+
+
+def linearise(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, cols: np.ndarray | None = None) -> Lin:
+    """Residuals and batched forward-difference derivatives at (g, x); ``cols``: only these global columns
+    (the others are zero), for the score tests."""
+    G, K = lay.G, lay.K
+    sg, sx = _scales(lay, g, x)
+    cols = np.arange(G) if cols is None else np.asarray(cols)
+    hg, hx = 1e-6 * sg[cols], 1e-6 * sx
+    nb = 1 + cols.size + K
+    Gb = np.repeat(g[None], nb, axis=0)
+    Xb = np.repeat(x[None], nb, axis=0)
+    Gb[1 + np.arange(cols.size), cols] += hg
+    for k in range(K):
+        Xb[1 + cols.size + k, :, k] += hx[k]
+    R, RC = pb.residual(Gb, Xb, lay)
+    r0, rc0 = R[0], RC[0]
+    Jg = np.zeros(r0.shape + (G,))
+    Jg[..., cols] = (r0[None] - R[1 : 1 + cols.size]).transpose(1, 2, 0) / hg
+    Jx = (r0[None] - R[1 + cols.size :]).transpose(1, 2, 0) / hx
+    Jcg = np.zeros((rc0.size, G))
+    Jcg[:, cols] = ((rc0[None] - RC[1 : 1 + cols.size]) / hg[:, None]).T
+    # a link's residual end(s) - start(s + 1) perturbed in every window at once: split own and next
+    Jcx = np.zeros((rc0.size, K))
+    Jcn = np.zeros((rc0.size, K))
+    if lay.rotation and rc0.size:
+        ti = _theta_index(lay)
+        dall = ((rc0[None] - RC[1 + cols.size :]) / hx[:, None]).T  # (R, K)
+        link = pb.link.astype(float)
+        Jcn[0::2, ti] = link / pb.theta_sigma  # -d rc / d theta0(s + 1)
+        Jcn[1::2, ti - 1] = link / pb.omega_sigma  # -d rc / d omega0(s + 1)
+        Jcx[:] = dall - Jcn
+    if lay.rotation:  # gauge: the body frame is the world frame at the first window's start
+        ti = _theta_index(lay)
+        Jx[0, :, ti] = 0.0
+        if rc0.size:
+            Jcx[0:2, ti] = 0.0
+    return Lin(r0, Jg, Jx, rc0, Jcg, Jcx, Jcn)
+
+
+def normal_equations(lin: Lin) -> tuple[np.ndarray, np.ndarray]:
+    """(H, rhs) of the Gauss-Newton step over [g (G), x (S K)]."""
+    S, M, G = lin.Jg.shape
+    K = lin.Jx.shape[2]
+    P = G + S * K
+    H = np.zeros((P, P))
+    rhs = np.zeros(P)
+    H[:G, :G] = np.einsum("smg,smh->gh", lin.Jg, lin.Jg)
+    rhs[:G] = np.einsum("smg,sm->g", lin.Jg, lin.r)
+    A = np.einsum("smk,sml->skl", lin.Jx, lin.Jx)
+    Bm = np.einsum("smk,smg->skg", lin.Jx, lin.Jg)
+    c = np.einsum("smk,sm->sk", lin.Jx, lin.r)
+    for s in range(S):
+        sl = slice(G + s * K, G + (s + 1) * K)
+        H[sl, sl] = A[s]
+        H[sl, :G] = Bm[s]
+        H[:G, sl] = Bm[s].T
+        rhs[sl] = c[s]
+    for j in range(lin.rc.size):  # continuity rows: [Jcg, Jcx at window s, Jcn at window s + 1]
+        s = j // 2
+        row = np.zeros(P)
+        row[:G] = lin.Jcg[j]
+        row[G + s * K : G + (s + 1) * K] = lin.Jcx[j]
+        row[G + (s + 1) * K : G + (s + 2) * K] = lin.Jcn[j]
+        nz = np.flatnonzero(row)
+        H[np.ix_(nz, nz)] += np.outer(row[nz], row[nz])
+        rhs[nz] += row[nz] * lin.rc[j]
+    return H, rhs
+
+
+def _step(H: np.ndarray, rhs: np.ndarray, lam: float) -> np.ndarray:
+    d = np.diag(H).copy()
+    d[d <= 0] = 1.0
+    return np.linalg.solve(H + lam * np.diag(d) + 1e-12 * np.diag(d), rhs)
+
+
+def lm_fit(pb: Problem, lay: Layout, g0: np.ndarray, x0: np.ndarray, *, max_iter: int = 30) -> Fit:
+    """Levenberg-Marquardt from (g0, x0); non-negative effects stay >= 0."""
+    g, x = g0.astype(float).copy(), x0.astype(float).copy()
+    lo = lay.lower()
+    g = np.maximum(g, lo)
+    G, S, K = lay.G, pb.win.S, lay.K
+    lam = 1e-4
+    lin = linearise(pb, lay, g, x)
+    nfev = 1 + G + K
+    cost = lin.cost
+    for _ in range(max_iter):
+        H, rhs = normal_equations(lin)
+        improved = False
+        gain = 0.0
+        for _try in range(8):
+            d = _step(H, rhs, lam)
+            gn = np.maximum(g + d[:G], lo)
+            xn = x + d[G:].reshape(S, K)
+            R, RC = pb.residual(gn[None], xn[None], lay)
+            nfev += 1
+            cn = float((R * R).sum() + (RC * RC).sum())
+            if cn < cost:
+                improved = True
+                gain = (cost - cn) / max(cost, 1e-300)
+                g, x, cost = gn, xn, cn
+                lam = max(lam / 10, 1e-9)
+                break
+            lam *= 10
+        if not improved:
+            break
+        lin = linearise(pb, lay, g, x)
+        nfev += G + K
+        if gain < 1e-9:
+            break
+    H, _ = normal_equations(lin)
+    rss = float((lin.r * lin.r).sum())
+    fit = Fit(lay, g, x, np.zeros((G, G)), rss, pb.N, lin.r, nfev, lin)
+    fit.cov = fit.sigma2 * np.linalg.pinv(H, rcond=1e-13, hermitian=True)[:G, :G]
+    return fit
+
+
+def fit_robust(pb: Problem, lay: Layout, g0: np.ndarray, x0: np.ndarray, *, max_iter: int = 30,
+               misfit: float = 1.3) -> Fit:
+    """:func:`lm_fit` from (g0, x0); while the residual stays above ``misfit`` x the noise floor, also from
+    the solution of a loosely linked fit (the rotation's continuity at 10 x its sigma, which a poor
+    start's angle can follow), then from a fit of the first windows alone; the best is kept."""
+    best = lm_fit(pb, lay, g0, x0, max_iter=max_iter)
+    if not lay.rotation or best.sigma2 <= misfit**2:
+        return best
+    loose = replace(pb, theta_sigma=10 * pb.theta_sigma, omega_sigma=10 * pb.omega_sigma)
+    f1 = lm_fit(loose, lay, g0, x0, max_iter=max_iter)
+    f2 = lm_fit(pb, lay, f1.g, f1.x, max_iter=max_iter)
+    best = f2 if f2.lin.cost < best.lin.cost else best
+    if best.sigma2 <= misfit**2 or pb.win.S < 8:
+        return best
+    # the head of the recording first (a few windows, where the start's angle is still good), then all
+    # of it from the head's parameters, every window's state fitted to them first
+    head = np.arange(min(6, pb.win.S))
+    ph = replace(pb, win=_pick(pb.win, head), t0=pb.t0[head], last=pb.last[head], link=pb.link[head[:-1]])
+    fh = lm_fit(ph, lay, g0, x0[head], max_iter=max_iter)
+    x = refit_states(pb, lay, fh.g, x0.copy(), iters=3)
+    f3 = lm_fit(pb, lay, fh.g, x, max_iter=max_iter)
+    return f3 if f3.lin.cost < best.lin.cost else best
+
+
+def _pick(w: Windows, idx: np.ndarray) -> Windows:
+    """Windows ``idx`` of ``w``."""
+    p = lambda a: None if a is None else a[idx]  # noqa: E731
+    return Windows(t=w.t[idx], F=w.F[idx], fx=w.fx[idx], fy=w.fy[idx], tau=w.tau[idx], vel=p(w.vel), vmask=p(w.vmask),
+                   pos=p(w.pos), pmask=p(w.pmask), u_t=w.u_t, u=w.u, rotation=w.rotation, axes=w.axes,
+                   hold=w.hold)  # fmt: skip
+
+
+def refit_states(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, iters: int = 3) -> np.ndarray:
+    """Gauss-Newton on the window states only (globals fixed): to predict other data with a fitted model."""
+    G = lay.G
+    for _ in range(iters):
+        lin = linearise(pb, lay, g, x, cols=np.zeros(0, int))
+        H, rhs = normal_equations(lin)
+        x = x + _step(H[G:, G:], rhs[G:], 0.0).reshape(x.shape)
+    return x
+
+
+# --- the start: kinematics, then linear least squares ------------------------------------------------
+def _cumint(t: np.ndarray, u: np.ndarray, hold: str) -> np.ndarray:
+    """Running integral of u (T, ...) over t from t[0], trapezoid (FOH) or left rectangle (ZOH)."""
+    dt = np.diff(t).reshape((-1,) + (1,) * (u.ndim - 1))
+    inc = 0.5 * (u[1:] + u[:-1]) * dt if hold == "foh" else u[:-1] * dt
+    return np.concatenate((np.zeros((1,) + u.shape[1:]), np.cumsum(inc, axis=0)), axis=0)
+
+
+def _rotation_kinematics(rec: Recording, min_snr: float = 4.0):
+    """theta(t), omega(t) and the contact geometry about the centroid (body frame = world at t[0]) from the
+    rank-1 structure of the relative contact velocities (or positions). Returns (theta, omega, z, good)."""
+    t = rec.t
+    T = t.size
+    if rec.vel is not None:
+        w = rec.vel[..., 0] + 1j * rec.vel[..., 1]
+        full = ~np.isnan(w).any(axis=1)
+        if full.sum() < 20:
+            raise FitError("fewer than 20 stamps with every agent's velocity: cannot initialise the rotation")
+        rel = w - np.nanmean(w, axis=1, keepdims=True)
+        _, sv, vh = np.linalg.svd(rel[full], full_matrices=False)
+        zb = np.conj(vh[0])
+        n = rec.n
+        resid = rel[full] - (rel[full] @ zb)[:, None] * np.conj(zb)[None] / (np.abs(zb) ** 2).sum()
+        sigma = float(np.sqrt(np.mean(np.abs(resid) ** 2) / 2 * n / max(n - 2, 1)))
+        ok = ~np.isnan(rel)
+        wz = np.where(ok, rel, 0)
+        den = (ok * np.abs(zb) ** 2).sum(axis=1)
+        h = np.full(T, np.nan + 0j)
+        has = den > 0.5 * (np.abs(zb) ** 2).max()
+        h[has] = (wz[has] * np.conj(1j * zb)).sum(axis=1) / den[has]
+        sigma_h = sigma / math.sqrt(float(np.sum(np.abs(zb) ** 2)))
+        good = np.abs(np.nan_to_num(h)) > min_snr * sigma_h
+        if good.sum() < 20:
+            raise FitError("the load hardly rotates (relative contact velocities at noise level): contact geometry, "
+                           "omega and J are not observable from these data")  # fmt: skip
+        idx = np.flatnonzero(good)
+        phi = np.unwrap(np.angle(h[idx]))
+        tt = t[idx]
+        # the sign of omega from the phase's slope over ~1 s (the phase advances at omega whatever its sign)
+        med = float(np.median(np.diff(t)))
+        win = max(3, round(1.0 / med))
+        slope = np.gradient(np.convolve(phi, np.ones(win) / win, mode="same"), tt)
+        sign = np.where(slope >= 0, 1.0, -1.0)
+        # the geometry's scale |c| (|h| = |c| |omega|): the one whose integrated rate keeps the phase of
+        # sign * h coherent with the integrated angle (a search over scales, no differentiated phase)
+        hs = sign * h[idx]
+        rate = _cumint(tt, sign * np.abs(h[idx]), "foh")
+        best, cbest = -1.0, 1.0
+        lo_hi = np.abs(h[idx]).max() / 100.0
+        for cs in np.geomspace(max(lo_hi, 1e-6), np.abs(h[idx]).max() * 100.0, 400):
+            coh = abs(np.sum(hs * np.exp(-1j * rate / cs)))
+            if coh > best:
+                best, cbest = coh, cs
+        for cs in np.linspace(cbest * 0.97, cbest * 1.03, 61):
+            coh = abs(np.sum(hs * np.exp(-1j * rate / cs)))
+            if coh > best:
+                best, cbest = coh, cs
+        cscale = float(cbest)
+        theta_i = rate / cscale
+        c0 = np.angle(np.sum(hs * np.exp(-1j * theta_i)))
+        theta = np.interp(t, tt, theta_i)
+        z = zb * cscale * np.exp(1j * (c0 - np.pi / 2))
+        omega = np.interp(t, tt, sign * np.abs(h[idx]) / cscale)
+        goodt = np.zeros(T, bool)
+        goodt[idx] = True
+        return theta, omega, z, goodt
+    q = rec.pos[..., 0] + 1j * rec.pos[..., 1]
+    full = ~np.isnan(q).any(axis=1)
+    if full.sum() < 20:
+        raise FitError("fewer than 20 stamps with every agent's position: cannot initialise the rotation")
+    rel = q - np.nanmean(q, axis=1, keepdims=True)
+    _, sv, vh = np.linalg.svd(rel[full], full_matrices=False)
+    zb = np.conj(vh[0])
+    ok = ~np.isnan(rel)
+    den = (ok * np.abs(zb) ** 2).sum(axis=1)
+    h = np.full(T, np.nan + 0j)
+    has = den > 0.5 * (np.abs(zb) ** 2).max()
+    h[has] = (np.where(ok, rel, 0)[has] * np.conj(zb)).sum(axis=1) / den[has]
+    idx = np.flatnonzero(has)
+    phi = np.unwrap(np.angle(h[idx]))
+    theta = np.interp(t, t[idx], phi)
+    z = zb * h[idx[0]] * np.exp(-1j * (phi[0] - theta[0]))
+    z = zb * np.abs(h[idx]).mean() * np.exp(1j * theta[0])
+    theta = theta - theta[0]
+    omega = np.gradient(theta, t)
+    return theta, omega, z, np.ones(T, bool)
+
+
+def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """(g0, x0, warnings) for the nominal layout ``pb.base``."""
+    lay = pb.base
+    warns: list[str] = []
+    t = rec.t
+    T, n = t.size, rec.n
+    S = pb.win.S
+    # window index of every stamp
+    starts = pb.t0
+    wid = np.searchsorted(starts, t, side="right") - 1
+    t0w = starts[wid]
+    F = rec.wrench[:, :, :2].sum(axis=1)
+    if lay.rotation:
+        theta, omega, z, good = _rotation_kinematics(rec)
+        e = 1j * omega * np.exp(1j * theta)
+    else:
+        theta = omega = np.zeros(T)
+        z = np.zeros(n, complex)
+        good = np.ones(T, bool)
+        e = np.zeros(T, complex)
+    # translation: linear in (per-window v0 [and p0], a, zc)
+    Sint = np.zeros((T, 2))
+    SSint = np.zeros((T, 2))
+    for s in range(S):
+        k = np.flatnonzero(wid == s)
+        if k.size == 0:
+            continue
+        Sint[k] = _cumint(t[k], F[k], rec.hold)
+        SSint[k] = _cumint(t[k], Sint[k], "foh")
+    use_vel = rec.vel is not None
+    if use_vel:
+        yb = np.nanmean(rec.vel[..., 0] + 1j * rec.vel[..., 1], axis=1)
+    else:
+        yb = np.nanmean(rec.pos[..., 0] + 1j * rec.pos[..., 1], axis=1)
+    okb = ~np.isnan(yb) & good
+    nloc = 1 if use_vel else 2
+    ncol = 2 * nloc * S + 1 + (2 if lay.rotation else 0)
+    Ar = np.zeros((2 * T, ncol))
+    for c in range(2):  # real part (x) rows 0..T-1, imaginary (y) rows T..2T-1
+        rows = np.arange(T) + c * T
+        if use_vel:
+            Ar[rows, 2 * wid + c] = 1.0
+            Ar[rows, 2 * nloc * S] = Sint[:, c]
+        else:
+            Ar[rows, 4 * wid + c] = 1.0
+            Ar[rows, 4 * wid + 2 + c] = t - t0w
+            Ar[rows, 2 * nloc * S] = SSint[:, c]
+    if lay.rotation:
+        rot = e if use_vel else np.exp(1j * theta)
+        Ar[:T, -2], Ar[T:, -2] = rot.real, rot.imag  # zc real part
+        Ar[:T, -1], Ar[T:, -1] = (1j * rot).real, (1j * rot).imag
+    yr = np.concatenate((yb.real, yb.imag))
+    axes = np.array(lay.axes)
+    rowok = np.concatenate((okb & axes[0], okb & axes[1]))
+    coef = np.linalg.lstsq(Ar[rowok], yr[rowok], rcond=None)[0]
+    a = float(coef[2 * nloc * S])
+    if not a > 0:
+        warns.append("initial mass estimate non-positive (weak force excitation); starting from m = 1e3 kg")
+        a = 1e-3
+    zc = complex(coef[-2], coef[-1]) if lay.rotation else 0j
+    g0 = np.zeros(lay.G)
+    g0[lay.ia] = a
+    na = int(axes.sum())
+    x0 = np.zeros((S, lay.K))
+    iax = np.flatnonzero(axes)
+    for s in range(S):
+        if use_vel:
+            v0 = coef[2 * s : 2 * s + 2]
+            x0[s, :na] = v0[iax]
+        else:
+            x0[s, :na] = coef[4 * s + 2 : 4 * s + 4][iax]
+    if lay.positions:
+        # window start positions: from the measured mean position (minus the rotated zc)
+        q = np.nanmean(rec.pos[..., 0] + 1j * rec.pos[..., 1], axis=1) - np.exp(1j * theta) * zc
+        for s in range(S):
+            k = np.flatnonzero(wid == s)
+            if k.size:
+                p0 = q[k[0]] if np.isfinite(q[k[0]]) else np.nanmean(q[k])
+                x0[s, lay.K - na :] = np.array([p0.real, p0.imag])[iax]
+    if lay.rotation:
+        r = z + zc
+        g0[: 2 * n] = np.stack((r.real, r.imag), axis=1).ravel()
+        tq = rec.wrench[:, :, 2].sum(axis=1)
+        fx, fy = rec.wrench[:, :, 0], rec.wrench[:, :, 1]
+        P = fy @ r.real - fx @ r.imag
+        Q = -(fx @ r.real + fy @ r.imag)
+        Tq = tq + np.cos(theta) * P + np.sin(theta) * Q
+        C = np.zeros(T)
+        for s in range(S):
+            k = np.flatnonzero(wid == s)
+            if k.size:
+                C[k] = _cumint(t[k], Tq[k], rec.hold)
+        Ab = np.zeros((T, S + 1))
+        Ab[np.arange(T), wid] = 1.0
+        Ab[:, S] = C
+        cb = np.linalg.lstsq(Ab[good], omega[good], rcond=None)[0]
+        b = float(cb[S])
+        if not b > 0:
+            warns.append("initial 1/J non-positive (weak torque excitation); starting from J = 100 kg m^2")
+            b = 0.01
+        g0[lay.ib] = b
+        for s in range(S):
+            k = np.flatnonzero(wid == s)
+            if k.size:
+                x0[s, na] = cb[s]
+                x0[s, na + 1] = theta[k[0]]
+    return g0, x0, warns

@@ -1,0 +1,296 @@
+"""The plant model of ``ident``: continuous-time planar rigid-body dynamics with the effect vocabulary.
+
+One rigid-body step (:func:`simulate`) serves the batch fit and the diagnosis. The state is the
+CoM velocity v, the angular rate omega, the body angle theta and the CoM position p::
+
+    dv/dt     = a (F(t) + f_b - c_v v - F_c v / sqrt(|v|^2 + v_s^2))        a = 1/m
+    domega/dt = b (tau(t) + (R(theta) r_i) x f_i(t) - c_r omega)            b = 1/J
+    dtheta/dt = omega,  dp/dt = v
+    contact velocity  y_i = v + omega (R(theta) r_i)^perp + v_b   (at t - d)
+    contact position  q_i = p + R(theta) r_i                     (at t - d)
+
+The wrench is known only at the sample stamps; between stamps it is taken as the straight line
+through them (first-order hold), or held (zero-order hold) when the recording says its actuators
+hold it. The ODE is integrated by classical RK4 with substeps no longer than ``max_step`` between
+stamps (stamps may be irregular). A measurement delay d is the same model driven by the input
+d earlier, since every window starts from a free state. See docs/diagnose.md ("Model").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+EFFECTS: dict[str, tuple[str, str]] = {
+    "viscous_friction": ("N s/m", "integral of v_C"),
+    "coulomb_friction": ("N", "integral of sign(v_C)"),
+    "rotational_damping": ("N m s", "integral of omega"),
+    "measurement_delay": ("s", "applied-force lag (rate of the prediction)"),
+    "force_bias": ("N", "constant force (ramp in v_C)"),
+    "velocity_bias": ("m/s", "constant velocity offset"),
+}
+"""Effect name -> (unit, the signature it leaves in the residual)."""
+VECTOR_EFFECTS = ("force_bias", "velocity_bias")
+NONNEGATIVE = ("viscous_friction", "coulomb_friction", "rotational_damping", "measurement_delay")
+
+
+@dataclass
+class Windows:
+    """A recording cut into S windows of at most L stamps (padded: repeated last stamp, mask 0).
+
+    ``t`` (S, L) stamps; ``F`` (S, L, 2) total force; ``fx``, ``fy`` (S, L, n) per-agent forces; ``tau``
+    (S, L) total torque; ``vel``/``vmask`` (S, L, n, 2)/(S, L, n) measured contact velocities,
+    ``pos``/``pmask`` the same for positions (None when absent). ``u_t``, ``u`` are the whole input series
+    (T,), (T, 2 + 2n + 1) [Fx, Fy, fx_1..n, fy_1..n, tau] for delayed inputs.
+    """
+
+    t: np.ndarray
+    F: np.ndarray
+    fx: np.ndarray
+    fy: np.ndarray
+    tau: np.ndarray
+    vel: np.ndarray | None
+    vmask: np.ndarray | None
+    pos: np.ndarray | None
+    pmask: np.ndarray | None
+    u_t: np.ndarray
+    u: np.ndarray
+    rotation: bool  # the model has a rotational state (n >= 2)
+    axes: np.ndarray  # (2,) bool: axes with motion or force; an idle axis is left out of the model
+    hold: str = "foh"
+
+    @property
+    def S(self) -> int:
+        return self.t.shape[0]
+
+    @property
+    def L(self) -> int:
+        return self.t.shape[1]
+
+    @property
+    def n(self) -> int:
+        return self.fx.shape[2]
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each unknown sits. Global vector: [r (2n) if rotation, a, b if rotation, effects...];
+    local (per window) vector: [v (active axes), omega, theta if rotation, p (active axes) if positions]."""
+
+    n: int
+    rotation: bool
+    axes: tuple[bool, bool]
+    positions: bool
+    effects: tuple[str, ...] = ()
+
+    def q(self, name: str) -> int:
+        return int(sum(self.axes)) if name in VECTOR_EFFECTS else 1
+
+    @property
+    def n_geom(self) -> int:
+        return 2 * self.n if self.rotation else 0
+
+    @property
+    def ia(self) -> int:
+        return self.n_geom
+
+    @property
+    def ib(self) -> int | None:
+        return self.n_geom + 1 if self.rotation else None
+
+    @property
+    def base(self) -> int:
+        return self.n_geom + (2 if self.rotation else 1)
+
+    def slot(self, name: str) -> slice:
+        k = self.base
+        for e in EFFECTS:
+            if e in self.effects:
+                if e == name:
+                    return slice(k, k + self.q(e))
+                k += self.q(e)
+        raise KeyError(name)
+
+    @property
+    def G(self) -> int:
+        return self.base + sum(self.q(e) for e in self.effects)
+
+    @property
+    def K(self) -> int:
+        na = int(sum(self.axes))
+        return na + (2 if self.rotation else 0) + (na if self.positions else 0)
+
+    def with_effects(self, effects) -> Layout:
+        return Layout(self.n, self.rotation, self.axes, self.positions, tuple(e for e in EFFECTS if e in effects))
+
+    def lower(self) -> np.ndarray:
+        lo = np.full(self.G, -np.inf)
+        for e in NONNEGATIVE:
+            if e in self.effects:
+                lo[self.slot(e)] = 0.0
+        return lo
+
+
+def expand(layout: Layout, g: np.ndarray, src: Layout, init: dict | None = None) -> np.ndarray:
+    """Map global vector ``g`` of layout ``src`` to ``layout``; effects not in ``src`` start at 0 (or ``init``)."""
+    out = np.zeros(g.shape[:-1] + (layout.G,))
+    out[..., : layout.base] = g[..., : src.base]
+    for e in layout.effects:
+        if e in src.effects:
+            out[..., layout.slot(e)] = g[..., src.slot(e)]
+        elif init and e in init:
+            out[..., layout.slot(e)] = init[e]
+    return out
+
+
+def _rk_inputs(w: Windows, r: np.ndarray, delay: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Input channels at the stamps for each batch member: (B, S, L) each of Fx, Fy, tau, P, Q with
+    torque = tau + cos(theta) P + sin(theta) Q; shifted by each member's delay (linear interpolation)."""
+    B = r.shape[0]
+    n = w.n
+    if np.any(delay != 0):
+        out = []
+        for k in range(B):
+            if delay[k] == 0:
+                out.append(None)
+                continue
+            ts = (w.t - delay[k]).ravel()
+            u = np.stack([np.interp(ts, w.u_t, w.u[:, c]) for c in range(w.u.shape[1])], axis=-1)
+            out.append(u.reshape(w.S, w.L, -1))
+    else:
+        out = [None] * B
+    Fx = np.empty((B, w.S, w.L))
+    Fy = np.empty_like(Fx)
+    tau = np.empty_like(Fx)
+    P = np.zeros_like(Fx)
+    Q = np.zeros_like(Fx)
+    for k in range(B):
+        if out[k] is None:
+            Fx[k], Fy[k], tau[k] = w.F[..., 0], w.F[..., 1], w.tau
+            fx, fy = w.fx, w.fy
+        else:
+            u = out[k]
+            Fx[k], Fy[k], tau[k] = u[..., 0], u[..., 1], u[..., 2 + 2 * n]
+            fx, fy = u[..., 2 : 2 + n], u[..., 2 + n : 2 + 2 * n]
+        if w.rotation:
+            rx, ry = r[k, :, 0], r[k, :, 1]
+            P[k] = fy @ rx - fx @ ry
+            Q[k] = -(fx @ rx + fy @ ry)
+    return Fx, Fy, tau, P, Q
+
+
+def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_speed: float, max_step: float):
+    """Simulate every window from its initial state for B parameter sets.
+
+    ``g`` (B, G) global parameters, ``x0`` (B, S, K) window states. Returns predicted contact velocities
+    (B, S, L, n, 2) or None, positions (B, S, L, n, 2) or None, and the state (B, S, L, 6) [vx, vy, omega,
+    theta, px, py] at the stamps.
+    """
+    B, S, L, n = g.shape[0], w.S, w.L, w.n
+    ax = np.array(lay.axes, float)
+    na = int(sum(lay.axes))
+    iax = np.flatnonzero(lay.axes)
+    r = g[:, : 2 * n].reshape(B, n, 2) if lay.rotation else np.zeros((B, n, 2))
+    a = g[:, lay.ia][:, None]
+    b = g[:, lay.ib][:, None] if lay.rotation else None
+
+    def eff(name, default=0.0):
+        if name in lay.effects:
+            return g[:, lay.slot(name)]
+        return None
+
+    cv, fc = eff("viscous_friction"), eff("coulomb_friction")
+    cr, d = eff("rotational_damping"), eff("measurement_delay")
+    fb = np.zeros((B, 2))
+    if "force_bias" in lay.effects:
+        fb[:, iax] = g[:, lay.slot("force_bias")]
+    vb = np.zeros((B, 2))
+    if "velocity_bias" in lay.effects:
+        vb[:, iax] = g[:, lay.slot("velocity_bias")]
+    delay = d[:, 0] if d is not None else np.zeros(B)
+    U = np.stack(_rk_inputs(w, r, delay), axis=-1)  # (B, S, L, 5): Fx, Fy, tau, P, Q
+    # state (B, S, 6): vx, vy, omega, theta, px, py
+    X = np.zeros((B, S, 6))
+    X[..., iax] = x0[..., :na]
+    k = na
+    if lay.rotation:
+        X[..., 2:4] = x0[..., k : k + 2]
+        k += 2
+    if lay.positions:
+        X[..., 4 + iax] = x0[..., k : k + na]
+    e2 = coulomb_speed**2
+    fbv = fb[:, None, :]
+    cvv = cv[:, :1, None] if cv is not None else None
+    fcc = fc[:, :1, None] if fc is not None else None
+    crr = cr[:, :1] if cr is not None else None
+    a3 = a[:, :, None] * ax
+    rot = b is not None
+
+    def deriv(X, U):
+        v = X[..., 0:2]
+        gf = U[..., 0:2] + fbv
+        if cvv is not None:
+            gf = gf - cvv * v
+        if fcc is not None:
+            gf = gf - fcc / np.sqrt((v * v).sum(axis=-1, keepdims=True) + e2) * v
+        out = np.empty_like(X)
+        out[..., 0:2] = a3 * gf
+        if rot:
+            th = X[..., 3]
+            tq = U[..., 2] + np.cos(th) * U[..., 3] + np.sin(th) * U[..., 4]
+            if crr is not None:
+                tq = tq - crr * X[..., 2]
+            out[..., 2] = b * tq
+            out[..., 3] = X[..., 2]
+        else:
+            out[..., 2:4] = 0.0
+        out[..., 4:6] = v
+        return out
+
+    XS = np.empty((B, S, L, 6))
+    foh = w.hold == "foh"
+    for j in range(L):
+        XS[:, :, j] = X
+        if j == L - 1:
+            break
+        H = w.t[:, j + 1] - w.t[:, j]  # (S,)
+        nsub = max(1, int(np.ceil(H.max() / max_step - 1e-9)))
+        h = (H / nsub)[None, :, None]
+        u0 = U[:, :, j]
+        du = (U[:, :, j + 1] - u0) if foh else None
+        for s_ in range(nsub):
+            if foh:
+                U0, Uh, U1 = u0 + (s_ / nsub) * du, u0 + ((s_ + 0.5) / nsub) * du, u0 + ((s_ + 1) / nsub) * du
+            else:
+                U0 = Uh = U1 = u0
+            k1 = deriv(X, U0)
+            k2 = deriv(X + 0.5 * h * k1, Uh)
+            k3 = deriv(X + 0.5 * h * k2, Uh)
+            k4 = deriv(X + h * k3, U1)
+            X = X + h / 6 * (k1 + 2 * (k2 + k3) + k4)
+    VX, VY, OM, TH = XS[..., 0], XS[..., 1], XS[..., 2], XS[..., 3]
+    PX = XS[..., 4] if lay.positions else None
+    PY = XS[..., 5] if lay.positions else None
+    vel = pos = None
+    if lay.rotation:
+        c, s = np.cos(TH)[..., None], np.sin(TH)[..., None]  # (B, S, L, 1)
+        rx, ry = r[:, None, None, :, 0], r[:, None, None, :, 1]
+        Rx = c * rx - s * ry
+        Ry = s * rx + c * ry
+    if w.vel is not None:
+        if lay.rotation:
+            ux = VX[..., None] - OM[..., None] * Ry
+            uy = VY[..., None] + OM[..., None] * Rx
+        else:
+            ux = np.repeat(VX[..., None], n, axis=-1)
+            uy = np.repeat(VY[..., None], n, axis=-1)
+        vel = np.stack((ux + vb[:, None, None, None, :1][..., 0], uy + vb[:, None, None, None, 1:][..., 0]), axis=-1)
+    if w.pos is not None and PX is not None:
+        if lay.rotation:
+            qx, qy = PX[..., None] + Rx, PY[..., None] + Ry
+        else:
+            qx = np.repeat(PX[..., None], n, axis=-1)
+            qy = np.repeat(PY[..., None], n, axis=-1)
+        pos = np.stack((qx, qy), axis=-1)
+    return vel, pos, XS

@@ -1,0 +1,270 @@
+"""Recordings in the measured-data format: ``samples.csv`` + ``run.toml`` (docs/diagnose.md, "Input").
+
+:func:`read_recording` reads a directory into a :class:`Recording` (stamps, per-agent measured contact
+velocities and/or positions, applied wrenches); :func:`recording_from_arrays` builds one from arrays.
+Stamps may be irregular and have gaps; a missing value is an empty cell. Bad input raises
+:class:`RecordingError` with file, line and field.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ident.tables import RunFormatError, _check_text, _cut_warning, _ends_cut
+
+RUN_TOML = "run.toml"
+SAMPLES_CSV = "samples.csv"
+TRUTH_CSV = "truth.csv"
+WRENCH = ("fx", "fy", "tau")
+HOLDS = ("foh", "zoh")
+
+
+class RecordingError(ValueError):
+    """The recording cannot be read; the message names the file, line and field."""
+
+
+@dataclass
+class Recording:
+    """One recording. ``t`` (T,) increasing stamps (s, the union over agents); per stamp and agent
+    ``vel``, ``pos`` (T, n, 2) measured contact velocity/position (NaN = not measured; None = no such
+    columns) and ``wrench`` (T, n, 3) [fx, fy, tau] applied (gaps interpolated, see ``warnings``)."""
+
+    t: np.ndarray
+    n: int
+    wrench: np.ndarray
+    vel: np.ndarray | None = None
+    pos: np.ndarray | None = None
+    dt: float | None = None  # nominal sample period from run.toml (informative only)
+    hold: str = "foh"  # how the applied wrench varies between stamps: first-order ("foh") or held ("zoh")
+    truth: dict[str, float] | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def T(self) -> int:
+        return int(self.t.size)
+
+
+def recording_from_arrays(t, wrench, vel=None, pos=None, *, hold: str = "foh", dt: float | None = None,
+                          truth: dict[str, float] | None = None) -> Recording:  # fmt: skip
+    """Check shapes and fill wrench gaps; raises :class:`RecordingError`."""
+    t = np.asarray(t, float)
+    w = np.array(wrench, float)
+    if t.ndim != 1 or t.size < 10:
+        raise RecordingError(f"need at least 10 stamps, got {t.size}")
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+        raise RecordingError("stamps must be finite and strictly increasing")
+    if w.ndim != 3 or w.shape[0] != t.size or w.shape[2] != 3:
+        raise RecordingError(f"wrench must have shape (T={t.size}, n, 3), got {w.shape}")
+    n = w.shape[1]
+    arrs = []
+    for name, a in (("vel", vel), ("pos", pos)):
+        if a is not None:
+            a = np.asarray(a, float)
+            if a.shape != (t.size, n, 2):
+                raise RecordingError(f"{name} must have shape ({t.size}, {n}, 2), got {a.shape}")
+            if np.isinf(a).any():
+                raise RecordingError(f"{name} contains inf")
+        arrs.append(a)
+    vel, pos = arrs
+    if vel is None and pos is None:
+        raise RecordingError("no measurements: need vx,vy and/or x,y columns")
+    if hold not in HOLDS:
+        raise RecordingError(f"input_hold must be one of {HOLDS}, got {hold!r}")
+    warns = []
+    miss = np.isnan(w)
+    if miss.any():
+        warns.append(f"{int(miss.any(axis=2).sum())} agent-stamps without a (complete) wrench: interpolated in time")
+        for i in range(n):
+            for c in range(3):
+                m = miss[:, i, c]
+                if m.all():
+                    w[:, i, c] = 0.0
+                elif m.any():
+                    w[m, i, c] = np.interp(t[m], t[~m], w[~m, i, c])
+    return Recording(t=t, n=n, wrench=w, vel=vel, pos=pos, dt=dt, hold=hold, truth=truth, warnings=warns)
+
+
+def _num(cell: str, where: str, name: str) -> float:
+    if cell.strip() == "":
+        return math.nan
+    try:
+        v = float(cell)
+    except ValueError:
+        raise RecordingError(f"{where}: column '{name}': {cell!r} is not a number") from None
+    if math.isinf(v):
+        raise RecordingError(f"{where}: column '{name}': {cell!r} is not finite")
+    return v
+
+
+def default_hold(cfg: dict) -> str:
+    """The wrench's hold when run.toml does not say: a coload scenario (a ``[load]`` table: the recording
+    of coload's simulator, whose step holds each tick's wrench) is held, anything else first-order."""
+    return "zoh" if isinstance(cfg.get("load"), dict) else "foh"
+
+
+def read_config(path: Path) -> dict:
+    """run.toml: ``n`` (positive integer) is required; ``dt``, ``edges``, ``input_hold`` optional."""
+    if not path.exists():
+        raise RecordingError(f"{path}: missing (a recording needs {RUN_TOML} with at least n)")
+    try:
+        cfg = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise RecordingError(f"{path}: invalid TOML: {exc}") from None
+    n = cfg.get("n")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise RecordingError(f"{path}: field 'n': expected a positive integer (number of agents), got {n!r}")
+    dt = cfg.get("dt")
+    if dt is not None and (isinstance(dt, bool) or not isinstance(dt, (int, float)) or not dt > 0):
+        raise RecordingError(f"{path}: field 'dt': expected a positive number (s), got {dt!r}")
+    hold = cfg.get("input_hold", default_hold(cfg))
+    if hold not in HOLDS:
+        raise RecordingError(f"{path}: field 'input_hold': expected one of {list(HOLDS)}, got {hold!r}")
+    return cfg
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read a recording directory (``run.toml`` + ``samples.csv``; ``truth.csv`` only for errors)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise RecordingError(f"{path}: not a directory (a recording is a directory with run.toml and samples.csv)")
+    cfg = read_config(path / RUN_TOML)
+    n = int(cfg["n"])
+    csv_path = path / SAMPLES_CSV
+    if not csv_path.exists():
+        raise RecordingError(f"{csv_path}: missing (a recording needs {SAMPLES_CSV})")
+    t, agent, cols, cut = _read_samples(csv_path, n)
+    has_v = "vx" in cols and "vy" in cols
+    has_p = "x" in cols and "y" in cols
+    stamps, inv = np.unique(t, return_inverse=True)
+    T = stamps.size
+    cnt = np.zeros((T, n), int)
+    np.add.at(cnt, (inv, agent), 1)
+    if (cnt > 1).any():
+        k, i = np.argwhere(cnt > 1)[0]
+        line = 2 + int(np.flatnonzero((inv == k) & (agent == i))[1])
+        raise RecordingError(f"{csv_path}:{line}: field 't': agent {i} has two rows at t = {float(stamps[k])!r}")
+    if T < 10:
+        raise RecordingError(f"{csv_path}: {T} distinct stamps, need at least 10")
+
+    def grid(names):
+        out = np.full((T, n, len(names)), np.nan)
+        for j, c in enumerate(names):
+            out[inv, agent, j] = cols[c]
+        return out
+
+    wrench = grid(WRENCH)
+    wrench[cnt == 0] = np.nan
+    vel = grid(("vx", "vy")) if has_v else None
+    pos = grid(("x", "y")) if has_p else None
+    truth = None
+    warns = list(cut)
+    tpath = path / TRUTH_CSV
+    if tpath.exists():
+        truth, w = _read_truth(tpath)
+        warns += w
+    rec = recording_from_arrays(stamps, wrench, vel, pos, hold=cfg.get("input_hold", default_hold(cfg)),
+                                dt=float(cfg["dt"]) if "dt" in cfg else None, truth=truth)  # fmt: skip
+    rec.warnings[:0] = warns
+    if rec.dt is not None:
+        med = float(np.median(np.diff(stamps)))
+        if abs(med - rec.dt) > 0.01 * rec.dt:
+            rec.warnings.append(f"sample period {med:.6g} s differs from run.toml dt = {rec.dt:g} s: "
+                                "the stamps are used")
+    return rec
+
+
+def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], list[str]]:
+    try:
+        _check_text(path)  # a compressed or binary file is named as such
+    except RunFormatError as exc:
+        raise RecordingError(str(exc)) from None
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        rows = list(csv.reader(fh))
+    cut = []
+    if len(rows) > 1 and _ends_cut(path):  # a recorder killed mid-write: its last line may be cut mid-number
+        cut.append(_cut_warning(path, len(rows), len(rows[-1]), len(rows[0])))
+        rows.pop()
+    if not rows:
+        raise RecordingError(f"{path}:1: empty file (expected a header starting t,agent)")
+    header = [h.strip() for h in rows[0]]
+    if header[:2] != ["t", "agent"]:
+        raise RecordingError(f"{path}:1: header must start with t,agent (got {','.join(header[:2])})")
+    need = list(WRENCH)
+    has_v, has_p = {"vx", "vy"} <= set(header), {"x", "y"} <= set(header)
+    if not (has_v or has_p):
+        raise RecordingError(f"{path}:1: header lacks measured columns: need vx,vy and/or x,y")
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise RecordingError(f"{path}:1: header lacks column(s) {','.join(missing)}")
+    want = ["t", "agent", *need] + (["vx", "vy"] if has_v else []) + (["x", "y"] if has_p else [])
+    idx = {c: header.index(c) for c in want}
+    body = [(k + 2, r) for k, r in enumerate(rows[1:]) if r and any(c.strip() for c in r)]
+    if not body:
+        raise RecordingError(f"{path}: no data rows")
+    vals = {c: np.empty(len(body)) for c in want}
+    width = len(header)
+    for j, (line, r) in enumerate(body):
+        where = f"{path}:{line}"
+        if len(r) != width:
+            raise RecordingError(f"{where}: {len(r)} fields, header has {width}")
+        for c in want:
+            v = _num(r[idx[c]], where, c)
+            if c in ("t", "agent") and math.isnan(v):
+                raise RecordingError(f"{where}: column '{c}': empty (expected a number)")
+            vals[c][j] = v
+        a = vals["agent"][j]
+        if a != int(a) or not 0 <= a < n:
+            raise RecordingError(f"{where}: column 'agent': agent {r[idx['agent']]} out of range 0..{n - 1}")
+    return vals["t"], vals["agent"].astype(int), {c: vals[c] for c in want[2:]}, cut
+
+
+def _read_truth(path: Path) -> tuple[dict[str, float] | None, list[str]]:
+    try:
+        with path.open(newline="") as fh:
+            rd = csv.DictReader(fh)
+            rows = [(float(r["mass"]), float(r["inertia"])) for r in rd]
+    except (KeyError, ValueError, TypeError) as exc:
+        return None, [f"truth.csv ignored: {exc}"]
+    if not rows:
+        return None, []
+    a = np.array(rows)
+    warns = []
+    if np.ptp(a[:, 0]) > 0 or np.ptp(a[:, 1]) > 0:
+        warns.append("truth: mass or inertia changes during the recording (the model assumes constant m and J); "
+                     "errors are against the median")  # fmt: skip
+    return {"m": float(np.median(a[:, 0])), "J": float(np.median(a[:, 1]))}, warns
+
+
+def write_recording(path: str | Path, rec: Recording, *, extra: dict | None = None) -> Path:
+    """Write ``rec`` as a recording directory (run.toml + samples.csv); all or nothing."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    cols = ["t", "agent"] + (["vx", "vy"] if rec.vel is not None else []) + (["x", "y"] if rec.pos is not None else [])
+    cols += list(WRENCH)
+    lines = [",".join(cols)]
+    for k in range(rec.T):
+        for i in range(rec.n):
+            vals = [repr(float(rec.t[k])), str(i)]
+            for a in (rec.vel, rec.pos):
+                if a is not None:
+                    vals += ["" if math.isnan(v) else repr(float(v)) for v in a[k, i]]
+            vals += [repr(float(v)) for v in rec.wrench[k, i]]
+            lines.append(",".join(vals))
+    toml = [f"n = {rec.n}", "edges = []"]
+    if rec.dt is not None:
+        toml.append(f"dt = {rec.dt!r}")
+    toml.append(f'input_hold = "{rec.hold}"')
+    for k, v in (extra or {}).items():
+        toml.append(f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"')
+    tmp_csv, tmp_toml = path / (SAMPLES_CSV + ".tmp"), path / (RUN_TOML + ".tmp")
+    tmp_csv.write_text("\n".join(lines) + "\n")
+    tmp_toml.write_text("\n".join(toml) + "\n")
+    tmp_csv.replace(path / SAMPLES_CSV)
+    tmp_toml.replace(path / RUN_TOML)
+    return path

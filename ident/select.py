@@ -1,0 +1,487 @@
+"""``coload diagnose``: trace the residual of the nominal rigid-body model to the effects it lacks.
+
+Pure core: :func:`diagnose` takes a :class:`ident.recording.Recording` and returns a
+:class:`ident.report.Diagnosis`. Steps (docs/diagnose.md, "Method"): noise floor from the data;
+nominal fit (:mod:`ident.fit`); score tests of every candidate effect; forward selection by nested
+F-test and BIC; an effect is named only if the final residual is white, or (real data with dynamics
+outside any model) if the named effects remove nearly all of the nominal model's excess residual.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from ident import stats
+from ident.fit import (
+    Fit,
+    FitError,
+    FitOptions,
+    Lin,
+    Problem,
+    fit_robust,
+    initial_guess,
+    linearise,
+    lm_fit,
+    make_problem,
+    normal_equations,
+    refit_states,
+)
+from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, Windows, expand, simulate
+from ident.recording import Recording
+from ident.report import Diagnosis, ModelReport
+
+Z95 = stats.Z95
+
+
+class DiagnoseError(ValueError):
+    """The recording cannot be diagnosed; the message says why."""
+
+
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """Thresholds of the selection; the defaults are the documented ones (docs/diagnose.md)."""
+
+    alpha: float = 1e-3  # family-wise level of the nested F-tests (Bonferroni over the candidates left)
+    alpha_white: float = 0.01  # Ljung-Box level: a residual with p above it counts as white
+    lags: int = 20  # Ljung-Box lags (of the block-averaged series)
+    block_s: float = 0.1  # block length (s) in front of Ljung-Box
+    ambiguous_bic: float = 10.0  # two substitutes closer than this in BIC cannot be told apart
+    holdout: float = 0.25  # trailing share of the recording held out for the prediction error
+    max_effects: int = 3
+    max_fits: int = 3  # candidates fitted per round: those with the strongest score tests
+    explained: float = 0.9  # share of the nominal excess residual the effects must remove when not white
+    candidates: tuple[str, ...] = tuple(EFFECTS)
+    fit: FitOptions = FitOptions()
+
+
+def noise_floor(rec: Recording) -> tuple[float, float]:
+    """(sigma_v m/s, sigma_p m) estimated from the data; NaN for an absent channel."""
+    sv = sp = math.nan
+    if rec.vel is not None:
+        sv = stats.kinematic_noise(rec.vel) if rec.n >= 3 else math.nan
+        if not math.isfinite(sv):
+            sv = stats.difference_noise(rec.t, rec.vel, 3)
+    if rec.pos is not None:
+        sp = stats.difference_noise(rec.t, rec.pos, 3)
+    return sv, sp
+
+
+def _floor(x: float, data: np.ndarray | None) -> float:
+    """A usable weight: a zero or NaN floor (quantised, noiseless data) becomes a tiny share of the signal."""
+    if data is None:
+        return math.nan
+    scale = float(np.nanstd(data)) or 1.0
+    return x if math.isfinite(x) and x > 1e-9 * scale else 1e-9 * scale
+
+
+def _channels(pb: Problem, fit: Fit) -> dict[str, np.ndarray]:
+    """Unweighted residual per channel, (S, L, n, 2)."""
+    w = pb.win
+    out = {}
+    k = 0
+    for name, y, sig in (("vel", w.vel, pb.sigma_v), ("pos", w.pos, pb.sigma_p)):
+        if y is not None:
+            size = y[..., 0].size // w.S * 2
+            out[name] = fit.res[:, k : k + size].reshape(w.S, w.L, w.n, 2) * sig
+            k += size
+    return out
+
+
+def residual_modes(pb: Problem, fit: Fit, res: np.ndarray | None = None, theta: np.ndarray | None = None) -> np.ndarray:
+    """(T, K) rigid-body modes of the weighted residual ``res`` (default: the fit's) per stamp: per channel
+    the agents' mean x, mean y (active axes) and, with rotation, the rotation; NaN where nothing was measured."""
+    w = pb.win
+    lay = fit.lay
+    if theta is None:
+        _, _, XS = simulate(w, lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed, max_step=pb.max_step)
+        theta = XS[0, ..., 3]
+    res = fit.res if res is None else res
+    valid = np.zeros((w.S, w.L), bool)
+    for s in range(w.S):
+        valid[s, : pb.last[s] + 1] = True
+        if s < w.S - 1 and pb.link[s]:
+            valid[s, pb.last[s]] = False  # the link stamp belongs to the next window
+    cols = []
+    k = 0
+    for name, mask in (("vel", w.vmask), ("pos", w.pmask)):
+        if mask is None:
+            continue
+        size = mask.size // w.S * 2
+        e = res[:, k : k + size].reshape(w.S, w.L, w.n, 2)
+        k += size
+        cnt = mask.sum(axis=2)
+        new = []
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for c in range(2):
+                if lay.axes[c]:
+                    new.append((e[..., c] * mask).sum(axis=2) / cnt)
+            if lay.rotation:
+                r = fit.g[: 2 * lay.n].reshape(lay.n, 2)
+                s_ = r - r.mean(axis=0)
+                cth, sth = np.cos(theta)[..., None], np.sin(theta)[..., None]
+                Rx, Ry = cth * s_[:, 0] - sth * s_[:, 1], sth * s_[:, 0] + cth * s_[:, 1]
+                if name == "vel":
+                    num = (e[..., 0] * -Ry + e[..., 1] * Rx) * mask
+                else:
+                    num = (e[..., 0] * Rx + e[..., 1] * Ry) * mask
+                new.append(num.sum(axis=2) / (mask * (s_**2).sum(axis=1)).sum(axis=2))
+        for c in new:
+            c[cnt == 0] = np.nan
+        cols += new
+    M = np.stack(cols, axis=-1)  # (S, L, K)
+    return M[valid]
+
+
+def whiteness(pb: Problem, fit: Fit, opt: DiagnoseOptions, modes: np.ndarray | None = None, draws: int = 20) -> float:
+    """Ljung-Box p of the block-averaged residual modes. Each window's free start state removes part of
+    a white residual, which leaves the residual slightly anti-correlated at lags within a window; that
+    autocorrelation is measured on white noise projected the same way (``draws`` draws, a fixed seed)
+    and subtracted (:func:`ident.stats.ljung_box`)."""
+    _, _, XS = simulate(pb.win, fit.lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed,
+                        max_step=pb.max_step)  # fmt: skip
+    theta = XS[0, ..., 3]
+    modes = residual_modes(pb, fit, theta=theta) if modes is None else modes
+    block = _block(pb, opt)
+    lin = fit.lin if fit.lin is not None else linearise(pb, fit.lay, fit.g, fit.x, cols=np.zeros(0, int))
+    mask = (lin.Jx != 0).any(axis=2) | (fit.res != 0)
+    rng = np.random.default_rng(12345)
+    Qs = [np.linalg.qr(lin.Jx[s][:, np.abs(lin.Jx[s]).sum(axis=0) > 0])[0] for s in range(pb.win.S)]
+    acc = []
+    for _ in range(draws):
+        e = rng.standard_normal(fit.res.shape) * mask
+        for s in range(pb.win.S):
+            e[s] -= Qs[s] @ (Qs[s].T @ e[s])
+        m = stats.block_average(residual_modes(pb, fit, res=e, theta=theta), block)
+        acc.append([stats.autocorrelation(m[:, j], opt.lags) for j in range(m.shape[1])])
+    center = np.mean(acc, axis=0)
+    return stats.ljung_box(stats.block_average(modes, block), opt.lags, center)[2]
+
+
+def _block(pb: Problem, opt: DiagnoseOptions) -> int:
+    return max(1, round(opt.block_s / float(np.median(np.diff(pb.win.u_t)))))
+
+
+@dataclass
+class _Score:
+    p: float
+    logp: float
+    half_width: float
+    collinear: float
+    corr: list[float]
+    step: np.ndarray
+    lm: float = 0.0  # the statistic itself: ranks candidates whose p-values underflow alike
+
+
+def score(pb: Problem, fit: Fit, name: str) -> _Score:
+    """Score test of adding ``name`` to ``fit``: the decrease of the residual one Gauss-Newton step of the
+    augmented model promises, beyond the step without it, over sigma^2 ~ chi2(q)."""
+    lay2 = fit.lay.with_effects(fit.lay.effects + (name,))
+    g2 = expand(lay2, fit.g, fit.lay)
+    sl = lay2.slot(name)
+    q = sl.stop - sl.start
+    eff_cols = np.arange(sl.start, sl.stop)
+    le = linearise(pb, lay2, g2, fit.x, cols=eff_cols)
+    old = fit.lin
+    idx = np.array([i for i in range(lay2.G) if not (sl.start <= i < sl.stop)], int)
+    Jg = le.Jg.copy()
+    Jg[..., idx] = old.Jg
+    Jcg = le.Jcg.copy()
+    Jcg[:, idx] = old.Jcg
+    lin2 = Lin(le.r, Jg, old.Jx, le.rc, Jcg, old.Jcx, old.Jcn)
+    H, rhs = normal_equations(lin2)
+    keep = np.ones(H.shape[0], bool)
+    keep[eff_cols] = False
+    d_full = np.linalg.lstsq(H, rhs, rcond=1e-13)[0]
+    d_rest = np.linalg.lstsq(H[np.ix_(keep, keep)], rhs[keep], rcond=1e-13)[0]
+    dec = float(rhs @ d_full - rhs[keep] @ d_rest)
+    lm = max(dec, 0.0) / fit.sigma2
+    p, logp = stats.score_test(lm, q)
+    cov = np.linalg.pinv(H, rcond=1e-13, hermitian=True)
+    ce = np.diag(cov)[eff_cols]
+    raw = np.diag(H)[eff_cols]
+    # the share of the candidate's information the model's own parameters already carry (Schur complement)
+    Hoe = H[np.ix_(keep, eff_cols)]
+    schur = H[np.ix_(eff_cols, eff_cols)] - Hoe.T @ np.linalg.lstsq(H[np.ix_(keep, keep)], Hoe, rcond=1e-13)[0]
+    collinear = float(1.0 - (np.diag(schur) / np.maximum(raw, 1e-300)).min()) if np.all(raw > 0) else 1.0
+    half = float(Z95 * np.sqrt(fit.sigma2 * np.clip(ce, 0, None)).max())
+    rss0 = lin2.cost
+    corr = [float(math.copysign(math.sqrt(max(dec, 0.0) / max(rss0, 1e-300) / q), v)) for v in d_full[eff_cols]]
+    return _Score(p, logp, half, collinear, corr, d_full[eff_cols], lm / q)
+
+
+def _ref_scale(name: str) -> float:
+    return {"viscous_friction": 1.0, "coulomb_friction": 1.0, "rotational_damping": 1.0, "measurement_delay": 0.01,
+            "force_bias": 1.0, "velocity_bias": 0.01}[name]  # fmt: skip
+
+
+def _reference(name: str, m: float, J: float, dt: float) -> float:
+    """A realistic small magnitude of each effect; a candidate the data cannot resolve to this is 'not excited'."""
+    mg = m * 9.81 if math.isfinite(m) and m > 0 else 500.0
+    return {
+        "viscous_friction": (m if math.isfinite(m) and m > 0 else 50.0) / 20.0,  # time constant m/b = 20 s
+        "coulomb_friction": 0.005 * mg,
+        "rotational_damping": (J if math.isfinite(J) and J > 0 else 100.0) / 20.0,
+        "measurement_delay": max(0.02, 2 * dt),
+        "force_bias": 0.005 * mg,
+        "velocity_bias": 0.02,
+    }[name]
+
+
+def _value(x: np.ndarray, lay: Layout, name: str) -> float | list:
+    """A scalar, or for a vector effect [x, y] (None on an idle axis: not identifiable there)."""
+    if name not in VECTOR_EFFECTS:
+        return float(x[0])
+    out: list = [None, None]
+    k = 0
+    for c in range(2):
+        if lay.axes[c]:
+            out[c] = float(x[k])
+            k += 1
+    return out
+
+
+def subset(pb: Problem, idx: np.ndarray) -> Problem:
+    """The problem restricted to windows ``idx``."""
+    w = pb.win
+    pick = lambda a: None if a is None else a[idx]  # noqa: E731
+    win = Windows(t=w.t[idx], F=w.F[idx], fx=w.fx[idx], fy=w.fy[idx], tau=w.tau[idx], vel=pick(w.vel),
+                  vmask=pick(w.vmask), pos=pick(w.pos), pmask=pick(w.pmask), u_t=w.u_t, u=w.u, rotation=w.rotation,
+                  axes=w.axes, hold=w.hold)  # fmt: skip
+    link = np.array([pb.link[i] if j == i + 1 else False for i, j in zip(idx[:-1], idx[1:])], bool)
+    return replace(pb, win=win, t0=pb.t0[idx], last=pb.last[idx], link=link)
+
+
+def _rms(pb: Problem, fit_res: np.ndarray) -> dict[str, float]:
+    """Unweighted residual RMS per channel, per measured component."""
+    w = pb.win
+    out = {}
+    k = 0
+    ax = int(sum(pb.base.axes))
+    for name, y, mask, sig in (("vel", w.vel, w.vmask, pb.sigma_v), ("pos", w.pos, w.pmask, pb.sigma_p)):
+        if y is not None:
+            size = y[..., 0].size // w.S * 2
+            e = fit_res[:, k : k + size]
+            out[name] = math.sqrt(float((e * e).sum()) / max(int(mask.sum()) * ax, 1)) * sig
+            k += size
+    return out
+
+
+def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress: Callable[[str], None] | None = None,
+             clock: Callable[[], float] | None = None) -> Diagnosis:  # fmt: skip
+    """Diagnose one recording. ``clock`` (e.g. ``time.perf_counter``) times it into ``wall_s`` (0 without)."""
+    opt = options or DiagnoseOptions()
+    unknown = [c for c in opt.candidates if c not in EFFECTS]
+    if unknown:
+        raise DiagnoseError(f"unknown candidate effect(s) {unknown}; known: {list(EFFECTS)}")
+    say = progress or (lambda msg: None)
+    t_start = clock() if clock is not None else 0.0
+    warns = list(rec.warnings)
+    sv, sp = noise_floor(rec)
+    sv_w, sp_w = _floor(sv, rec.vel), _floor(sp, rec.pos)
+    dtm = float(np.median(np.diff(rec.t)))
+    fopt = opt.fit
+    wlen = min(fopt.window_s, fopt.window_stamps * dtm)
+    cs = fopt.coulomb_speed
+    try:
+        pb = make_problem(rec, sv_w, sp_w, fopt)
+        g0, x0, w0 = initial_guess(pb, rec)
+    except FitError as exc:
+        raise DiagnoseError(f"cannot identify the nominal model: {exc}") from None
+    warns += w0
+    if cs is None:  # the Coulomb term's smoothing speed: small against the typical speed of the load
+        if rec.vel is not None:
+            speed = float(np.sqrt(np.nanmean(np.nansum(rec.vel**2, axis=-1))))
+        else:
+            speed = float(np.sqrt(np.mean(np.sum(np.diff(np.nan_to_num(rec.pos[:, 0]), axis=0) ** 2, axis=-1)))) / dtm
+        cs = max(0.005 * speed, 1e-6)
+    pb = replace(pb, coulomb_speed=cs)
+    base = pb.base
+    say(f"{rec.T} stamps, n = {rec.n}, {pb.win.S} windows of {wlen:.3g} s; noise floor "
+        + ", ".join(f"{k} {v:.3g}" for k, v in (("velocity (m/s)", sv), ("position (m)", sp)) if math.isfinite(v)))
+    if not base.rotation:
+        warns.append("one agent (n = 1): the load's rotation is not observed; J, the contact geometry and "
+                     "rotational_damping are not identifiable from these data")  # fmt: skip
+    if not all(base.axes):
+        warns.append(f"axis {'y' if base.axes[0] else 'x'}: no force and no motion: left out of the model "
+                     "(its components of force_bias and velocity_bias are not identifiable)")  # fmt: skip
+    cands = [c for c in opt.candidates if (c != "rotational_damping" or base.rotation)
+             and (c != "velocity_bias" or rec.vel is not None)]  # fmt: skip
+    say("nominal model: fitting")
+    nominal = fit_robust(pb, base, g0, x0)
+    modes0 = residual_modes(pb, nominal)
+    p_white0 = whiteness(pb, nominal, opt, modes0)
+    mj0 = nominal.mj()
+    say(f"nominal: m {mj0['m']:.4g} kg, J {mj0['J']:.4g} kg m^2, residual {math.sqrt(nominal.sigma2):.3g} x noise "
+        f"floor, whiteness p {p_white0:.3g}")  # fmt: skip
+
+    scores0 = {c: score(pb, nominal, c) for c in cands}
+    signatures = [{"signature": EFFECTS[c][1], "candidate": c, "corr": sc.corr, "bound": Z95 / math.sqrt(nominal.N),
+                   "score_p": sc.p} for c, sc in scores0.items()]  # fmt: skip
+    for c, sc in scores0.items():
+        ref = _reference(c, mj0["m"], mj0["J"], dtm)
+        if sc.collinear > 1 - 1e-6:
+            why = (" (a constant velocity offset is the initial velocity of each window as long as no velocity-"
+                   "dependent force is in the model)") if c == "velocity_bias" else ""  # fmt: skip
+            warns.append(f"{c}: not identifiable from these data: its signature lies in the span of the nominal "
+                         f"parameters{why}")  # fmt: skip
+        elif sc.half_width > ref:
+            warns.append(f"{c}: not excited enough: the data resolve it only to +-{sc.half_width:.3g} "
+                         f"{EFFECTS[c][0]}, more than a realistic {ref:.3g} {EFFECTS[c][0]}")  # fmt: skip
+
+    current = nominal
+    remaining = [c for c in cands if scores0[c].collinear <= 1 - 1e-6]
+    accepted: list[str] = []
+    ambiguous: list[list[str]] = []
+    table: dict[str, dict[str, Any]] = {}
+    scores = scores0
+    init = {"viscous_friction": 0.0, "coulomb_friction": 0.0}
+    while remaining and len(accepted) < opt.max_effects:
+        alpha_k = opt.alpha / len(remaining)
+        ranked = sorted((c for c in remaining if scores[c].p < alpha_k), key=lambda c: (scores[c].logp, -scores[c].lm))
+        trials: dict[str, tuple[Fit, float]] = {}
+        eligible: list[str] = []
+        for j, c in enumerate(ranked):
+            if j and j % opt.max_fits == 0 and eligible:
+                break  # fit the next strongest only when none of these qualifies
+            lay = current.lay.with_effects(current.lay.effects + (c,))
+            say(f"candidate {c} ({j + 1}/{len(ranked)}) on top of {list(current.lay.effects) or 'nominal'}")
+            g = expand(lay, current.g, current.lay, init)
+            sl = lay.slot(c)
+            g[sl] = np.maximum(scores[c].step, lay.lower()[sl])  # the score test's Gauss-Newton step
+            f = lm_fit(pb, lay, g, current.x)
+            F, pF = stats.nested_f(current.rss, f.rss, lay.G - current.lay.G, f.N, f.P)
+            trials[c] = (f, pF)
+            val, ci = f.param(c)
+            table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, lay, c), "ci95": _value(ci, lay, c),
+                        "F": F, "p": pF, "delta_bic": f.bic - current.bic, "whiteness_p": whiteness(pb, f, opt),
+                        "on_top_of": list(current.lay.effects)}  # fmt: skip
+            eligible = sorted((c for c, (f, pF) in trials.items() if pF < alpha_k and f.bic < current.bic),
+                              key=lambda c: trials[c][0].bic)  # fmt: skip
+        if not eligible:
+            break
+        best = eligible[0]
+        fb_ = trials[best][0]
+        for c2 in eligible[1:]:
+            if trials[c2][0].bic - fb_.bic >= opt.ambiguous_bic:
+                continue
+            lay2 = fb_.lay.with_effects(fb_.lay.effects + (c2,))
+            say(f"telling {best} from {c2}: joint fit")
+            joint = lm_fit(pb, lay2, expand(lay2, fb_.g, fb_.lay), fb_.x)
+            q = lay2.G - fb_.lay.G
+            p1 = stats.nested_f(fb_.rss, joint.rss, q, joint.N, joint.P)[1]
+            p2 = stats.nested_f(trials[c2][0].rss, joint.rss, lay2.G - trials[c2][0].lay.G, joint.N, joint.P)[1]
+            if p1 >= alpha_k or p2 >= alpha_k:
+                ambiguous.append([best, c2])
+                warns.append(f"{best} and {c2}: the data cannot separate them (BIC within "
+                             f"{trials[c2][0].bic - fb_.bic:.1f}, neither adds to the other); "
+                             "naming neither")  # fmt: skip
+                remaining.remove(c2)
+        accepted.append(best)
+        remaining.remove(best)
+        current = fb_
+        if remaining and len(accepted) < opt.max_effects:
+            scores = {c: score(pb, current, c) for c in remaining}
+    modes1 = residual_modes(pb, current)
+    white = whiteness(pb, current, opt, modes1)
+    excess0 = nominal.rss - nominal.N
+    share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
+    ambiguous_names = {c for pair in ambiguous for c in pair}
+    if accepted and (white > opt.alpha_white or share >= opt.explained):
+        unexplained = False
+        named = [c for c in accepted if c not in ambiguous_names]
+        final = current
+        if white <= opt.alpha_white:
+            warns.append(f"the residual with {', '.join(accepted)} is not white (Ljung-Box p {white:.2g}, "
+                         f"{math.sqrt(current.sigma2):.3g} x the noise floor), but the effects remove "
+                         f"{100 * share:.1f} % of the nominal model's excess residual: named; dynamics outside the "
+                         f"vocabulary remain")  # fmt: skip
+    elif not accepted and white > opt.alpha_white:
+        unexplained, named, final = False, [], nominal
+    else:
+        unexplained, named, final = True, [], nominal
+        tried = ", ".join(accepted) if accepted else "none"
+        warns.append(f"unexplained: a structured residual remains (Ljung-Box p {white:.2g} with {tried} added, "
+                     f"explaining {100 * share:.0f} % of the excess; nominal p {p_white0:.2g}); no candidate effect "
+                     f"explains it, so none is named")  # fmt: skip
+    for c in table:
+        table[c]["accepted"] = c in named
+    effects = []
+    for c in named:
+        val, ci = final.param(c)
+        effects.append({"name": c, "value": _value(val, final.lay, c), "unit": EFFECTS[c][0],
+                        "ci95": _value(ci, final.lay, c)})  # fmt: skip
+
+    def report(f: Fit, pw: float, modes: np.ndarray) -> ModelReport:
+        say(f"held-out error of {list(f.lay.effects) or 'nominal'}: fitting the first {1 - opt.holdout:.0%}")
+        tcut = rec.t[0] + (1 - opt.holdout) * (rec.t[-1] - rec.t[0])
+        head = np.flatnonzero(pb.t0 < tcut)
+        tail = np.flatnonzero(pb.t0 >= tcut)
+        held = math.nan
+        if head.size >= 2 and tail.size >= 1:
+            ph, pt = subset(pb, head), subset(pb, tail)
+            fh = lm_fit(ph, f.lay, f.g, f.x[head], max_iter=10)
+            xt = refit_states(pt, f.lay, fh.g, f.x[tail])
+            res_t = pt.residual(fh.g[None], xt[None], f.lay)[0][0]
+            held = next(iter(_rms(pt, res_t).values()))
+        mj = f.mj()
+        rms = _rms(pb, f.res)
+        zc = tuple(f.g[: 2 * rec.n].reshape(rec.n, 2).mean(axis=0).tolist()) if f.lay.rotation else (math.nan, math.nan)
+        rep = ModelReport(f.lay.effects, mj["m"], mj["m_ci95"], mj["J"], mj["J_ci95"], zc,
+                          next(iter(rms.values())), pw, held, f.bic, residual_rms_pos=rms.get("pos"),
+                          residual_over_floor=math.sqrt(f.rss / f.N), modes=modes)  # fmt: skip
+        if rec.truth:
+            rep.m_rel_err = mj["m"] / rec.truth["m"] - 1
+            rep.J_rel_err = mj["J"] / rec.truth["J"] - 1 if base.rotation else None
+        return rep
+
+    nominal_rep = report(nominal, p_white0, modes0)
+    aug_rep = nominal_rep if final is nominal else report(final, white, modes1)
+    block = _block(pb, opt)
+    return Diagnosis(
+        nominal=nominal_rep, augmented=aug_rep, effects=effects, unexplained=unexplained, warnings=warns,
+        candidates=list(table.values()), signatures=signatures, ambiguous=ambiguous,
+        noise_sigma=sv if math.isfinite(sv) else sp, wall_s=clock() - t_start if clock is not None else 0.0,
+        truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp},
+        identifiable={"m": True, "J": base.rotation, "geometry": base.rotation},
+        model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
+               "max_step": pb.max_step},  # fmt: skip
+        fits={"nominal": nominal, "augmented": final}, problem=pb,
+    )  # fmt: skip
+
+
+def predict(diag: Diagnosis, rec: Recording, opt: DiagnoseOptions | None = None) -> dict[str, Any]:
+    """Errors of the diagnosis' nominal and augmented models on another recording ``rec`` (same plant): the
+    global parameters are kept, only each window's start state is fitted to ``rec``. The residual's
+    whiteness and its ratio to the identification residual say whether ``rec`` holds something the models
+    lack."""
+    opt = opt or DiagnoseOptions()
+    pb0 = diag.problem
+    sv, sp = noise_floor(rec)
+    tmp = make_problem(rec, pb0.sigma_v, pb0.sigma_p, opt.fit,
+                       rotation=pb0.base.rotation)  # fmt: skip
+    pb = replace(tmp, coulomb_speed=pb0.coulomb_speed, base=pb0.base)
+    g_start, x_start, _ = initial_guess(pb, rec)
+    out: dict[str, Any] = {"noise_floor": {"velocity": sv, "position": sp}}
+    for key in ("nominal", "augmented"):
+        f: Fit = diag.fits[key]
+        x0 = x_start.copy()
+        x = refit_states(pb, f.lay, f.g, x0, iters=4)
+        res = pb.residual(f.g[None], x[None], f.lay)[0][0]
+        rms = _rms(pb, res)
+        fake = Fit(f.lay, f.g, x, f.cov, float((res * res).sum()), pb.N, res, 0)
+        ident_rms = _rms(pb0, f.res)
+        p = whiteness(pb, fake, opt)
+        ch = next(iter(rms))
+        out[key] = {"effects": list(f.lay.effects), "rms": rms[ch], "channel": ch, "whiteness_p": p,
+                    "ratio_to_identification": rms[ch] / ident_rms[ch]}  # fmt: skip
+    aug = out["augmented"]
+    out["flagged"] = bool(aug["whiteness_p"] <= opt.alpha_white and aug["ratio_to_identification"] > 1.5)
+    return out
+
+
+__all__ = ["DiagnoseError", "DiagnoseOptions", "diagnose", "noise_floor", "predict", "residual_modes"]

@@ -1,0 +1,116 @@
+"""Statistics of the diagnosis: noise floor from the data, whiteness, nested tests.
+
+Pure functions on arrays. See docs/diagnose.md ("Method").
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from math import comb
+
+import numpy as np
+from scipy import stats
+
+Z95 = 1.959963984540054
+_TRIM = 0.99  # share of the squared differences kept (the rest: force steps, outliers)
+_TRIM_GAIN = 1 - 2 * stats.norm.ppf(0.5 + _TRIM / 2) * stats.norm.pdf(stats.norm.ppf(0.5 + _TRIM / 2)) / _TRIM
+
+
+def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
+    """Noise sigma of the columns of ``y`` (T, ...) from its ``order``-th differences along time.
+
+    A smooth signal sampled finely has small high-order differences; white noise of variance s^2 gives
+    differences of variance C(2k, k) s^2. The largest 1 % (force steps, outliers) are dropped and the
+    truncation corrected for. Only runs of stamps without gaps (interval within 1.5x the median) and
+    without missing values count. NaN if there is too little data.
+    """
+    y = y.reshape(y.shape[0], -1)
+    dts = np.diff(t)
+    regular = np.concatenate(([False], np.abs(dts - np.median(dts)) <= 0.5 * np.median(dts)))
+    vals = []
+    for j in range(y.shape[1]):
+        d = y[:, j]
+        ok = ~np.isnan(d)
+        for _ in range(order):
+            d = np.diff(d)
+        okk = ok.copy()
+        reg = regular.copy()
+        for _ in range(order):
+            okk = okk[1:] & okk[:-1]
+            reg = reg[1:] & reg[:-1] if reg.size > 1 else reg
+        good = okk & np.concatenate((reg[: okk.size], np.zeros(max(0, okk.size - reg.size), bool)))
+        vals.append(d[good])
+    d2 = np.concatenate(vals) ** 2 if vals else np.zeros(0)
+    if d2.size < 20:
+        return math.nan
+    d2 = np.sort(d2)[: max(1, int(_TRIM * d2.size))]
+    return math.sqrt(float(d2.mean()) / _TRIM_GAIN / comb(2 * order, order))
+
+
+def kinematic_noise(vel: np.ndarray) -> float:
+    """Velocity noise sigma from the rigid-body kinematics alone (n >= 3): relative contact velocities
+    of a rigid body are rank 1 (i omega z_i) over (stamp, agent); what is left is noise."""
+    full = ~np.isnan(vel).any(axis=(1, 2))
+    n = vel.shape[1]
+    if full.sum() < 20 or n < 3:
+        return math.nan
+    w = vel[full, :, 0] + 1j * vel[full, :, 1]
+    rel = w - w.mean(axis=1, keepdims=True)
+    u, sv, vh = np.linalg.svd(rel, full_matrices=False)
+    resid = rel - (u[:, :1] * sv[0]) @ vh[:1]
+    return math.sqrt(float(np.mean(np.abs(resid) ** 2) / 2 * n / max(n - 2, 1)))
+
+
+def block_average(x: np.ndarray, block: int) -> np.ndarray:
+    """Means over consecutive blocks of ``block`` rows (NaN-aware); a trailing partial block is dropped."""
+    nb = x.shape[0] // block
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(x[: nb * block].reshape(nb, block, *x.shape[1:]), axis=1)
+
+
+def autocorrelation(x: np.ndarray, lags: int) -> np.ndarray:
+    """Sample autocorrelation r_1..r_lags of one series (NaNs dropped, mean removed)."""
+    x = x[~np.isnan(x)]
+    x = x - x.mean() if x.size else x
+    den = float(x @ x)
+    if den == 0 or len(x) <= lags:
+        return np.zeros(lags)
+    return np.array([float(x[:-k] @ x[k:]) / den for k in range(1, lags + 1)])
+
+
+def ljung_box(series: np.ndarray, lags: int, center: np.ndarray | None = None) -> tuple[float, int, float]:
+    """Ljung-Box on each column of ``series`` (T, K), summed: (Q, dof, p) with dof = K * lags.
+
+    Degrees of freedom: the model is output-error (the fitted parameters act on the simulated,
+    noise-free state, not on lagged residuals as ARMA coefficients do), so they use up no lags and
+    Q ~ chi2(K lags) for a white residual. ``center`` (K, lags): the autocorrelation a white residual
+    has after the fit's projection (the windows' free states remove part of it: see
+    :func:`ident.select.whiteness`), subtracted before squaring; tests/test_ident_stats.py checks both.
+    """
+    Q = 0.0
+    K = series.shape[1]
+    for j in range(K):
+        x = series[:, j]
+        N = int(np.count_nonzero(~np.isnan(x)))
+        if N <= lags + 1:
+            continue
+        rho = autocorrelation(x, lags)
+        if center is not None:
+            rho = rho - center[j]
+        Q += N * (N + 2) * float(np.sum(rho**2 / (N - np.arange(1, lags + 1))))
+    dof = K * lags
+    return Q, dof, float(stats.chi2.sf(Q, dof))
+
+
+def nested_f(rss_small: float, rss_big: float, q: int, N: int, P_big: int) -> tuple[float, float]:
+    """F statistic and p-value of a model with rss_small nested in one with q more parameters."""
+    dfd = max(N - P_big, 1)
+    F = max(rss_small - rss_big, 0.0) / max(q, 1) / (rss_big / dfd)
+    return F, float(stats.f.sf(F, max(q, 1), dfd))
+
+
+def score_test(lm: float, q: int) -> tuple[float, float]:
+    """(p, log p) of a score (Lagrange multiplier) statistic ~ chi2(q)."""
+    return float(stats.chi2.sf(lm, q)), float(stats.chi2.logsf(lm, q))
