@@ -98,8 +98,8 @@ def check_clean(d: dict[str, Any], truth: dict[str, Any], sigma: float, mj_tol: 
 
 # --- clean recordings at every sample rate -----------------------------------------------------------
 @pytest.mark.parametrize(
-    "rate", [20, 50, pytest.param(100, marks=LOST_ROTATION), pytest.param(200, marks=pytest.mark.slow),
-             pytest.param(500, marks=pytest.mark.slow)],
+    "rate", [20, 50, pytest.param(100, marks=LOST_ROTATION),
+             *(pytest.param(r, marks=[pytest.mark.slow, LOST_ROTATION]) for r in (200, 500))],
 )  # fmt: skip
 def test_clean_recording_fits_to_the_noise_floor(tmp_path, rate):
     duration = 20.0 if rate <= 100 else 10.0
