@@ -232,7 +232,8 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Fit the nominal rigid-body model to a recording, test its residual (whiteness, "
                                    "signatures), select missing effects from a candidate library, re-fit and report "
                                    "before and after (docs/diagnose.md).")
-    p.add_argument("recording", type=Path, help="directory with run.toml (n, dt, edges) and samples.csv")
+    p.add_argument("recording", type=Path, help="directory with run.toml (n; dt, edges, input_hold optional) and "
+                   "samples.csv (t, agent, vx,vy and/or x,y, fx, fy, tau)")
     p.add_argument("--json", type=Path, metavar="FILE", help="write the diagnosis as JSON (schema in docs/diagnose.md)")
     p.add_argument("--plot", action="store_true",
                    help="draw RECORDING/diagnose.png: residual before/after and its autocorrelation with bounds")

@@ -352,16 +352,34 @@ def lm_fit(pb: Problem, lay: Layout, g0: np.ndarray, x0: np.ndarray, *, max_iter
 
 def fit_robust(pb: Problem, lay: Layout, g0: np.ndarray, x0: np.ndarray, *, max_iter: int = 30,
                misfit: float = 1.3) -> Fit:
-    """:func:`lm_fit` from (g0, x0); if the residual stays above ``misfit`` x the noise floor, also from the
-    solution of a loosely linked fit (the rotation's continuity at 10 x its sigma, which a poor
-    start's angle can follow), and keep the better of the two."""
+    """:func:`lm_fit` from (g0, x0); while the residual stays above ``misfit`` x the noise floor, also from
+    the solution of a loosely linked fit (the rotation's continuity at 10 x its sigma, which a poor
+    start's angle can follow), then from a fit of the first windows alone; the best is kept."""
     best = lm_fit(pb, lay, g0, x0, max_iter=max_iter)
     if not lay.rotation or best.sigma2 <= misfit**2:
         return best
     loose = replace(pb, theta_sigma=10 * pb.theta_sigma, omega_sigma=10 * pb.omega_sigma)
     f1 = lm_fit(loose, lay, g0, x0, max_iter=max_iter)
     f2 = lm_fit(pb, lay, f1.g, f1.x, max_iter=max_iter)
-    return f2 if f2.lin.cost < best.lin.cost else best
+    best = f2 if f2.lin.cost < best.lin.cost else best
+    if best.sigma2 <= misfit**2 or pb.win.S < 8:
+        return best
+    # the head of the recording first (a few windows, where the start's angle is still good), then all
+    # of it from the head's parameters, every window's state fitted to them first
+    head = np.arange(min(6, pb.win.S))
+    ph = replace(pb, win=_pick(pb.win, head), t0=pb.t0[head], last=pb.last[head], link=pb.link[head[:-1]])
+    fh = lm_fit(ph, lay, g0, x0[head], max_iter=max_iter)
+    x = refit_states(pb, lay, fh.g, x0.copy(), iters=3)
+    f3 = lm_fit(pb, lay, fh.g, x, max_iter=max_iter)
+    return f3 if f3.lin.cost < best.lin.cost else best
+
+
+def _pick(w: Windows, idx: np.ndarray) -> Windows:
+    """Windows ``idx`` of ``w``."""
+    p = lambda a: None if a is None else a[idx]  # noqa: E731
+    return Windows(t=w.t[idx], F=w.F[idx], fx=w.fx[idx], fy=w.fy[idx], tau=w.tau[idx], vel=p(w.vel), vmask=p(w.vmask),
+                   pos=p(w.pos), pmask=p(w.pmask), u_t=w.u_t, u=w.u, rotation=w.rotation, axes=w.axes,
+                   hold=w.hold)  # fmt: skip
 
 
 def refit_states(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, iters: int = 3) -> np.ndarray:

@@ -174,6 +174,7 @@ class _Score:
     collinear: float
     corr: list[float]
     step: np.ndarray
+    lm: float = 0.0  # the statistic itself: ranks candidates whose p-values underflow alike
 
 
 def score(pb: Problem, fit: Fit, name: str) -> _Score:
@@ -203,11 +204,14 @@ def score(pb: Problem, fit: Fit, name: str) -> _Score:
     cov = np.linalg.pinv(H, rcond=1e-13, hermitian=True)
     ce = np.diag(cov)[eff_cols]
     raw = np.diag(H)[eff_cols]
-    collinear = float(1.0 - (1.0 / np.maximum(ce * raw, 1e-300)).min()) if np.all(raw > 0) else 1.0
+    # the share of the candidate's information the model's own parameters already carry (Schur complement)
+    Hoe = H[np.ix_(keep, eff_cols)]
+    schur = H[np.ix_(eff_cols, eff_cols)] - Hoe.T @ np.linalg.lstsq(H[np.ix_(keep, keep)], Hoe, rcond=1e-13)[0]
+    collinear = float(1.0 - (np.diag(schur) / np.maximum(raw, 1e-300)).min()) if np.all(raw > 0) else 1.0
     half = float(Z95 * np.sqrt(fit.sigma2 * np.clip(ce, 0, None)).max())
     rss0 = lin2.cost
     corr = [float(math.copysign(math.sqrt(max(dec, 0.0) / max(rss0, 1e-300) / q), v)) for v in d_full[eff_cols]]
-    return _Score(p, logp, half, collinear, corr, d_full[eff_cols])
+    return _Score(p, logp, half, collinear, corr, d_full[eff_cols], lm / q)
 
 
 def _ref_scale(name: str) -> float:
@@ -338,11 +342,14 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     init = {"viscous_friction": 0.0, "coulomb_friction": 0.0}
     while remaining and len(accepted) < opt.max_effects:
         alpha_k = opt.alpha / len(remaining)
-        screen = sorted((c for c in remaining if scores[c].p < alpha_k), key=lambda c: scores[c].logp)[: opt.max_fits]
+        ranked = sorted((c for c in remaining if scores[c].p < alpha_k), key=lambda c: (scores[c].logp, -scores[c].lm))
         trials: dict[str, tuple[Fit, float]] = {}
-        for j, c in enumerate(screen):
+        eligible: list[str] = []
+        for j, c in enumerate(ranked):
+            if j and j % opt.max_fits == 0 and eligible:
+                break  # fit the next strongest only when none of these qualifies
             lay = current.lay.with_effects(current.lay.effects + (c,))
-            say(f"candidate {c} ({j + 1}/{len(screen)}) on top of {list(current.lay.effects) or 'nominal'}")
+            say(f"candidate {c} ({j + 1}/{len(ranked)}) on top of {list(current.lay.effects) or 'nominal'}")
             g = expand(lay, current.g, current.lay, init)
             sl = lay.slot(c)
             g[sl] = np.maximum(scores[c].step, lay.lower()[sl])  # the score test's Gauss-Newton step
@@ -353,8 +360,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, lay, c), "ci95": _value(ci, lay, c),
                         "F": F, "p": pF, "delta_bic": f.bic - current.bic, "whiteness_p": whiteness(pb, f, opt),
                         "on_top_of": list(current.lay.effects)}  # fmt: skip
-        eligible = sorted((c for c, (f, pF) in trials.items() if pF < alpha_k and f.bic < current.bic),
-                          key=lambda c: trials[c][0].bic)  # fmt: skip
+            eligible = sorted((c for c, (f, pF) in trials.items() if pF < alpha_k and f.bic < current.bic),
+                              key=lambda c: trials[c][0].bic)  # fmt: skip
         if not eligible:
             break
         best = eligible[0]

@@ -39,6 +39,7 @@ def test_import_writes_a_one_agent_position_recording(emps):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1200)  # ~60 s of CPU: 25 000 stamps, three effects, a held-out fit and a prediction
 def test_diagnosis_names_the_published_effects_and_predicts_the_pulses_file(emps):
     r = diagnose_dir(emps / "id", validate=emps / "val")
     assert sorted(e["name"] for e in r.effects) == sorted(PUBLISHED) and not r.unexplained
