@@ -156,8 +156,7 @@ def check_named(d: dict[str, Any], truth: dict[str, Any], effects: list[str]) ->
 
 @pytest.mark.parametrize(
     "effect",
-    [pytest.param(e, marks=LOST_ROTATION) if e == "viscous_friction" else
-     pytest.param(e, marks=pending("diagnose stops with a ValueError in the rotation's initial guess (np.gradient)"))
+    [pytest.param(e, marks=pending("diagnose stops with a ValueError in the rotation's initial guess (np.gradient)"))
      if e == "rotational_damping" else e for e in EFFECTS],
 )  # fmt: skip
 def test_single_effect_named_alone_at_50_hz(tmp_path, effect):
