@@ -1,0 +1,1 @@
+"""The handlers of the ``coload`` subcommands, one module per group (the parser is coload/cli.py)."""
