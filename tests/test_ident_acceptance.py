@@ -99,7 +99,7 @@ def check_clean(d: dict[str, Any], truth: dict[str, Any], sigma: float, mj_tol: 
 # --- clean recordings at every sample rate -----------------------------------------------------------
 @pytest.mark.parametrize(
     "rate", [20, 50, pytest.param(100, marks=LOST_ROTATION),
-             *(pytest.param(r, marks=[pytest.mark.slow, LOST_ROTATION]) for r in (200, 500))],
+             *(pytest.param(r, marks=[pytest.mark.long, LOST_ROTATION]) for r in (200, 500))],
 )  # fmt: skip
 def test_clean_recording_fits_to_the_noise_floor(tmp_path, rate):
     duration = 20.0 if rate <= 100 else 10.0
@@ -177,7 +177,7 @@ def _higher_rate_case(effect: str, rate: int) -> Any:
     return pytest.param(effect, rate)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 @pytest.mark.parametrize(("effect", "rate"), [_higher_rate_case(e, r) for e in EFFECTS for r in (100, 200, 500)])
 def test_single_effect_named_alone_at_higher_rates(tmp_path, effect, rate):
     rec, truth = record(tmp_path, n=4, rate_hz=rate, duration_s=10.0 if rate > 100 else 20.0,
@@ -208,7 +208,7 @@ def test_pair_viscous_friction_and_rotational_damping(tmp_path):
     check_named(diagnose(rec), truth, effects)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_pair_coulomb_friction_and_force_bias(tmp_path):
     effects = ["coulomb_friction", "force_bias"]
     rec, truth = record(tmp_path, n=4, rate_hz=100, duration_s=20.0, seed=52, effects=effects)
@@ -222,7 +222,7 @@ def test_periodic_force_is_unexplained_and_nothing_named(tmp_path):
     assert d["unexplained"] and named(d) == [], summary(d, truth)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_load_change_is_unexplained_and_nothing_named(tmp_path):
     rec, truth = record(tmp_path, n=4, rate_hz=50, duration_s=20.0, seed=62, effects=["load_change"])
     d = diagnose(rec)
