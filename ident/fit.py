@@ -400,19 +400,25 @@ def _cumint(t: np.ndarray, u: np.ndarray, hold: str) -> np.ndarray:
     return np.concatenate((np.zeros((1,) + u.shape[1:]), np.cumsum(inc, axis=0)), axis=0)
 
 
+def _principal_shape(x: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The contact samples ``x`` (T, n, complex) about their per-stamp centroid, the stamps where every
+    agent has one, and the geometry's principal shape: for a rigid body both the relative velocities
+    and the relative positions are one body-frame shape turned and scaled per stamp (rank one)."""
+    full = ~np.isnan(x).any(axis=1)
+    if full.sum() < 20:
+        raise FitError(f"fewer than 20 stamps with every agent's {what}: cannot initialise the rotation")
+    rel = x - np.nanmean(x, axis=1, keepdims=True)
+    _, _, vh = np.linalg.svd(rel[full], full_matrices=False)
+    return rel, full, np.conj(vh[0])
+
+
 def _rotation_kinematics(rec: Recording, min_snr: float = 4.0):
     """theta(t), omega(t) and the contact geometry about the centroid (body frame = world at t[0]) from the
     rank-1 structure of the relative contact velocities (or positions). Returns (theta, omega, z, good)."""
     t = rec.t
     T = t.size
     if rec.vel is not None:
-        w = rec.vel[..., 0] + 1j * rec.vel[..., 1]
-        full = ~np.isnan(w).any(axis=1)
-        if full.sum() < 20:
-            raise FitError("fewer than 20 stamps with every agent's velocity: cannot initialise the rotation")
-        rel = w - np.nanmean(w, axis=1, keepdims=True)
-        _, sv, vh = np.linalg.svd(rel[full], full_matrices=False)
-        zb = np.conj(vh[0])
+        rel, full, zb = _principal_shape(rec.vel[..., 0] + 1j * rec.vel[..., 1], "velocity")
         n = rec.n
         resid = rel[full] - (rel[full] @ zb)[:, None] * np.conj(zb)[None] / (np.abs(zb) ** 2).sum()
         sigma = float(np.sqrt(np.mean(np.abs(resid) ** 2) / 2 * n / max(n - 2, 1)))
@@ -458,13 +464,7 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0):
         goodt = np.zeros(T, bool)
         goodt[idx] = True
         return theta, omega, z, goodt
-    q = rec.pos[..., 0] + 1j * rec.pos[..., 1]
-    full = ~np.isnan(q).any(axis=1)
-    if full.sum() < 20:
-        raise FitError("fewer than 20 stamps with every agent's position: cannot initialise the rotation")
-    rel = q - np.nanmean(q, axis=1, keepdims=True)
-    _, sv, vh = np.linalg.svd(rel[full], full_matrices=False)
-    zb = np.conj(vh[0])
+    rel, _, zb = _principal_shape(rec.pos[..., 0] + 1j * rec.pos[..., 1], "position")
     ok = ~np.isnan(rel)
     den = (ok * np.abs(zb) ** 2).sum(axis=1)
     h = np.full(T, np.nan + 0j)
