@@ -32,7 +32,7 @@ class FitError(ValueError):
 @dataclass(frozen=True)
 class FitOptions:
     window_s: float = 2.5  # window length (s): short enough that an open-loop error stays small
-    window_stamps: int = 250  # and at most this many stamps (the simulation loops over a window's stamps)
+    window_stamps: int = 500  # and at most this many stamps (the simulation loops over a window's stamps)
     gap_factor: float = 5.0  # a stamp interval this many times the median starts a new, unlinked window
     max_step: float = 0.05  # longest RK4 substep (s)
     theta_sigma: float = 0.01  # rad: the body angle's continuity between windows
@@ -56,6 +56,7 @@ class Problem:
     link: np.ndarray  # (S - 1,) bool: window s + 1 starts where window s ends (no gap)
     theta_sigma: float = 0.01
     omega_sigma: float = 0.002
+    gap_factor: float = 5.0
 
     def residual(self, g: np.ndarray, x: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
         """(B, S, M) weighted measurement residuals (0 where not measured) and (B, S - 1) continuity
@@ -110,7 +111,7 @@ def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions
     if not spans:
         raise FitError("no window with at least 3 stamps")
     S = len(spans)
-    link = np.array([spans[s][1] == spans[s + 1][0] for s in range(S - 1)], bool)
+    link = np.array([spans[s][1] == spans[s + 1][0] and spans[s + 1][0] not in gapset for s in range(S - 1)], bool)
     # a linked window runs one stamp further, to the next window's first stamp (not measured there)
     ends = [b + 1 if s < S - 1 and link[s] else b for s, (a, b) in enumerate(spans)]
     L = max(e - a for (a, _), e in zip(spans, ends))
@@ -156,7 +157,7 @@ def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions
     base = Layout(n=n, rotation=rot, axes=(axes[0], axes[1]), positions=pos is not None)
     return Problem(win=win, base=base, sigma_v=sigma_v, sigma_p=sigma_p, coulomb_speed=opt.coulomb_speed or 0.0,
                    max_step=opt.max_step, t0=tw[:, 0], last=last, link=link, theta_sigma=opt.theta_sigma,
-                   omega_sigma=opt.omega_sigma)  # fmt: skip
+                   omega_sigma=opt.omega_sigma, gap_factor=opt.gap_factor)  # fmt: skip
 
 
 @dataclass
@@ -394,90 +395,107 @@ def refit_states(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, iters: 
 
 # --- the start: kinematics, then linear least squares ------------------------------------------------
 def _cumint(t: np.ndarray, u: np.ndarray, hold: str) -> np.ndarray:
-    """Running integral of u (T, ...) over t from t[0], trapezoid (FOH) or left rectangle (ZOH)."""
+    """Running integral of u (T, ...) over t from t[0]: left rectangle for a held input (zoh), else the
+    trapezoid (exact for foh; for the cubic, good enough for a starting point)."""
     dt = np.diff(t).reshape((-1,) + (1,) * (u.ndim - 1))
-    inc = 0.5 * (u[1:] + u[:-1]) * dt if hold == "foh" else u[:-1] * dt
+    inc = u[:-1] * dt if hold == "zoh" else 0.5 * (u[1:] + u[:-1]) * dt
     return np.concatenate((np.zeros((1,) + u.shape[1:]), np.cumsum(inc, axis=0)), axis=0)
 
 
 def _principal_shape(x: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The contact samples ``x`` (T, n, complex) about their per-stamp centroid, the stamps where every
-    agent has one, and the geometry's principal shape: for a rigid body both the relative velocities
-    and the relative positions are one body-frame shape turned and scaled per stamp (rank one)."""
+    agent has one, and the geometry's principal shape ``zb``: for a rigid body both the relative
+    velocities and the relative positions are one body-frame shape turned and scaled per stamp (rank
+    one), so every row of the centred samples is a complex multiple of ``zb``."""
     full = ~np.isnan(x).any(axis=1)
     if full.sum() < 20:
         raise FitError(f"fewer than 20 stamps with every agent's {what}: cannot initialise the rotation")
     rel = x - np.nanmean(x, axis=1, keepdims=True)
     _, _, vh = np.linalg.svd(rel[full], full_matrices=False)
-    return rel, full, np.conj(vh[0])
+    return rel, full, vh[0]
 
 
-def _rotation_kinematics(rec: Recording, min_snr: float = 4.0):
+def _project(rel: np.ndarray, shape: np.ndarray) -> np.ndarray:
+    """Per stamp, the complex h with rel ~ h * shape (least squares over the agents present); NaN where
+    the agents present carry less than half the shape's weight."""
+    ok = ~np.isnan(rel)
+    den = (ok * np.abs(shape) ** 2).sum(axis=1)
+    h = np.full(rel.shape[0], np.nan + 0j)
+    has = den > 0.5 * (np.abs(shape) ** 2).max()
+    h[has] = (np.where(ok, rel, 0)[has] * np.conj(shape)).sum(axis=1) / den[has]
+    return h
+
+
+def _moving_sum(t: np.ndarray, x: np.ndarray, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sum of the finite x over the stamps within +-width/2 of each stamp, and their count."""
+    ok = ~np.isnan(x)
+    c = np.concatenate(([0], np.cumsum(np.where(ok, x, 0))))
+    cn = np.concatenate(([0], np.cumsum(ok)))
+    lo = np.searchsorted(t, t - width / 2, side="left")
+    hi = np.searchsorted(t, t + width / 2, side="right")
+    return c[hi] - c[lo], cn[hi] - cn[lo]
+
+
+def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 0.5, gap_factor: float = 5.0):
     """theta(t), omega(t) and the contact geometry about the centroid (body frame = world at t[0]) from the
-    rank-1 structure of the relative contact velocities (or positions). Returns (theta, omega, z, good)."""
+    rank-1 structure of the relative contact velocities (or positions). Returns (theta, omega, z, good).
+
+    Velocities: rel_i(t) = i omega e^{i theta} z_i, so rel(t) = i h(t) zb with h = omega C e^{i theta}
+    for a complex constant C. The direction of h modulo a half turn, psi = theta + arg C, is the angle of
+    the sum of h^2 over a short window, halved (circular noise leaves that sum unbiased, and omega's sign
+    drops out of h^2); the signed rate p = Re(h e^{-i psi}) = omega |C| follows, and psi - psi(t0) =
+    P(t) / |C| with P the running integral of p: one linear least-squares fit gives the scale, hence
+    theta and omega, without differentiating anything.
+    """
     t = rec.t
     T = t.size
     if rec.vel is not None:
         rel, full, zb = _principal_shape(rec.vel[..., 0] + 1j * rec.vel[..., 1], "velocity")
         n = rec.n
-        resid = rel[full] - (rel[full] @ zb)[:, None] * np.conj(zb)[None] / (np.abs(zb) ** 2).sum()
+        resid = rel[full] - (rel[full] @ np.conj(zb))[:, None] * zb[None]
         sigma = float(np.sqrt(np.mean(np.abs(resid) ** 2) / 2 * n / max(n - 2, 1)))
-        ok = ~np.isnan(rel)
-        wz = np.where(ok, rel, 0)
-        den = (ok * np.abs(zb) ** 2).sum(axis=1)
-        h = np.full(T, np.nan + 0j)
-        has = den > 0.5 * (np.abs(zb) ** 2).max()
-        h[has] = (wz[has] * np.conj(1j * zb)).sum(axis=1) / den[has]
-        sigma_h = sigma / math.sqrt(float(np.sum(np.abs(zb) ** 2)))
-        good = np.abs(np.nan_to_num(h)) > min_snr * sigma_h
-        if good.sum() < 20:
+        h = _project(rel, 1j * zb)
+        has = ~np.isnan(h)
+        # noise of h per component is sigma (zb has unit norm); of the windowed sum of h^2, about
+        # 2 |h| sigma per term
+        s2, cnt = _moving_sum(t, h * h, width_s)
+        s1, _ = _moving_sum(t, np.abs(h) ** 2, width_s)
+        noise = np.sqrt(4 * sigma**2 * s1 + 2 * cnt * sigma**4)
+        idx = np.flatnonzero(has & (np.abs(s2) > min_snr * noise))
+        if idx.size < 20:
             raise FitError("the load hardly rotates (relative contact velocities at noise level): contact geometry, "
                            "omega and J are not observable from these data")  # fmt: skip
-        idx = np.flatnonzero(good)
-        phi = np.unwrap(np.angle(h[idx]))
-        tt = t[idx]
-        # the sign of omega from the phase's slope over ~1 s (the phase advances at omega whatever its sign)
-        med = float(np.median(np.diff(t)))
-        win = max(3, round(1.0 / med))
-        slope = np.gradient(np.convolve(phi, np.ones(win) / win, mode="same"), tt)
-        sign = np.where(slope >= 0, 1.0, -1.0)
-        # the geometry's scale |c| (|h| = |c| |omega|): the one whose integrated rate keeps the phase of
-        # sign * h coherent with the integrated angle (a search over scales, no differentiated phase)
-        hs = sign * h[idx]
-        rate = _cumint(tt, sign * np.abs(h[idx]), "foh")
-        best, cbest = -1.0, 1.0
-        lo_hi = np.abs(h[idx]).max() / 100.0
-        for cs in np.geomspace(max(lo_hi, 1e-6), np.abs(h[idx]).max() * 100.0, 400):
-            coh = abs(np.sum(hs * np.exp(-1j * rate / cs)))
-            if coh > best:
-                best, cbest = coh, cs
-        for cs in np.linspace(cbest * 0.97, cbest * 1.03, 61):
-            coh = abs(np.sum(hs * np.exp(-1j * rate / cs)))
-            if coh > best:
-                best, cbest = coh, cs
-        cscale = float(cbest)
-        theta_i = rate / cscale
-        c0 = np.angle(np.sum(hs * np.exp(-1j * theta_i)))
-        theta = np.interp(t, tt, theta_i)
-        z = zb * cscale * np.exp(1j * (c0 - np.pi / 2))
-        omega = np.interp(t, tt, sign * np.abs(h[idx]) / cscale)
-        goodt = np.zeros(T, bool)
-        goodt[idx] = True
-        return theta, omega, z, goodt
+        # a gap in the stamps (as the fit's windows see one) breaks the angle's unwrapping: each stretch
+        # between gaps gets its own offset, and its own half turn (the sign of C) below
+        dts = np.diff(t)
+        seg = np.concatenate(([0], np.cumsum(dts > gap_factor * float(np.median(dts)))))
+        psi = np.unwrap(np.angle(s2[idx])) / 2
+        p = np.real(h * np.exp(-1j * np.interp(t, t[idx], psi)))
+        P = _cumint(t, np.nan_to_num(p), "foh")
+        A = np.column_stack((P[idx], seg[idx, None] == np.arange(seg[-1] + 1)))
+        coef, *_ = np.linalg.lstsq(A, psi, rcond=None)
+        k = float(coef[0])
+        if not (math.isfinite(k) and k != 0.0):
+            raise FitError("the load's angle does not change measurably: contact geometry, omega and J are not "
+                           "observable from these data")  # fmt: skip
+        theta = k * P + (coef[1 + seg] - coef[1])
+        omega = k * np.nan_to_num(p)
+        w = np.where(has, omega, 0.0)
+        hw = np.where(has, h, 0) * np.exp(-1j * theta) * w
+        C = np.sum(hw[seg == 0]) / np.sum(w[seg == 0] ** 2)
+        for q in range(1, seg[-1] + 1):
+            if np.real(np.sum(hw[seg == q]) * np.conj(C)) < 0:
+                theta[seg == q] += np.pi
+        C = np.sum(np.where(has, h, 0) * np.exp(-1j * theta) * w) / np.sum(w * w)
+        return theta, omega, zb * C, has
     rel, _, zb = _principal_shape(rec.pos[..., 0] + 1j * rec.pos[..., 1], "position")
-    ok = ~np.isnan(rel)
-    den = (ok * np.abs(zb) ** 2).sum(axis=1)
-    h = np.full(T, np.nan + 0j)
-    has = den > 0.5 * (np.abs(zb) ** 2).max()
-    h[has] = (np.where(ok, rel, 0)[has] * np.conj(zb)).sum(axis=1) / den[has]
-    idx = np.flatnonzero(has)
+    h = _project(rel, zb)  # rel(t) = h(t) zb with h = C e^{i theta}
+    idx = np.flatnonzero(~np.isnan(h))
     phi = np.unwrap(np.angle(h[idx]))
-    theta = np.interp(t, t[idx], phi)
-    z = zb * h[idx[0]] * np.exp(-1j * (phi[0] - theta[0]))
-    z = zb * np.abs(h[idx]).mean() * np.exp(1j * theta[0])
-    theta = theta - theta[0]
-    omega = np.gradient(theta, t)
-    return theta, omega, z, np.ones(T, bool)
+    theta = np.interp(t, t[idx], phi - phi[0])
+    C = np.mean(h[idx] * np.exp(-1j * theta[idx]))
+    omega = np.gradient(theta, t)  # the initial guess only: the fit itself differentiates nothing
+    return theta, omega, zb * C, np.ones(T, bool)
 
 
 def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -493,7 +511,7 @@ def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, 
     t0w = starts[wid]
     F = rec.wrench[:, :, :2].sum(axis=1)
     if lay.rotation:
-        theta, omega, z, good = _rotation_kinematics(rec)
+        theta, omega, z, good = _rotation_kinematics(rec, gap_factor=pb.gap_factor)
         e = 1j * omega * np.exp(1j * theta)
     else:
         theta = omega = np.zeros(T)

@@ -9,9 +9,10 @@ CoM velocity v, the angular rate omega, the body angle theta and the CoM positio
     contact velocity  y_i = v + omega (R(theta) r_i)^perp + v_b   (at t - d)
     contact position  q_i = p + R(theta) r_i                     (at t - d)
 
-The wrench is known only at the sample stamps; between stamps it is taken as the straight line
-through them (first-order hold), or held (zero-order hold) when the recording says its actuators
-hold it. The ODE is integrated by classical RK4 with substeps no longer than ``max_step`` between
+The wrench is known only at the sample stamps; between stamps it is the cubic through them with
+centred-difference slopes (``cubic``, the default for a recording that does not say: smooth forces),
+the straight line (first-order hold, ``foh``), or held (zero-order hold, ``zoh``) when the recording
+says its actuators hold it. The ODE is integrated by classical RK4 with substeps no longer than ``max_step`` between
 stamps (stamps may be irregular). A measurement delay d is the same model driven by the input
 d earlier, since every window starts from a free state. See docs/diagnose.md ("Model").
 """
@@ -180,6 +181,41 @@ def _rk_inputs(w: Windows, r: np.ndarray, delay: np.ndarray) -> tuple[np.ndarray
     return Fx, Fy, tau, P, Q
 
 
+def input_slopes(t: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """dU/dt at each window's stamps (``t`` (S, L), ``U`` (B, S, L, C)): the centred difference over the
+    neighbouring stamps, one-sided at a window's ends. Padding repeats the last stamp and its input, so
+    the last real stamp gets the backward difference and the padding a zero slope."""
+    dtc = np.empty_like(t)
+    dtc[:, 1:-1] = t[:, 2:] - t[:, :-2]
+    dtc[:, 0], dtc[:, -1] = t[:, 1] - t[:, 0], t[:, -1] - t[:, -2]
+    dU = np.empty_like(U)
+    dU[:, :, 1:-1] = U[:, :, 2:] - U[:, :, :-2]
+    dU[:, :, 0], dU[:, :, -1] = U[:, :, 1] - U[:, :, 0], U[:, :, -1] - U[:, :, -2]
+    ok = dtc > 0
+    return np.where(ok[None, ..., None], dU / np.where(ok, dtc, 1.0)[None, ..., None], 0.0)
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """The input over one stamp interval as a function of the fraction s in [0, 1] of it: held (zoh),
+    the straight line (foh), or the cubic Hermite through both ends with the slopes ``m`` (cubic)."""
+
+    u0: np.ndarray
+    u1: np.ndarray
+    hold: str
+    m: tuple[np.ndarray, np.ndarray] | None
+    H: np.ndarray
+
+    def at(self, s: float) -> np.ndarray:
+        if self.hold == "zoh":
+            return self.u0
+        if self.hold == "foh" or self.m is None:
+            return self.u0 + s * (self.u1 - self.u0)
+        s2, s3 = s * s, s * s * s
+        return ((2 * s3 - 3 * s2 + 1) * self.u0 + (s3 - 2 * s2 + s) * self.H * self.m[0]
+                + (3 * s2 - 2 * s3) * self.u1 + (s3 - s2) * self.H * self.m[1])  # fmt: skip
+
+
 def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_speed: float, max_step: float):
     """Simulate every window from its initial state for B parameter sets.
 
@@ -249,7 +285,7 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
         return out
 
     XS = np.empty((B, S, L, 6))
-    foh = w.hold == "foh"
+    M = input_slopes(w.t, U) if w.hold == "cubic" else None
     for j in range(L):
         XS[:, :, j] = X
         if j == L - 1:
@@ -257,13 +293,10 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
         H = w.t[:, j + 1] - w.t[:, j]  # (S,)
         nsub = max(1, int(np.ceil(H.max() / max_step - 1e-9)))
         h = (H / nsub)[None, :, None]
-        u0 = U[:, :, j]
-        du = (U[:, :, j + 1] - u0) if foh else None
+        seg = _Segment(U[:, :, j], U[:, :, j + 1], w.hold, None if M is None else (M[:, :, j], M[:, :, j + 1]),
+                       H[None, :, None])  # fmt: skip
         for s_ in range(nsub):
-            if foh:
-                U0, Uh, U1 = u0 + (s_ / nsub) * du, u0 + ((s_ + 0.5) / nsub) * du, u0 + ((s_ + 1) / nsub) * du
-            else:
-                U0 = Uh = U1 = u0
+            U0, Uh, U1 = seg.at(s_ / nsub), seg.at((s_ + 0.5) / nsub), seg.at((s_ + 1) / nsub)
             k1 = deriv(X, U0)
             k2 = deriv(X + 0.5 * h * k1, Uh)
             k3 = deriv(X + 0.5 * h * k2, Uh)

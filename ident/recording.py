@@ -22,7 +22,7 @@ RUN_TOML = "run.toml"
 SAMPLES_CSV = "samples.csv"
 TRUTH_CSV = "truth.csv"
 WRENCH = ("fx", "fy", "tau")
-HOLDS = ("foh", "zoh")
+HOLDS = ("cubic", "foh", "zoh")
 
 
 class RecordingError(ValueError):
@@ -41,7 +41,7 @@ class Recording:
     vel: np.ndarray | None = None
     pos: np.ndarray | None = None
     dt: float | None = None  # nominal sample period from run.toml (informative only)
-    hold: str = "foh"  # how the applied wrench varies between stamps: first-order ("foh") or held ("zoh")
+    hold: str = "foh"  # how the applied wrench varies between stamps: cubic, first-order ("foh") or held ("zoh")
     truth: dict[str, float] | None = None
     warnings: list[str] = field(default_factory=list)
 
@@ -104,8 +104,9 @@ def _num(cell: str, where: str, name: str) -> float:
 
 def default_hold(cfg: dict) -> str:
     """The wrench's hold when run.toml does not say: a coload scenario (a ``[load]`` table: the recording
-    of coload's simulator, whose step holds each tick's wrench) is held, anything else first-order."""
-    return "zoh" if isinstance(cfg.get("load"), dict) else "foh"
+    of coload's simulator, whose step holds each tick's wrench) is held; anything else is taken as a
+    smooth force sampled, the cubic through the samples (docs/diagnose.md, "Model")."""
+    return "zoh" if isinstance(cfg.get("load"), dict) else "cubic"
 
 
 def read_config(path: Path) -> dict:

@@ -28,7 +28,7 @@ def test_positions_irregular_stamps_gaps_one_agent_no_dt(tmp_path):
     rows[5] = f"{t[5]!r},0,,0.0,1.0,0,0"  # a missing position: empty cell
     rec = read_recording(write(tmp_path, rows, header="t,agent,x,y,fx,fy,tau", toml="n = 1\n"))
     assert rec.n == 1 and rec.vel is None and rec.pos.shape == (len(t), 1, 2)
-    assert np.isnan(rec.pos[5, 0, 0]) and rec.hold == "foh" and rec.dt is None
+    assert np.isnan(rec.pos[5, 0, 0]) and rec.hold == "cubic" and rec.dt is None
     assert np.allclose(rec.t, t) and rec.T == len(t)
 
 
@@ -64,7 +64,7 @@ def test_round_trip(tmp_path):
     (None, ["0.0,0,0,0,0,0,0", "0.0,0,1,0,0,0,0"], None, r"samples.csv:3: field 't': agent 0 has two rows"),
     (None, ["0.0,0,0,0,0,0"], None, r"samples.csv:2: 6 fields, header has 7"),
     (None, ["0.0,0,0,0,0,0,0"], "dt = 0.01\n", r"run.toml: field 'n': expected a positive integer"),
-    (None, ["0.0,0,0,0,0,0,0"], 'n = 2\ninput_hold = "cubic"\n', r"run.toml: field 'input_hold'"),
+    (None, ["0.0,0,0,0,0,0,0"], 'n = 2\ninput_hold = "spline"\n', r"run.toml: field 'input_hold'"),
 ])  # fmt: skip
 def test_bad_input_names_file_line_and_field(tmp_path, header, rows, toml, match):
     kw = {"header": header} if header else {}
