@@ -53,7 +53,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         try:
             summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen,
                                     secure=args.secure,
-                                    on_router=view.attach_to(run_dir / "keys" if args.secure else None) if view else None)
+                                    on_router=view.attach_to(run_dir / "keys" if args.secure else None)
+                                    if view else None)
         finally:
             if view:
                 view.close()

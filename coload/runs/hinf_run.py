@@ -33,7 +33,8 @@ def run_cli(spec_path: Path, out: Path, engine: str = "zenoh", mode: str | None 
             secure: bool = False) -> dict | None:
     """Design, then simulate the spec's [run]: ``zenoh`` = router, simulator and one estimator daemon per
     agent as OS processes; ``inproc`` = the same cores and link models in this process (lockstep only).
-    ``secure``: mutual TLS and the default-deny access-control list (docs/security.md). Writes the run directory (see ``hinf.report``) and returns summary.json's content (None on failure).
+    ``secure``: mutual TLS and the default-deny access-control list (docs/security.md). Writes the
+    run directory (see ``hinf.report``) and returns summary.json's content (None on failure).
     """
     spec = load_spec(spec_path, overrides)
     if mode is not None:
