@@ -27,6 +27,7 @@ import dataclasses
 import datetime as dt
 import json
 import math
+import signal
 import subprocess
 import sys
 import tempfile
@@ -422,6 +423,7 @@ def main() -> None:
     p.add_argument("--insecure-only", action="store_true", help="skip the secure runs")
     p.add_argument("--json", type=Path, help="write every run's numbers here")
     args = p.parse_args()
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a stopped bench kills its teams (run_team's finally)
     overrides = [f"duration={args.duration}"]
     names = args.only or list(ATTACKS)
     results: list[dict[str, Any]] = []
