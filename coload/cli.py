@@ -217,6 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--engine", choices=["zenoh", "inproc"], default="zenoh",
                    help="zenoh: separate processes over an embedded router; inproc: this process (lockstep)")
     q.add_argument("--mode", choices=["lockstep", "realtime"], help="time mode (overrides run.mode)")
+    q.add_argument("--secure", action="store_true",
+                   help="zenoh engine: mutual TLS and a default-deny access-control list; the team's keys are "
+                        "made in RUN_DIR/keys (docs/security.md)")
     q.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a spec field, dotted key, TOML value (repeatable), e.g. run.duration=10")
     q.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -5,7 +5,8 @@ and a certificate signed by the team's CA; the certificate's common name is ``{r
 (a replaced agent gets the next generation, and the policy names only the current one, so the old
 certificate is in no policy and may do nothing). :func:`access_control` is the router's
 ``access_control`` block: default deny, and per role an allow-list of what it may put and hear,
-by exact key (the scenario's graph decides which states an agent hears). :func:`tls_block` is the
+by exact key (the scenario's graph decides which states an agent hears), for coload's own run
+and for the paper-003 runtime's keys (``hinf/``, the same roles). :func:`tls_block` is the
 ``transport/link/tls`` block of a role (mutual TLS; the router listens, the others connect).
 See docs/security.md.
 """
@@ -99,18 +100,29 @@ def role_rules(run: str, neighbours: Sequence[Sequence[int]]) -> dict[str, list[
 
     alive_all = f"{root}/alive/**"
     control = f"{root}/sim/control"
+    pose = f"{root}/sim/pose"
+    hinf_control = f"{root}/hinf/control"
+
+    def hk(k: int | str, kind: str) -> str:  # the paper-003 runtime (coload hinf run): the same roles
+        return f"{root}/hinf/{k}/{kind}"
+
     out = {
-        SIM: _allow(SIM, put=[ak("*", "meas"), control],
-                    hear=[ak("*", "wrench"), ak("*", "estimate"), ak("*", "report")],
-                    tokens=[f"{root}/alive/sim/0"], watch=[alive_all]),
-        MONITOR: _allow(MONITOR, put=[], hear=[ak("*", "estimate"), control], tokens=[], watch=[alive_all]),
+        SIM: _allow(SIM, put=[ak("*", "meas"), control, pose, hk("*", "meas"), hinf_control],
+                    hear=[ak("*", "wrench"), ak("*", "estimate"), ak("*", "report"), hk("*", "input"),
+                          hk("*", "report")],
+                    tokens=[f"{root}/alive/sim/0", f"{root}/alive/hinfsim/0"], watch=[alive_all]),
+        MONITOR: _allow(MONITOR, put=[], hear=[ak("*", "estimate"), control, pose, hinf_control], tokens=[],
+                        watch=[alive_all]),
     }
     for i in range(n):
         role = agent_role(i)
-        out[role] = _allow(role, put=[ak(i, k) for k in ("wrench", "state", "estimate", "report")],
-                           hear=[ak(i, "meas"), control, *(ak(j, "state") for j in neighbours[i])],
-                           tokens=[f"{root}/alive/agent/{i}"], watch=[alive_all],
-                           matched_by=[ak("*", k) for k in ("wrench", "estimate", "report")])
+        out[role] = _allow(role, put=[*(ak(i, k) for k in ("wrench", "state", "estimate", "report")),
+                                      *(hk(i, k) for k in ("input", "state", "report"))],
+                           hear=[ak(i, "meas"), control, *(ak(j, "state") for j in neighbours[i]),
+                                 hk(i, "meas"), hinf_control, *(hk(j, "state") for j in neighbours[i])],
+                           tokens=[f"{root}/alive/agent/{i}", f"{root}/alive/hinf/{i}"], watch=[alive_all],
+                           matched_by=[*(ak("*", k) for k in ("wrench", "estimate", "report")),
+                                       *(hk("*", k) for k in ("input", "report"))])
     return out
 
 

@@ -17,7 +17,7 @@ from config.loader import load_scenario
 from net import keys
 from net.memory import MemoryBus, MemoryTransport
 from net.messages import AgentReport, Control, Estimate, Measurement, StateMsg, Wrench
-from net.schema import encode
+from net.schema import decode, encode
 from tests.conftest import SCENARIOS
 
 RUN = "sec"
@@ -156,3 +156,57 @@ def test_simulator_refuses_puts_on_wider_key_expressions(tmp_path):
     drops, wrenches = asyncio.run(main())
     assert drops == {keys.WRONG_KEY: 5, "unknown_sender": 1}
     assert wrenches == {0: (1.0, 2.0, 3.0)}
+
+
+def _team_in_memory(tmp_path, sc, forge):
+    """The simulator and every agent on one in-memory bus, plus an attacker on the same bus that
+    hears agent 1's measurements and calls ``forge(tick, publish)`` for each (an insecure team: any
+    client may put on any key). Returns the simulator's summary."""
+    from coload.rundir.recorder import Recorder
+    from net.vocabulary import ESTIMATE_NAMES as NAMES
+    from simulator.daemon import SimDaemon
+
+    async def main():
+        bus = MemoryBus()
+        transports = [MemoryTransport(bus) for _ in range(sc.n + 2)]
+        agents = [AgentDaemon(sc.agent_view(i), transports[i], RUN) for i in range(sc.n)]
+        tasks = [asyncio.ensure_future(a.run()) for a in agents]
+        for task, t in zip(tasks, transports, strict=False):  # an agent that ends leaves, as its process would
+            task.add_done_callback(lambda _, t=t: t.close())
+        attacker = transports[-1]
+        attacker.subscribe(keys.meas(RUN, 1), lambda key, payload: forge(
+            decode(payload, Measurement).tick, attacker.publish))
+        try:
+            summary = await SimDaemon(sc, transports[-2], RUN, Recorder(tmp_path, sc, NAMES)).run()
+            await asyncio.wait_for(asyncio.gather(*tasks), 10.0)
+        finally:
+            for t in tasks:
+                t.cancel()
+            for t in transports:
+                t.close()
+        return summary
+
+    return asyncio.run(main())
+
+
+def test_insecure_team_takes_forgeries_on_the_exact_keys(tmp_path):
+    """What only the access-control list stops: a well-formed message on the exact key of another
+    member, ahead of the genuine one. The daemons cannot tell it from the genuine one (it is
+    counted only as the genuine one's ``duplicate``): forged wrenches of agent 2 steer the load.
+    bench/bench_attacks.py measures every attack of docs/security.md on real processes."""
+    sc = load_scenario(SCENARIOS / "quick.toml", ["duration=1.5"])
+
+    def clean(tick, publish):
+        return None
+
+    def wrenches(tick, publish):
+        if tick >= 50:
+            publish(keys.wrench(RUN, 2), encode(Wrench(tick, 2, 500.0, 0.0, 0.0)))
+
+    ref = _team_in_memory(tmp_path / "ref", sc, clean)
+    steered = _team_in_memory(tmp_path / "wrench", sc, wrenches)
+    x = {name: float((tmp_path / name / "truth.csv").read_text().splitlines()[-1].split(",")[1])
+         for name in ("ref", "wrench")}
+    assert ref["drops"] == {} and ref["agents_reported"] == list(range(sc.n))
+    assert steered["drops"] == {"duplicate": sc.ticks - 50}  # every genuine wrench of agent 2 from then on
+    assert x["wrench"] > x["ref"] + 1.0, x  # 500 N more along x for 1 s: a 50 kg load moves metres further

@@ -113,12 +113,22 @@ def test_policy_is_default_deny_and_names_only_current_generations(tmp_path):
     assert names["agent-1"] == ["agent-1.g2"] and names["agent-0"] == ["agent-0.g1"]
     rules = {r["id"]: r for r in acl["rules"]}
     own = ("wrench", "state", "estimate", "report")
-    assert rules["agent-0/put"]["key_exprs"] == sorted(keys.agent(RUN, 0, k) for k in own)
-    assert rules["agent-0/hear"]["key_exprs"] == sorted([keys.meas(RUN, 0), keys.state(RUN, 1), keys.sim_control(RUN)])
+    hinf_own = ("input", "state", "report")  # the paper-003 runtime's keys: the same roles
+    assert rules["agent-0/put"]["key_exprs"] == sorted([*(keys.agent(RUN, 0, k) for k in own),
+                                                        *(keys.hinf(RUN, 0, k) for k in hinf_own)])
+    assert rules["agent-0/hear"]["key_exprs"] == sorted([keys.meas(RUN, 0), keys.state(RUN, 1), keys.sim_control(RUN),
+                                                         keys.hinf(RUN, 0, "meas"), keys.hinf(RUN, 1, "state"),
+                                                         keys.hinf_control(RUN)])
     assert rules["agent-1/hear"]["key_exprs"] == sorted([keys.meas(RUN, 1), keys.state(RUN, 0), keys.state(RUN, 2),
-                                                         keys.sim_control(RUN)])
-    assert rules["monitor/hear"]["key_exprs"] == sorted([keys.agent_all(RUN, "estimate"), keys.sim_control(RUN)])
+                                                         keys.sim_control(RUN), keys.hinf(RUN, 1, "meas"),
+                                                         keys.hinf(RUN, 0, "state"), keys.hinf(RUN, 2, "state"),
+                                                         keys.hinf_control(RUN)])
+    assert rules["monitor/hear"]["key_exprs"] == sorted([keys.agent_all(RUN, "estimate"), keys.sim_control(RUN),
+                                                         keys.sim_pose(RUN), keys.hinf_control(RUN)])
     assert "monitor/put" not in rules
+    assert rules["sim/put"]["key_exprs"] == sorted([keys.agent_all(RUN, "meas"), keys.sim_control(RUN),
+                                                    keys.sim_pose(RUN), keys.hinf_all(RUN, "meas"),
+                                                    keys.hinf_control(RUN)])
     # a late joiner: agent 3 with the grown graph
     t = certs.add_agent(tmp_path / "k", 3, neighbours=[[1], [0, 2], [1, 3], [2]], now=NOW)
     assert t.generations["agent-3"] == 1 and t.n == 4

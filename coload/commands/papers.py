@@ -75,7 +75,10 @@ def cmd_hinf_runtime(args: argparse.Namespace) -> int:
     if args.hinf_command == "run":
         require("hinf", "cvxpy")
         try:
-            s = run_cli(args.spec, args.out, args.engine, args.mode, args.overrides, args.quiet, args.verbose)
+            if args.secure and args.engine != "zenoh":
+                raise SpecError("--secure is for --engine zenoh (the in-process engine has no network)")
+            s = run_cli(args.spec, args.out, args.engine, args.mode, args.overrides, args.quiet, args.verbose,
+                        args.secure)
         except (SpecError, HinfDesignError) as exc:
             print(f"coload hinf run: {exc}", file=sys.stderr)
             return 2

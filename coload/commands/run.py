@@ -39,10 +39,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.secure and args.listen and not args.listen.startswith("tls/"):
         print(f"coload run: --secure needs a tls/ endpoint (--listen {args.listen})", file=sys.stderr)
         return 2
-    if args.secure and args.view is not None:
-        print("coload run: --view does not join a --secure run yet; watch it with `coload view --tls-dir "
-              "RUN_DIR/keys` (the monitor's key)", file=sys.stderr)
-        return 2
     view = _start_view(scenario, args.view) if args.view is not None else None
     try:
         note = prepare_run_dir(run_dir)
@@ -56,7 +52,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     else:
         try:
             summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose, listen=args.listen,
-                                    secure=args.secure, on_router=view.attach if view else None)
+                                    secure=args.secure,
+                                    on_router=view.attach_to(run_dir / "keys" if args.secure else None)
+                                    if view else None)
         finally:
             if view:
                 view.close()
@@ -99,11 +97,22 @@ class _RunView:
         self.sink = FoxgloveSink(scenario.n, "127.0.0.1", port)
         self.thread = None
 
-    def attach(self, endpoint: str, run: str) -> None:
+    def attach_to(self, tls_dir):
+        """The router callback: with ``tls_dir`` (a secure run's keys) the watcher holds the monitor's
+        certificate, read-only: it may hear the load's pose, the estimates and the control notices."""
+        return lambda endpoint, run: self.attach(endpoint, run, tls_dir)
+
+    def attach(self, endpoint: str, run: str, tls_dir=None) -> None:
+        import json
+
         from coload.viz.live import ViewThread
+        from net import access_policy
         from net.zenoh_transport import zenoh_config
 
-        self.thread = ViewThread(zenoh_config(mode="client", connect=[endpoint]), run, self.scene, self.sink)
+        conf = zenoh_config(mode="client", connect=[endpoint])
+        if tls_dir is not None:
+            conf.insert_json5("transport/link/tls", json.dumps(access_policy.tls_block(tls_dir, access_policy.MONITOR)))
+        self.thread = ViewThread(conf, run, self.scene, self.sink)
         self.thread.start()
 
     def close(self) -> None:

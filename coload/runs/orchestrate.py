@@ -311,6 +311,28 @@ def process_run(run_dir: Path, verbose: int = 0, listen: str | None = None) -> t
     return endpoint, run_name_for(run_dir), py, _Children(run_dir / "logs")
 
 
+def secure_endpoint() -> str:
+    """A free loopback ``tls/`` endpoint for a secure run's embedded router."""
+    from net.zenoh_transport import free_tcp_port
+
+    return f"tls/127.0.0.1:{free_tcp_port()}"
+
+
+def make_run_keys(run_dir: Path, neighbours: list, run: str, endpoint: str) -> Path:
+    """A secure run's own team in ``run_dir/keys``: a fresh CA (a previous run's keys are replaced),
+    certificates valid one day for the router's host, the policy for ``run`` and ``neighbours``."""
+    import shutil
+
+    from coload.certificates import init_team
+
+    tls_dir = run_dir / "keys"
+    shutil.rmtree(tls_dir, ignore_errors=True)
+    host = endpoint.split("/", 1)[1].rsplit(":", 1)[0].strip("[]")
+    init_team(tls_dir, neighbours, run=run, endpoint=endpoint, hosts=sorted({"localhost", "127.0.0.1", host}),
+              days=1.0, now=_dt.datetime.now(_dt.timezone.utc))
+    return tls_dir
+
+
 def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbose: int = 0,
                   listen: str | None = None, secure: bool = False,
                   on_router: Callable[[str, str], Any] | None = None) -> dict[str, Any] | None:
@@ -323,25 +345,11 @@ def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbos
 
     run_dir = Path(run_dir)
     if secure and listen is None:
-        from net.zenoh_transport import free_tcp_port
-
-        listen = f"tls/127.0.0.1:{free_tcp_port()}"
+        listen = secure_endpoint()
     endpoint, run, py, children = process_run(run_dir, verbose, listen)
     toml = run_dir / "run.toml"
     toml.write_text(dump_scenario(scenario), encoding="utf-8")
-    tls_dir = None
-    if secure:
-        import datetime as _dtm
-        import shutil
-
-        from coload.certificates import init_team
-
-        tls_dir = run_dir / "keys"
-        shutil.rmtree(tls_dir, ignore_errors=True)  # a previous run's keys: this run gets its own CA
-        host = endpoint.split("/", 1)[1].rsplit(":", 1)[0].strip("[]")
-        init_team(tls_dir, scenario.neighbours(), run=run, endpoint=endpoint,
-                  hosts=sorted({"localhost", "127.0.0.1", host}), days=1.0,
-                  now=_dtm.datetime.now(_dtm.timezone.utc))
+    tls_dir = make_run_keys(run_dir, scenario.neighbours(), run, endpoint) if secure else None
     bar = ProgressBar(f"{scenario.name} (zenoh, {scenario.n} agents)", quiet)
     try:
         if not start_router(children, py, endpoint, run_dir, "coload run", tls_dir):
