@@ -137,7 +137,7 @@ def residual_modes(pb: Problem, fit: Fit, res: np.ndarray | None = None, theta: 
     return M[valid]
 
 
-def whiteness(pb: Problem, fit: Fit, opt: DiagnoseOptions, modes: np.ndarray | None = None, draws: int = 20) -> float:
+def whiteness(pb: Problem, fit: Fit, opt: DiagnoseOptions, modes: np.ndarray | None = None, draws: int = 100) -> float:
     """Ljung-Box p of the block-averaged residual modes. Each window's free start state removes part of
     a white residual, which leaves the residual slightly anti-correlated at lags within a window; that
     autocorrelation is measured on white noise projected the same way (``draws`` draws, a fixed seed)
@@ -159,7 +159,7 @@ def whiteness(pb: Problem, fit: Fit, opt: DiagnoseOptions, modes: np.ndarray | N
         m = stats.block_average(residual_modes(pb, fit, res=e, theta=theta), block)
         acc.append([stats.autocorrelation(m[:, j], opt.lags) for j in range(m.shape[1])])
     center = np.mean(acc, axis=0)
-    return stats.ljung_box(stats.block_average(modes, block), opt.lags, center)[2]
+    return stats.ljung_box(stats.block_average(modes, block), opt.lags, center, center_draws=draws)[2]
 
 
 def _block(pb: Problem, opt: DiagnoseOptions) -> int:

@@ -80,7 +80,8 @@ def autocorrelation(x: np.ndarray, lags: int) -> np.ndarray:
     return np.array([float(x[:-k] @ x[k:]) / den for k in range(1, lags + 1)])
 
 
-def ljung_box(series: np.ndarray, lags: int, center: np.ndarray | None = None) -> tuple[float, int, float]:
+def ljung_box(series: np.ndarray, lags: int, center: np.ndarray | None = None,
+              center_draws: int | None = None) -> tuple[float, int, float]:
     """Ljung-Box on each column of ``series`` (T, K), summed: (Q, dof, p) with dof = K * lags.
 
     Degrees of freedom: the model is output-error (the fitted parameters act on the simulated,
@@ -88,6 +89,8 @@ def ljung_box(series: np.ndarray, lags: int, center: np.ndarray | None = None) -
     Q ~ chi2(K lags) for a white residual. ``center`` (K, lags): the autocorrelation a white residual
     has after the fit's projection (the windows' free states remove part of it: see
     :func:`ident.select.whiteness`), subtracted before squaring; tests/test_ident_stats.py checks both.
+    ``center_draws``: how many white-noise draws ``center`` is the mean of; its own scatter adds
+    1/center_draws to each autocorrelation's variance, so Q is divided by 1 + 1/center_draws.
     """
     Q = 0.0
     K = series.shape[1]
@@ -101,6 +104,8 @@ def ljung_box(series: np.ndarray, lags: int, center: np.ndarray | None = None) -
             rho = rho - center[j]
         Q += N * (N + 2) * float(np.sum(rho**2 / (N - np.arange(1, lags + 1))))
     dof = K * lags
+    if center is not None and center_draws:
+        Q /= 1 + 1 / center_draws
     return Q, dof, float(stats.chi2.sf(Q, dof))
 
 

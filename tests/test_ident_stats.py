@@ -51,3 +51,21 @@ def test_kinematic_noise_of_a_rigid_body():
     v = (0.3 + 0.1j) + 1j * om[:, None] * z[None]
     vel = np.stack((v.real, v.imag), -1) + rng.normal(0, 0.05, (T, n, 2))
     assert abs(kinematic_noise(vel) / 0.05 - 1) < 0.05
+
+
+def test_ljung_box_center_from_few_draws_is_corrected_for_its_scatter():
+    """A center averaged over only 5 draws carries their scatter into every autocorrelation (variance
+    1 + 1/5 times a white series'): uncorrected the test over-rejects; ``center_draws`` restores the level."""
+    from ident.stats import autocorrelation
+
+    rng = np.random.default_rng(11)
+    draws, trials = 5, 600
+    plain, fixed = [], []
+    for _ in range(trials):
+        center = np.mean([autocorrelation(rng.normal(size=400), 20) for _ in range(draws)], axis=0)[None]
+        x = rng.normal(size=(400, 1))
+        plain.append(ljung_box(x, 20, center)[2])
+        fixed.append(ljung_box(x, 20, center, center_draws=draws)[2])
+    # binomial(600, 0.05): sd 0.009, so a level within 0.025 of 0.05 is a 2.8 sd band
+    assert np.mean(np.array(plain) < 0.05) > 0.08
+    assert abs(np.mean(np.array(fixed) < 0.05) - 0.05) < 0.025
