@@ -82,7 +82,14 @@ def one(case: str, rate: float, sigma: float, seed: int, n: int, duration: float
         rec = Path(tmp) / "rec"
         truth = ctplant.make_recording(rec, n=n, rate_hz=rate, duration_s=duration, sigma_v=sigma, seed=seed,
                                        effects=effects)  # fmt: skip
-        d, wall = run_diagnose(rec)
+        try:
+            d, wall = run_diagnose(rec)
+        except RuntimeError as exc:  # counted as a failure of the row, not the end of the grid
+            print(f"  {rate:g} Hz {sigma:g} m/s {case} seed {seed}: {exc}", file=sys.stderr, flush=True)
+            nan = math.nan
+            return {"ok": False, "names": ["error"], "unexplained": False, "verr": nan, "mb": nan, "ma": nan,
+                    "jb": nan, "ja": nan, "good": False, "ratio": nan, "white": False, "floor_err": nan,
+                    "wall": nan}  # fmt: skip
     names = sorted(e["name"] for e in d["effects"])
     exp = expected(case)
     ok = (d["unexplained"] and not names) if exp == "unexplained" else (names == exp and not d["unexplained"])
@@ -112,7 +119,7 @@ def pct(xs: list[float]) -> str:
 
 def row(rate: float, sigma: float, case: str, rs: list[dict[str, Any]]) -> str:
     k = len(rs)
-    med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
+    med = lambda key: float(np.nanmedian([r[key] for r in rs]))  # noqa: E731
     return (f"| {rate:g} | {sigma:g} | {case} | {sum(r['ok'] for r in rs)}/{k} | {pct([r['verr'] for r in rs])} "
             f"| {100 * med('mb'):.2g} -> {100 * med('ma'):.2g} | {100 * med('jb'):.2g} -> {100 * med('ja'):.2g} "
             f"| {sum(r['good'] for r in rs)}/{k} | {med('ratio'):.3g} | {sum(r['white'] for r in rs)}/{k} "

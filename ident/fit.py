@@ -457,11 +457,15 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
         h = _project(rel, 1j * zb)
         has = ~np.isnan(h)
         # noise of h per component is sigma (zb has unit norm); of the windowed sum of h^2, about
-        # 2 |h| sigma per term
-        s2, cnt = _moving_sum(t, h * h, width_s)
-        s1, _ = _moving_sum(t, np.abs(h) ** 2, width_s)
-        noise = np.sqrt(4 * sigma**2 * s1 + 2 * cnt * sigma**4)
-        idx = np.flatnonzero(has & (np.abs(s2) > min_snr * noise))
+        # 2 |h| sigma per term. Noisy data get longer windows, until a quarter of the stamps are
+        # significant (or the window is 8x the default)
+        for width in width_s * 2.0 ** np.arange(4):
+            s2, cnt = _moving_sum(t, h * h, width)
+            s1, _ = _moving_sum(t, np.abs(h) ** 2, width)
+            noise = np.sqrt(4 * sigma**2 * s1 + 2 * cnt * sigma**4)
+            idx = np.flatnonzero(has & (np.abs(s2) > min_snr * noise))
+            if idx.size >= max(20, has.sum() // 4):
+                break
         if idx.size < 20:
             raise FitError("the load hardly rotates (relative contact velocities at noise level): contact geometry, "
                            "omega and J are not observable from these data")  # fmt: skip

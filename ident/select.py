@@ -289,7 +289,16 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     cs = fopt.coulomb_speed
     try:
         pb = make_problem(rec, sv_w, sp_w, fopt)
-        g0, x0, w0 = initial_guess(pb, rec)
+        try:
+            g0, x0, w0 = initial_guess(pb, rec)
+        except FitError as exc:
+            if not pb.base.rotation:
+                raise
+            # the rotation is below the noise: the translation alone is fitted, J and the geometry are
+            # reported as not identifiable rather than guessed
+            warns.append(f"{exc}; the load is modelled without its rotation")
+            pb = make_problem(rec, sv_w, sp_w, fopt, rotation=False)
+            g0, x0, w0 = initial_guess(pb, rec)
     except FitError as exc:
         raise DiagnoseError(f"cannot identify the nominal model: {exc}") from None
     warns += w0
@@ -303,7 +312,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     base = pb.base
     say(f"{rec.T} stamps, n = {rec.n}, {pb.win.S} windows of {wlen:.3g} s; noise floor "
         + ", ".join(f"{k} {v:.3g}" for k, v in (("velocity (m/s)", sv), ("position (m)", sp)) if math.isfinite(v)))
-    if not base.rotation:
+    if not base.rotation and rec.n == 1:
         warns.append("one agent (n = 1): the load's rotation is not observed; J, the contact geometry and "
                      "rotational_damping are not identifiable from these data")  # fmt: skip
     if not all(base.axes):
