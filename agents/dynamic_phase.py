@@ -24,6 +24,7 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
+from agents.estimate_trust import spread_sd
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import StageBarrier
@@ -80,6 +81,7 @@ class DynamicPhase:
         self.background = spec.algorithm == "background"
         self.avg = FlowAverage(nbr_ids, N_CH_AUG if spec.estimate_effects else N_CH)
         self.ch_keys = CH_KEYS[:self.avg.nch]
+        self.m_local_sd = self.j_local_sd = math.nan  # the filter's sd of m_local and J_local when offered
         self.b_local = math.nan  # augmented model: own b = beta m and c = gamma J, before the averaging
         self.c_local = math.nan
         self.released = False
@@ -512,6 +514,7 @@ class DynamicPhase:
             m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW, w, sure)
             if m_local is not None:
                 self.m_local = m_local
+                self.m_local_sd = math.sqrt(kf.mu_var) * m_local * m_local  # delta method: sd(1/mu)
                 self.frozen_m = stage == M_AVERAGE
                 if kf.aug is not None:  # b = beta m, averaged with m's weights
                     self.b_local = kf.beta * m_local
@@ -521,6 +524,7 @@ class DynamicPhase:
             j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w, sure)
             if j_local is not None:
                 self.j_local = j_local
+                self.j_local_sd = math.sqrt(kf.iota_var) * j_local * j_local
                 self.frozen_j = stage == J_AVERAGE
                 if kf.aug is not None:  # c = gamma J, averaged with J's weights
                     self.c_local = kf.gamma * j_local
@@ -594,6 +598,21 @@ class DynamicPhase:
         return checked_wrench(out, self.law_ref, tick, self.id)
 
     # ------------------------------------------------------------------ outputs
+    def uncertainties(self) -> tuple[float, float]:
+        """One standard deviation of the m and J consensus values (NaN while there is none): the filter's sd
+        of the own local value and the spread to the neighbours' values that the averaging has not removed,
+        in quadrature (docs/estimate-trust.md)."""
+        x = self.avg.x
+        nx = self.avg.nx.values()
+        out = []
+        for num, wch, sd in ((CH_MN, CH_MW, self.m_local_sd), (CH_JN, CH_JW, self.j_local_sd)):
+            if x[wch] <= 0.0:
+                out.append(math.nan)
+                continue
+            s = spread_sd(x[num] / x[wch], (xj[num] / xj[wch] for xj in nx if xj[wch] > 0.0))
+            out.append(math.hypot(sd if sd == sd else 0.0, s))
+        return out[0], out[1]
+
     def _shared(self) -> dict[str, float]:
         """The StateMsg.shared entries of the dynamical phase."""
         out = dict(zip(self.ch_keys, self.avg.x, strict=True))

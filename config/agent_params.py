@@ -244,6 +244,18 @@ class DynamicsSpec(_Strict):
                                "at 2.0-2.9: docs/high-noise.md); 0: never",
     )
     lock_tau_s: float = Field(2.0, gt=0, description="time constant of that running mean (s)")
+    trust_min_fresh: float = Field(
+        0.5, gt=0, le=1,
+        description="estimate trust (agents/estimate_trust.py, docs/estimate-trust.md): an m or J estimate is "
+                    "flagged untrusted when, in one of the stages it rests on, the agent received fresh (not older "
+                    "than estimator.max_age_ticks) fewer than this fraction of the neighbour states the stage "
+                    "should have brought, by a one-sided test at level trust_alpha (-)",
+    )
+    trust_alpha: float = Field(
+        0.01, gt=0, lt=0.5,
+        description="that test's level: the probability of flagging a stage whose true fresh fraction is "
+                    "trust_min_fresh (independent messages assumed) (-)",
+    )
     lock_window_s: float = Field(
         2.0, gt=0, description="the restart point (omega, q_i) is fitted to the own contact velocities of this "
                                "last window (agents.rigid_filter.fit_rotation; the neighbours' median omega_hat and the "

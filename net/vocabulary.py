@@ -45,4 +45,11 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "b_local",  # this agent's own b, before the averaging consensus (N s/m)
     "c_local",  # this agent's own c, before the averaging consensus (N m s)
     "filter_restarts",  # restarts of the dynamical phase's filter by its lock check (count; DynamicsSpec.lock_nis)
+    # estimate trust (agents/estimate_trust.py, docs/estimate-trust.md; NaN before the estimate's stages)
+    "m_trusted",  # 1: the m stages' data sufficed; 0: untrusted (too few fresh neighbour states in a stage)
+    "m_fresh",  # fresh fraction of the neighbour states of the poorest m stage so far (-)
+    "m_sd",  # one standard deviation of m: own filter's sd and the consensus spread (kg)
+    "J_trusted",  # the same for J (J excitation and averaging stages)
+    "J_fresh",
+    "J_sd",  # (kg m^2)
 )
