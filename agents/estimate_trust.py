@@ -28,12 +28,14 @@ J_STAGES = (J_EXCITE, J_AVERAGE)
 TRUST_NAMES = ("m_trusted", "m_fresh", "m_sd", "J_trusted", "J_fresh", "J_sd")
 
 
-def wilson_upper(k: int, n: int, alpha: float) -> float:
+def wilson_upper(k: int, n: int, alpha: float, z: float | None = None) -> float:
     """One-sided upper confidence bound (level 1 - alpha) of a binomial proportion with k successes
-    in n trials (Wilson score); 1.0 without trials."""
+    in n trials (Wilson score); 1.0 without trials. ``z``: the standard normal quantile of 1 - alpha,
+    if already known."""
     if n <= 0:
         return 1.0
-    z = NormalDist().inv_cdf(1.0 - alpha)
+    if z is None:
+        z = NormalDist().inv_cdf(1.0 - alpha)
     p = k / n
     z2n = z * z / n
     centre = p + 0.5 * z2n
@@ -41,9 +43,9 @@ def wilson_upper(k: int, n: int, alpha: float) -> float:
     return min(1.0, (centre + half) / (1.0 + z2n))
 
 
-def poor(fresh: int, slots: int, min_fresh: float, alpha: float) -> bool:
+def poor(fresh: int, slots: int, min_fresh: float, alpha: float, z: float | None = None) -> bool:
     """The stage's data are too poor: fewer than ``min_fresh`` of its ``slots`` fresh, at level ``alpha``."""
-    return wilson_upper(min(fresh, slots), slots, alpha) < min_fresh
+    return wilson_upper(min(fresh, slots), slots, alpha, z) < min_fresh
 
 
 def spread_sd(own: float, neighbours: Iterable[float]) -> float:
@@ -59,13 +61,15 @@ def spread_sd(own: float, neighbours: Iterable[float]) -> float:
 
 
 class StageCount:
-    """Neighbour-state slots and fresh states of one stage."""
+    """Neighbour-state slots and fresh states of one stage, and its verdict at ``judged`` slots."""
 
-    __slots__ = ("slots", "fresh")
+    __slots__ = ("slots", "fresh", "judged", "poor")
 
     def __init__(self) -> None:
         self.slots = 0
         self.fresh = 0
+        self.judged = -1
+        self.poor = False
 
     @property
     def fraction(self) -> float:
@@ -80,6 +84,7 @@ class EstimateTrust:
         self.max_age = max_age
         self.min_fresh = min_fresh
         self.alpha = alpha
+        self.z = NormalDist().inv_cdf(1.0 - alpha)
         self.stages: dict[int, StageCount] = {}
 
     def observe(self, tick: int, stage: int, sent_ticks: Iterable[int]) -> None:
@@ -104,8 +109,10 @@ class EstimateTrust:
             f = c.fraction
             if not worst <= f:
                 worst = f
-            bad = poor(c.fresh, c.slots, self.min_fresh, self.alpha)
-            flag = 0.0 if bad or flag == 0.0 else 1.0
+            if c.judged != c.slots:  # a finished stage is judged once
+                c.judged = c.slots
+                c.poor = poor(c.fresh, c.slots, self.min_fresh, self.alpha, self.z)
+            flag = 0.0 if c.poor or flag == 0.0 else 1.0
         return flag, worst
 
     def entries(self, m: float, m_sd: float, J: float, J_sd: float) -> dict[str, float]:
