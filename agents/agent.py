@@ -135,7 +135,8 @@ class AgentCore:
             trust.observe(tick, stage, [m.tick for m in kin.inbox])  # type: ignore[union-attr]
             est = out.estimates
             m_sd, j_sd = dyn.uncertainties()
-            dyn_est = {**est, **trust.entries(est["m"], m_sd, est["J"], j_sd)}  # type: ignore[union-attr]
+            dyn_est = {**est, **trust.entries(est["m"], m_sd, est["J"], j_sd),  # type: ignore[union-attr]
+                       **dyn.monitor_entries()}
         zi = kin.zi
         values = {
             "phase": float(stage),

@@ -25,6 +25,7 @@ import numpy as np
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
 from agents.estimate_trust import spread_sd
+from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import StageBarrier
@@ -139,6 +140,10 @@ class DynamicPhase:
         # omega_hat's measurement for the next tick (AgentCore): the filter's predicted omega once it has
         # restarted at kinematic readiness (``DynamicsSpec.filter_omega``), NaN before (the eq. (9) rate)
         self.om_meas = math.nan
+        # innovation monitor (report-only), fed from the filter's restart at kinematic readiness on
+        self.monitor = (InnovationMonitor(ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha)
+                        if spec.monitor_window_s > 0.0 else None)
+        self.last_f = 0j  # the own force applied over the last prediction (a signature of the monitor)
 
     # ------------------------------------------------------------------ messages
     def decode(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float] | None) -> DynamicMsg:
@@ -291,6 +296,8 @@ class DynamicPhase:
         self.shadow = copy.copy(kf)  # its arrays are replaced on every step, never changed in place
         self.shadow_nis = self.nis_avg
         kf.start(v, q0, om0)
+        if self.monitor is not None:
+            self.monitor.reset()
         if self.released:
             kf.release_effects()
         # the trial's running mean starts at the threshold, not at the consistent 2: what is left of the
@@ -309,6 +316,8 @@ class DynamicPhase:
             self.lock_fails = 0
             self.lock_from = tick
         else:  # the restart did no better: back to the old filter, and wait longer before the next try
+            if self.monitor is not None:
+                self.monitor.reset()
             self.kf = self.shadow
             self.nis_avg = self.shadow_nis
             self.lock_fails += 1
@@ -384,6 +393,7 @@ class DynamicPhase:
         elif stage == J_AVERAGE and self._converged(CH_JN, CH_JW, tick):
             self.barrier.set_ready(tick)
         self._predict(tick, rot, excitation.j_sign(k, self.j_ticks, spec) if jstage else None)
+        self.last_f = complex(fx, fy)
         return fx, fy, tau
 
     def _advance_stage(self, tick: int, v: complex, omega_hat: float, phi: float, zi: complex, trusted: bool,
@@ -440,7 +450,13 @@ class DynamicPhase:
             u_dc = u_dw = 0.0
             if spec.u_delayed and u_var > 0.0:
                 u_dc, u_dw = self._u_age(tick, u_den)
+            mon = self.monitor if self.restarted and self.q_held is None else None
+            if mon is not None:
+                vc0, om0, q0 = kf.vc, kf.omega, kf.q  # the prediction's: known before the innovation
             kf.update(v, u, u_var, u_dc, u_dw)
+            if mon is not None:
+                e0, e1, s00, s01, s11 = kf.innov
+                mon.observe(complex(e0, e1), s00, s01, s11, vc0, om0, q0, self.last_f)
             q = kf.q
         else:
             q = zi
@@ -598,6 +614,12 @@ class DynamicPhase:
         return checked_wrench(out, self.law_ref, tick, self.id)
 
     # ------------------------------------------------------------------ outputs
+    def monitor_entries(self) -> dict[str, float]:
+        """The innovation monitor's estimate entries (NaN without it)."""
+        if self.monitor is None:
+            return dict.fromkeys(MONITOR_NAMES, math.nan)
+        return self.monitor.entries()
+
     def uncertainties(self) -> tuple[float, float]:
         """One standard deviation of the m and J consensus values (NaN while there is none): the filter's sd
         of the own local value and the spread to the neighbours' values that the averaging has not removed,

@@ -251,6 +251,19 @@ class DynamicsSpec(_Strict):
                     "than estimator.max_age_ticks) fewer than this fraction of the neighbour states the stage "
                     "should have brought, by a one-sided test at level trust_alpha (-)",
     )
+    monitor_window_s: float = Field(
+        5.0, ge=0,
+        description="innovation monitor (agents/innovation_monitor.py, docs/innovation-monitor.md): each agent "
+                    "tests its filter's own-velocity innovations over consecutive windows this long for "
+                    "whiteness and for correlation with v_C, sign(v_C), omega q_i^perp and its own force; "
+                    "report-only (s; 0: off)",
+    )
+    monitor_lags: int = Field(10, ge=1, description="lags of the monitor's whiteness test (ticks)")
+    monitor_alpha: float = Field(
+        0.01, gt=0, lt=1,
+        description="the monitor's false-alarm rate per window under a right model (Bonferroni over its five "
+                    "tests) (-)",
+    )
     trust_alpha: float = Field(
         0.01, gt=0, lt=0.5,
         description="that test's level: the probability of flagging a stage whose true fresh fraction is "

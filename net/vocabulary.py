@@ -52,4 +52,14 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "J_trusted",  # the same for J (J excitation and averaging stages)
     "J_fresh",
     "J_sd",  # (kg m^2)
+    # innovation monitor (agents/innovation_monitor.py, docs/innovation-monitor.md; report-only; NaN before
+    # its first complete window or without it): the last window's p-values and alarm, and counts
+    "mon_p_white",  # whiteness (against positive autocorrelation) of the own filter's whitened velocity innovations
+    "mon_p_vc",  # correlation with v_C (viscous friction)
+    "mon_p_sgn",  # with v_C / |v_C| (Coulomb friction)
+    "mon_p_om",  # with omega q_i^perp (rotational damping)
+    "mon_p_f",  # with the own applied force (actuator gain)
+    "mon_alarm",  # 1: some p-value below monitor_alpha / 5 in the last window, else 0
+    "mon_windows",  # windows tested so far (count)
+    "mon_alarms",  # windows with an alarm so far (count)
 )
