@@ -69,8 +69,10 @@ class AgentCore:
         self._trust: EstimateTrust | None = None
         if dynamic:
             assert dynamics is not None
+            # an averaging stage is judged on its convergence window and the agreement's horizon
+            tail = round((dynamics.avg_window_s + dynamics.horizon_s) / self.dt)
             self._trust = EstimateTrust(len(self._kin.nbrs), estimator.max_age_ticks, dynamics.trust_min_fresh,
-                                        dynamics.trust_alpha)
+                                        dynamics.trust_alpha, tail)
             self._dyn = dynamic_phase.DynamicPhase(self.id, sorted(self._kin.nbrs), self.n, self.dt, sig, dynamics,
                                                    estimator.history_ticks, law=law, law_ref=control.law)
         self._fb = DynamicFeedback()  # the dynamical phase's feedback to the next tick

@@ -11,7 +11,10 @@ a state is fresh if it is at most ``max_age`` ticks old when taken. A stage is p
 Wilson upper bound, at confidence 1 - ``alpha``, of its fresh fraction is below ``min_fresh``: the
 hypothesis "at least ``min_fresh`` of the stage's neighbour states arrived fresh" is rejected at level
 ``alpha`` (the slots are taken as independent trials). An estimate is untrusted when any stage it rests
-on is poor (m: the m excitation and averaging stages; J: the J excitation and averaging stages).
+on is poor (m: the m excitation and averaging stages; J: the J excitation and averaging stages). An
+excitation stage is judged on all its ticks (the filter integrates over the whole stage); an averaging
+stage on its last ``tail`` ticks only (the convergence check's window and the agreement's horizon):
+a consensus that waited through a gap and converged on fresh states after it is sound.
 """
 
 from __future__ import annotations
@@ -61,15 +64,32 @@ def spread_sd(own: float, neighbours: Iterable[float]) -> float:
 
 
 class StageCount:
-    """Neighbour-state slots and fresh states of one stage, and its verdict at ``judged`` slots."""
+    """Neighbour-state slots and fresh states of one stage (of its last ``tail`` ticks if ``tail`` > 0),
+    and its verdict at ``judged`` ticks."""
 
-    __slots__ = ("slots", "fresh", "judged", "poor")
+    __slots__ = ("slots", "fresh", "judged", "poor", "ticks", "ring", "degree")
 
-    def __init__(self) -> None:
+    def __init__(self, degree: int, tail: int = 0) -> None:
+        self.degree = degree
         self.slots = 0
         self.fresh = 0
+        self.ticks = 0
         self.judged = -1
         self.poor = False
+        self.ring = [0] * tail  # fresh states of each of the last ``tail`` ticks
+
+    def add(self, fresh: int) -> None:
+        """One tick with ``fresh`` fresh states."""
+        ring = self.ring
+        if ring:
+            k = self.ticks % len(ring)
+            if self.ticks >= len(ring):  # the oldest tick leaves the tail
+                self.fresh -= ring[k]
+                self.slots -= self.degree
+            ring[k] = fresh
+        self.ticks += 1
+        self.slots += self.degree
+        self.fresh += fresh
 
     @property
     def fraction(self) -> float:
@@ -79,8 +99,10 @@ class StageCount:
 class EstimateTrust:
     """One agent's evidence per stage and the trust entries of its m and J estimates (module docstring)."""
 
-    def __init__(self, degree: int, max_age: int, min_fresh: float, alpha: float) -> None:
+    def __init__(self, degree: int, max_age: int, min_fresh: float, alpha: float, tail: int = 0) -> None:
+        """``tail``: the ticks over which an averaging stage is judged (0: all of it)."""
         self.degree = degree
+        self.tail = {M_AVERAGE: tail, J_AVERAGE: tail}
         self.max_age = max_age
         self.min_fresh = min_fresh
         self.alpha = alpha
@@ -91,12 +113,13 @@ class EstimateTrust:
         """A tick of ``stage`` in which the neighbour states sent at ``sent_ticks`` were taken."""
         c = self.stages.get(stage)
         if c is None:
-            c = self.stages[stage] = StageCount()
-        c.slots += self.degree
+            c = self.stages[stage] = StageCount(self.degree, self.tail.get(stage, 0))
         lim = tick - self.max_age
+        fresh = 0
         for t in sent_ticks:
             if t >= lim:
-                c.fresh += 1
+                fresh += 1
+        c.add(fresh)
 
     def judge(self, stages: tuple[int, ...]) -> tuple[float, float]:
         """(flag, fresh fraction of the poorest stage begun) over ``stages``: (NaN, NaN) before the first."""
@@ -109,8 +132,8 @@ class EstimateTrust:
             f = c.fraction
             if not worst <= f:
                 worst = f
-            if c.judged != c.slots:  # a finished stage is judged once
-                c.judged = c.slots
+            if c.judged != c.ticks:  # a finished stage is judged once
+                c.judged = c.ticks
                 c.poor = poor(c.fresh, c.slots, self.min_fresh, self.alpha, self.z)
             flag = 0.0 if c.poor or flag == 0.0 else 1.0
         return flag, worst

@@ -54,6 +54,20 @@ def test_stage_evidence_flags_only_poor_stages():
     for k in range(300, 400):
         tr.observe(k, J_AVERAGE, [k - 1, k - 2])
     assert tr.entries(50.0, 1.0, 87.0, 2.0)["J_trusted"] == 0.0
+
+
+def test_an_averaging_stage_is_judged_on_its_tail():
+    """A gap in the averaging stage followed by fresh states over the tail: trusted; a gap at its end: not."""
+    for gap_first, expect in ((True, 1.0), (False, 0.0)):
+        tr = EstimateTrust(degree=2, max_age=5, min_fresh=0.5, alpha=0.01, tail=150)
+        for k in range(100):
+            tr.observe(k, J_EXCITE, [k - 1, k - 1])
+        for k in range(100, 500):
+            gap = (k < 350) if gap_first else (k >= 250)
+            tr.observe(k, J_AVERAGE, [] if gap else [k - 1, k - 1])
+        out = tr.entries(50.0, 1.0, 87.0, 2.0)
+        assert out["J_trusted"] == expect and out["J_fresh"] == expect, gap_first
+        assert tr.stages[J_AVERAGE].slots == 300
     assert spread_sd(1.0, [2.0, 0.0, math.nan]) == 1.0 and spread_sd(1.0, []) == 0.0
 
 
