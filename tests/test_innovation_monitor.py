@@ -98,9 +98,10 @@ def test_false_alarms_on_clean_runs_and_alarms_under_viscous_friction(tmp_path):
     cap = next(k for k in range(windows) if _binom_sf(k, windows, 0.05) < 1e-3)
     assert alarms <= cap, (alarms, windows, cap)
     d = tmp_path / "viscous"
-    run_inproc(load_scenario(SCENARIOS / "quick.toml", [*SHORT, "plant.friction={viscous=5.0}"]), d)
+    summary = run_inproc(load_scenario(SCENARIOS / "quick.toml", [*SHORT, "plant.friction={viscous=5.0}"]), d)
     a, w = _alarms(d)
     assert a > 0.25 * w, (a, w)
+    assert summary["monitor"]["alarms"] == a and summary["monitor"]["windows"] == w
 
 
 def _binom_sf(k: int, n: int, p: float) -> float:

@@ -24,7 +24,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
 from coload.analysis import metrics  # noqa: E402
-from coload.analysis.summary import trust_block  # noqa: E402
+from coload.analysis.summary import monitor_block, trust_block  # noqa: E402
 from coload.rundir import format as rundir_format  # noqa: E402
 from coload.rundir.format import REPORT_PNG, RunData, read_run  # noqa: E402
 
@@ -341,6 +341,11 @@ def summary_table(run: RunData, errors: dict[str, Any]) -> str:
         verdict = "trusted" if block["trusted"] else f"UNTRUSTED at agents {block['untrusted_agents']}"
         lines.append(f"{name}: {verdict} (fresh neighbour states >= {_fmt(block['fresh_min'], '.0%')} in its "
                      f"stages; sd <= {_fmt(sd, '.3g')})")
+    mon = monitor_block(run)
+    if mon:
+        firsts = [t for t in mon["per_agent"]["first_alarm_t"] if t is not None]
+        lines.append(f"innovation monitor: {mon['alarms']} of {mon['windows']} windows alarmed"
+                     + (f", first at t = {min(firsts):.1f} s" if firsts else "") + " (report-only)")
     lines += centralized_lines(run.summary)
     return "\n".join(lines)
 

@@ -1,5 +1,6 @@
 """Completes a finished run's summary.json with what is computed from its files: the error metrics,
-the agents' estimate trust (docs/estimate-trust.md) and the centralized batch-fit yardstick
+the agents' estimate trust (docs/estimate-trust.md), their innovation monitors' counts
+(docs/innovation-monitor.md) and the centralized batch-fit yardstick
 (docs/run-directory.md, docs/batch-fit.md).
 
 The recorder only records; every engine calls :func:`complete_summary` once the run directory is
@@ -37,6 +38,9 @@ def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any])
                     summary.setdefault("warnings", []).append(
                         f"{name} untrusted at agents {block['untrusted_agents']}: fresh neighbour states down to "
                         f"{block['fresh_min']:.0%} in one of its stages (docs/estimate-trust.md)")
+        monitor = monitor_block(run)
+        if monitor:
+            summary["monitor"] = monitor
     except (ValueError, OSError) as exc:
         summary["errors"] = {}
         summary.setdefault("warnings", []).append(f"errors not computed: {exc}")
@@ -86,6 +90,34 @@ def trust_block(run: fmt.RunData | None) -> dict[str, Any]:
             "sd": [_finite_or_none(v) for v in sd],
         }
     return out
+
+
+def monitor_block(run: fmt.RunData | None) -> dict[str, Any]:
+    """The agents' innovation monitors at the end (``mon_windows``, ``mon_alarms`` of estimates.csv): windows
+    tested and windows that alarmed, in total and per agent, and the first time each agent's count of alarms
+    was seen above 0 (None: never). Empty for a run without those columns or before any window."""
+    est = None if run is None else run.estimates
+    if est is None or len(est.t) == 0 or not (est.has("mon_windows") and est.has("mon_alarms")):
+        return {}
+    windows = _last_finite(est.columns["mon_windows"])
+    alarms = _last_finite(est.columns["mon_alarms"])
+    if not np.isfinite(windows).any():
+        return {}
+    first = []
+    col = est.columns["mon_alarms"]
+    for i in range(col.shape[1]):
+        hit = np.flatnonzero(col[:, i] > 0.0)
+        first.append(float(est.t[hit[0]]) if hit.size else None)
+    return {
+        "windows": int(np.nansum(windows)),
+        "alarms": int(np.nansum(alarms)),
+        "per_agent": {"windows": [_int_or_none(v) for v in windows], "alarms": [_int_or_none(v) for v in alarms],
+                      "first_alarm_t": first},
+    }
+
+
+def _int_or_none(v: float) -> int | None:
+    return int(v) if math.isfinite(v) else None
 
 
 def _last_finite(col: np.ndarray) -> np.ndarray:
