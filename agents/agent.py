@@ -134,7 +134,7 @@ class AgentCore:
             shared.update(out.shared)
             pairs = {j: (z.real, z.imag, f.real, f.imag, *out.flows[j]) for j, z, f in kin.pairs}
             trust = self._trust
-            trust.observe(tick, stage, [m.tick for m in kin.inbox])  # type: ignore[union-attr]
+            trust.observe(tick, stage, [(m.sender, m.tick) for m in kin.inbox])  # type: ignore[union-attr]
             est = out.estimates
             m_sd, j_sd = dyn.uncertainties()
             dyn_est = {**est, **trust.entries(est["m"], m_sd, est["J"], j_sd),  # type: ignore[union-attr]

@@ -6,11 +6,13 @@ tick, the agent's m and J values) and returns the trust entries of the estimate:
 (1 trusted, 0 untrusted, NaN before its stages began), the fresh fraction of its poorest stage and an
 uncertainty (one standard deviation, kg and kg m^2). Pure: no clock, socket or RNG.
 
-Criterion (docs/estimate-trust.md): each tick of a stage should bring one state from every neighbour;
-a state is fresh if it is at most ``max_age`` ticks old when taken. A stage is poor when the one-sided
+Criterion (docs/estimate-trust.md): at each tick of a stage, each neighbour is a slot, filled when the
+newest state the agent has taken from it is at most ``max_age`` ticks old (what the consensus runs on
+is current; lost, late or reordered states do not matter while newer ones keep coming). A stage is
+poor when the one-sided
 Wilson upper bound, at confidence 1 - ``alpha``, of its fresh fraction is below ``min_fresh``: the
-hypothesis "at least ``min_fresh`` of the stage's neighbour states arrived fresh" is rejected at level
-``alpha`` (the slots are taken as independent trials). An estimate is untrusted when any stage it rests
+hypothesis "at least ``min_fresh`` of the stage's slots were fresh" is rejected at level ``alpha`` (the
+slots are taken as independent trials). An estimate is untrusted when any stage it rests
 on is poor (m: the m excitation and averaging stages; J: the J excitation and averaging stages). An
 excitation stage is judged on all its ticks (the filter integrates over the whole stage); an averaging
 stage on its last ``tail`` ticks only (the convergence check's window and the agreement's horizon):
@@ -29,6 +31,7 @@ from net.vocabulary import J_AVERAGE, J_EXCITE, M_AVERAGE, M_EXCITE
 M_STAGES = (M_EXCITE, M_AVERAGE)
 J_STAGES = (J_EXCITE, J_AVERAGE)
 TRUST_NAMES = ("m_trusted", "m_fresh", "m_sd", "J_trusted", "J_fresh", "J_sd")
+_NEVER = -(2**62)  # the send tick of a state never taken
 
 
 def wilson_upper(k: int, n: int, alpha: float, z: float | None = None) -> float:
@@ -108,15 +111,20 @@ class EstimateTrust:
         self.alpha = alpha
         self.z = NormalDist().inv_cdf(1.0 - alpha)
         self.stages: dict[int, StageCount] = {}
+        self.newest: dict[int, int] = {}  # each neighbour's newest state taken (its send tick)
 
-    def observe(self, tick: int, stage: int, sent_ticks: Iterable[int]) -> None:
-        """A tick of ``stage`` in which the neighbour states sent at ``sent_ticks`` were taken."""
+    def observe(self, tick: int, stage: int, taken: Iterable[tuple[int, int]]) -> None:
+        """A tick of ``stage`` in which the neighbour states ``taken`` = [(sender, send tick)] were taken."""
+        newest = self.newest
+        for j, t in taken:
+            if t > newest.get(j, _NEVER):
+                newest[j] = t
         c = self.stages.get(stage)
         if c is None:
             c = self.stages[stage] = StageCount(self.degree, self.tail.get(stage, 0))
         lim = tick - self.max_age
         fresh = 0
-        for t in sent_ticks:
+        for t in newest.values():
             if t >= lim:
                 fresh += 1
         c.add(fresh)

@@ -245,11 +245,11 @@ class DynamicsSpec(_Strict):
     )
     lock_tau_s: float = Field(2.0, gt=0, description="time constant of that running mean (s)")
     trust_min_fresh: float = Field(
-        0.5, gt=0, le=1,
+        0.9, gt=0, le=1,
         description="estimate trust (agents/estimate_trust.py, docs/estimate-trust.md): an m or J estimate is "
-                    "flagged untrusted when, in one of the stages it rests on, the agent received fresh (not older "
-                    "than estimator.max_age_ticks) fewer than this fraction of the neighbour states the stage "
-                    "should have brought, by a one-sided test at level trust_alpha (-)",
+                    "flagged untrusted when, in one of the stages it rests on, the newest state the agent had from "
+                    "a neighbour was fresh (not older than estimator.max_age_ticks) in fewer than this fraction of "
+                    "the stage's ticks x neighbours, by a one-sided test at level trust_alpha (-)",
     )
     monitor_window_s: float = Field(
         5.0, ge=0,
@@ -267,7 +267,7 @@ class DynamicsSpec(_Strict):
     trust_alpha: float = Field(
         0.01, gt=0, lt=0.5,
         description="that test's level: the probability of flagging a stage whose true fresh fraction is "
-                    "trust_min_fresh (independent messages assumed) (-)",
+                    "trust_min_fresh (independent slots assumed) (-)",
     )
     lock_window_s: float = Field(
         2.0, gt=0, description="the restart point (omega, q_i) is fitted to the own contact velocities of this "

@@ -39,20 +39,31 @@ def test_wilson_bound_false_alarm_rate_is_the_level():
     assert wilson_upper(0, 0, 0.01) == 1.0 and wilson_upper(10, 10, 0.01) == 1.0
 
 
+def test_lost_and_reordered_states_count_while_newer_ones_keep_coming():
+    """Slots are about the newest state held: a neighbour heard every few ticks stays fresh."""
+    tr = EstimateTrust(degree=2, max_age=50, min_fresh=0.9, alpha=0.01)
+    for k in range(1000):  # neighbour 0: 1 message in 5, 30 ticks late; neighbour 1: every tick, reordered
+        taken = [(0, k - 30)] if k % 5 == 0 else []
+        taken.append((1, k - 1 - (k % 3)))
+        tr.observe(k, J_EXCITE, taken)
+    out = tr.entries(50.0, 1.0, 87.0, 2.0)
+    assert out["J_trusted"] == 1.0 and out["J_fresh"] > 0.98
+
+
 def test_stage_evidence_flags_only_poor_stages():
     tr = EstimateTrust(degree=2, max_age=5, min_fresh=0.5, alpha=0.01)
     nan_flag = tr.entries(50.0, 1.0, math.nan, math.nan)
     assert math.isnan(nan_flag["m_trusted"]) and math.isnan(nan_flag["J_trusted"])
     for k in range(100):  # m stage: both neighbours' states fresh (1 tick old)
-        tr.observe(k, M_EXCITE, [k - 1, k - 1])
-    for k in range(100, 300):  # J stage: one state, 10 ticks old, in 3 of 4 ticks -> fresh 0
-        tr.observe(k, J_EXCITE, [k - 10] if k % 4 else [])
+        tr.observe(k, M_EXCITE, [(0, k - 1), (1, k - 1)])
+    for k in range(100, 300):  # J stage: neighbour 0's states 10 ticks old, in 3 of 4 ticks; none from 1
+        tr.observe(k, J_EXCITE, [(0, k - 10)] if k % 4 else [])
     out = tr.entries(50.0, 1.0, 87.0, 2.0)
     assert out["m_trusted"] == 1.0 and out["m_fresh"] == 1.0 and out["m_sd"] == 1.0
-    assert out["J_trusted"] == 0.0 and out["J_fresh"] == 0.0 and out["J_sd"] == 2.0
+    assert out["J_trusted"] == 0.0 and out["J_fresh"] < 0.05 and out["J_sd"] == 2.0  # the m stage's last states age out
     # the averaging stage on its own is fine, the estimate stays untrusted (its excitation was poor)
     for k in range(300, 400):
-        tr.observe(k, J_AVERAGE, [k - 1, k - 2])
+        tr.observe(k, J_AVERAGE, [(0, k - 1), (1, k - 2)])
     assert tr.entries(50.0, 1.0, 87.0, 2.0)["J_trusted"] == 0.0
 
 
@@ -61,10 +72,10 @@ def test_an_averaging_stage_is_judged_on_its_tail():
     for gap_first, expect in ((True, 1.0), (False, 0.0)):
         tr = EstimateTrust(degree=2, max_age=5, min_fresh=0.5, alpha=0.01, tail=150)
         for k in range(100):
-            tr.observe(k, J_EXCITE, [k - 1, k - 1])
+            tr.observe(k, J_EXCITE, [(0, k - 1), (1, k - 1)])
         for k in range(100, 500):
-            gap = (k < 350) if gap_first else (k >= 250)
-            tr.observe(k, J_AVERAGE, [] if gap else [k - 1, k - 1])
+            gap = (k < 350) if gap_first else (k >= 245)  # the newest states age past 5 ticks at 250
+            tr.observe(k, J_AVERAGE, [] if gap else [(0, k - 1), (1, k - 1)])
         out = tr.entries(50.0, 1.0, 87.0, 2.0)
         assert out["J_trusted"] == expect and out["J_fresh"] == expect, gap_first
         assert tr.stages[J_AVERAGE].slots == 300
@@ -105,7 +116,7 @@ def test_stale_j_stage_flags_j_and_a_clean_run_flags_nothing(tmp_path, stale_run
     assert stale["trust"]["m"]["trusted"]
     j = stale["trust"]["J"]
     assert not j["trusted"] and j["untrusted_agents"] == [0, 1, 2, 3, 4]
-    assert j["fresh_min"] < 0.2 and all(sd > 0 for sd in j["sd"])
+    assert j["fresh_min"] < 0.3 and all(sd > 0 for sd in j["sd"])
     assert any("J untrusted" in w for w in stale["warnings"])
     assert list(_final(stale_dir, "J_trusted")) == [0.0] * 5
     assert list(_final(tmp_path / "clean", "J_trusted")) == [1.0] * 5
