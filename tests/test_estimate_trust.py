@@ -140,3 +140,6 @@ def test_lockstep_over_zenoh_reproduces_the_stale_flags(tmp_path, stale_run):
         assert max_table_difference(a, b, name, keys) <= 1e-9, name
     assert sa["links"] == sb["links"]
     assert sb["trust"] == sa["trust"] and not sb["trust"]["J"]["trusted"]
+    assert sb["monitor"] == sa["monitor"] and sa["monitor"]["windows"] > 0  # detection on, bit for bit
+    stale_events = [e for e in sb["events"] if e["event"].startswith("partition")]
+    assert stale_events == sa["events"] and stale_events[0]["drop"] == "stale_age"
