@@ -16,6 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from agents import dynamic_phase
+from agents.estimate_trust import EstimateTrust
 from agents.kinematic_phase import KinematicPhase
 from agents.laws import LawInput
 from agents.pair_estimator import PairEstimator
@@ -65,7 +66,13 @@ class AgentCore:
             raise ValueError("a control law needs the dynamical phase (dynamics.algorithm sequential or background)")
         self._kin = KinematicPhase(self.id, neighbours, self.dt, sig, estimator, control, dynamic)
         self._dyn: dynamic_phase.DynamicPhase | None = None
+        self._trust: EstimateTrust | None = None
         if dynamic:
+            assert dynamics is not None
+            # an averaging stage is judged on its convergence window and the agreement's horizon
+            tail = round((dynamics.avg_window_s + dynamics.horizon_s) / self.dt)
+            self._trust = EstimateTrust(len(self._kin.nbrs), estimator.max_age_ticks, dynamics.trust_min_fresh,
+                                        dynamics.trust_alpha, tail)
             self._dyn = dynamic_phase.DynamicPhase(self.id, sorted(self._kin.nbrs), self.n, self.dt, sig, dynamics,
                                                    estimator.history_ticks, law=law, law_ref=control.law)
         self._fb = DynamicFeedback()  # the dynamical phase's feedback to the next tick
@@ -126,7 +133,12 @@ class AgentCore:
             fx, fy, tau = out.wrench
             shared.update(out.shared)
             pairs = {j: (z.real, z.imag, f.real, f.imag, *out.flows[j]) for j, z, f in kin.pairs}
-            dyn_est = out.estimates
+            trust = self._trust
+            trust.observe(tick, stage, [(m.sender, m.tick) for m in kin.inbox])  # type: ignore[union-attr]
+            est = out.estimates
+            m_sd, j_sd = dyn.uncertainties()
+            dyn_est = {**est, **trust.entries(est["m"], m_sd, est["J"], j_sd),  # type: ignore[union-attr]
+                       **dyn.monitor_entries()}
         zi = kin.zi
         values = {
             "phase": float(stage),

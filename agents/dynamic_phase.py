@@ -24,6 +24,8 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
+from agents.estimate_trust import spread_sd
+from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import StageBarrier
@@ -80,6 +82,7 @@ class DynamicPhase:
         self.background = spec.algorithm == "background"
         self.avg = FlowAverage(nbr_ids, N_CH_AUG if spec.estimate_effects else N_CH)
         self.ch_keys = CH_KEYS[:self.avg.nch]
+        self.m_local_sd = self.j_local_sd = math.nan  # the filter's sd of m_local and J_local when offered
         self.b_local = math.nan  # augmented model: own b = beta m and c = gamma J, before the averaging
         self.c_local = math.nan
         self.released = False
@@ -137,6 +140,10 @@ class DynamicPhase:
         # omega_hat's measurement for the next tick (AgentCore): the filter's predicted omega once it has
         # restarted at kinematic readiness (``DynamicsSpec.filter_omega``), NaN before (the eq. (9) rate)
         self.om_meas = math.nan
+        # innovation monitor (report-only), fed from the filter's restart at kinematic readiness on
+        self.monitor = (InnovationMonitor(ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha)
+                        if spec.monitor_window_s > 0.0 else None)
+        self.last_f = 0j  # the own force applied over the last prediction (a signature of the monitor)
 
     # ------------------------------------------------------------------ messages
     def decode(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float] | None) -> DynamicMsg:
@@ -289,6 +296,8 @@ class DynamicPhase:
         self.shadow = copy.copy(kf)  # its arrays are replaced on every step, never changed in place
         self.shadow_nis = self.nis_avg
         kf.start(v, q0, om0)
+        if self.monitor is not None:
+            self.monitor.reset()
         if self.released:
             kf.release_effects()
         # the trial's running mean starts at the threshold, not at the consistent 2: what is left of the
@@ -307,6 +316,8 @@ class DynamicPhase:
             self.lock_fails = 0
             self.lock_from = tick
         else:  # the restart did no better: back to the old filter, and wait longer before the next try
+            if self.monitor is not None:
+                self.monitor.reset()
             self.kf = self.shadow
             self.nis_avg = self.shadow_nis
             self.lock_fails += 1
@@ -382,6 +393,7 @@ class DynamicPhase:
         elif stage == J_AVERAGE and self._converged(CH_JN, CH_JW, tick):
             self.barrier.set_ready(tick)
         self._predict(tick, rot, excitation.j_sign(k, self.j_ticks, spec) if jstage else None)
+        self.last_f = complex(fx, fy)
         return fx, fy, tau
 
     def _advance_stage(self, tick: int, v: complex, omega_hat: float, phi: float, zi: complex, trusted: bool,
@@ -438,7 +450,13 @@ class DynamicPhase:
             u_dc = u_dw = 0.0
             if spec.u_delayed and u_var > 0.0:
                 u_dc, u_dw = self._u_age(tick, u_den)
+            mon = self.monitor if self.restarted and self.q_held is None else None
+            if mon is not None:
+                vc0, om0, q0 = kf.vc, kf.omega, kf.q  # the prediction's: known before the innovation
             kf.update(v, u, u_var, u_dc, u_dw)
+            if mon is not None:
+                e0, e1, s00, s01, s11 = kf.innov
+                mon.observe(complex(e0, e1), s00, s01, s11, vc0, om0, q0, self.last_f)
             q = kf.q
         else:
             q = zi
@@ -512,6 +530,7 @@ class DynamicPhase:
             m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW, w, sure)
             if m_local is not None:
                 self.m_local = m_local
+                self.m_local_sd = math.sqrt(kf.mu_var) * m_local * m_local  # delta method: sd(1/mu)
                 self.frozen_m = stage == M_AVERAGE
                 if kf.aug is not None:  # b = beta m, averaged with m's weights
                     self.b_local = kf.beta * m_local
@@ -521,6 +540,7 @@ class DynamicPhase:
             j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w, sure)
             if j_local is not None:
                 self.j_local = j_local
+                self.j_local_sd = math.sqrt(kf.iota_var) * j_local * j_local
                 self.frozen_j = stage == J_AVERAGE
                 if kf.aug is not None:  # c = gamma J, averaged with J's weights
                     self.c_local = kf.gamma * j_local
@@ -594,6 +614,27 @@ class DynamicPhase:
         return checked_wrench(out, self.law_ref, tick, self.id)
 
     # ------------------------------------------------------------------ outputs
+    def monitor_entries(self) -> dict[str, float]:
+        """The innovation monitor's estimate entries (NaN without it)."""
+        if self.monitor is None:
+            return dict.fromkeys(MONITOR_NAMES, math.nan)
+        return self.monitor.entries()
+
+    def uncertainties(self) -> tuple[float, float]:
+        """One standard deviation of the m and J consensus values (NaN while there is none): the filter's sd
+        of the own local value and the spread to the neighbours' values that the averaging has not removed,
+        in quadrature (docs/estimate-trust.md)."""
+        x = self.avg.x
+        nx = self.avg.nx.values()
+        out = []
+        for num, wch, sd in ((CH_MN, CH_MW, self.m_local_sd), (CH_JN, CH_JW, self.j_local_sd)):
+            if x[wch] <= 0.0:
+                out.append(math.nan)
+                continue
+            s = spread_sd(x[num] / x[wch], (xj[num] / xj[wch] for xj in nx if xj[wch] > 0.0))
+            out.append(math.hypot(sd if sd == sd else 0.0, s))
+        return out[0], out[1]
+
     def _shared(self) -> dict[str, float]:
         """The StateMsg.shared entries of the dynamical phase."""
         out = dict(zip(self.ch_keys, self.avg.x, strict=True))

@@ -38,12 +38,13 @@ class RigidEKF:
     An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
     """
 
-    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0", "nis")
+    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0", "nis", "innov")
 
     def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
         self.r = max(sigma_v, 1e-3) ** 2
         self.ready = False
         self.nis = 2.0  # the last update's normalised innovation squared of the own velocity (2 dof)
+        self.innov = (0.0, 0.0, 0.0, 0.0, 0.0)  # the last update's own-velocity innovation and its covariance
         walk_mu = spec.mu_walk if background else 0.0
         walk_iota = spec.iota_walk if background else 0.0
         # per-second process noise intensities; q's angle walk is scaled by |q|^2 at each step
@@ -160,6 +161,7 @@ class RigidEKF:
         s00 = c0[0] - om * c0[3] - qy * c0[5] + r
         s01 = c1[0] - om * c1[3] - qy * c1[5]
         s11 = c1[1] + om * c1[2] + qx * c1[5] + r
+        self.innov = (e0, e1, s00, s01, s11)
         d2 = s00 * s11 - s01 * s01
         if d2 > 0.0:  # the lock check's statistic (DynamicPhase): ~2 while the filter explains v_Ci
             self.nis = (s11 * e0 * e0 - 2.0 * s01 * e0 * e1 + s00 * e1 * e1) / d2

@@ -244,6 +244,31 @@ class DynamicsSpec(_Strict):
                                "at 2.0-2.9: docs/high-noise.md); 0: never",
     )
     lock_tau_s: float = Field(2.0, gt=0, description="time constant of that running mean (s)")
+    trust_min_fresh: float = Field(
+        0.9, gt=0, le=1,
+        description="estimate trust (agents/estimate_trust.py, docs/estimate-trust.md): an m or J estimate is "
+                    "flagged untrusted when, in one of the stages it rests on, the newest state the agent had from "
+                    "a neighbour was fresh (not older than estimator.max_age_ticks) in fewer than this fraction of "
+                    "the stage's ticks x neighbours, by a one-sided test at level trust_alpha (-)",
+    )
+    monitor_window_s: float = Field(
+        5.0, ge=0,
+        description="innovation monitor (agents/innovation_monitor.py, docs/innovation-monitor.md): each agent "
+                    "tests its filter's own-velocity innovations over consecutive windows this long for "
+                    "whiteness and for correlation with v_C, sign(v_C), omega q_i^perp and its own force; "
+                    "report-only (s; 0: off)",
+    )
+    monitor_lags: int = Field(10, ge=1, description="lags of the monitor's whiteness test (ticks)")
+    monitor_alpha: float = Field(
+        0.01, gt=0, lt=1,
+        description="the monitor's false-alarm rate per window under a right model (Bonferroni over its five "
+                    "tests) (-)",
+    )
+    trust_alpha: float = Field(
+        0.01, gt=0, lt=0.5,
+        description="that test's level: the probability of flagging a stage whose true fresh fraction is "
+                    "trust_min_fresh (independent slots assumed) (-)",
+    )
     lock_window_s: float = Field(
         2.0, gt=0, description="the restart point (omega, q_i) is fitted to the own contact velocities of this "
                                "last window (agents.rigid_filter.fit_rotation; the neighbours' median omega_hat and the "

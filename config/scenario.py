@@ -96,7 +96,8 @@ class PartitionSpec(_Strict):
     Give either ``cut`` (undirected edges, both directions cut) or ``groups`` (every edge between two
     different groups is cut; agents listed in no group form one more group together, so
     ``groups = [[0, 1, 2]]`` splits agents 0-2 from the rest). A message sent on a cut link at a tick
-    t with ``start <= t * dt < end`` is lost (counted as ``partitioned``); the links heal at ``end``.
+    t with ``start <= t * dt < end`` is lost (counted as ``partitioned``, or as ``stale_age`` with
+    ``drop = "stale_age"``); the links heal at ``end``.
     """
 
     start: float = Field(..., ge=0, description="time the partition begins (s, simulated time)")
@@ -104,6 +105,13 @@ class PartitionSpec(_Strict):
     cut: list[tuple[int, int]] | None = Field(None, description="undirected edges [i, j] cut during the window")
     groups: list[list[int]] | None = Field(
         None, description="disjoint groups of agents; every edge between two groups is cut during the window"
+    )
+    drop: Literal["partitioned", "stale_age"] = Field(
+        "partitioned",
+        description="what the window models: partitioned (the links carry nothing) or stale_age (the states "
+                    "arrive older than timing.max_age_s and the receiver drops them unused, as a heavily loaded "
+                    "machine does in real time; reproducible in lockstep); counted under this name in the "
+                    "link statistics",
     )
 
     @model_validator(mode="after")

@@ -4,7 +4,9 @@ A :class:`LinkModel` owns the random stream of one directed link (sender -> rece
 (run seed, sender, receiver) only. It is consulted once per message, in send order, and says after
 which delays the copies arrive (none: lost; two: duplicated). Partitions (``LinkSpec.partitions``)
 cut a link over time windows: a message sent at a tick inside a window that cuts this link is lost,
-and :meth:`LinkModel.partitioned` says so, so that callers count it apart from random loss. Because the draws depend on nothing
+and :meth:`LinkModel.partitioned` says so, so that callers count it apart from random loss (a window
+with ``drop = "stale_age"`` models states that arrive too old to use: :meth:`LinkModel.stale` says
+so, and they are counted as ``stale_age``). Because the draws depend on nothing
 but the seed and the message's rank on that link, the in-process engine and the Zenoh daemons see
 the same faults for the same seed, whatever the wall-clock timing (principles 2 and 3).
 
@@ -56,6 +58,7 @@ class LinkModel:
         "_k",
         "_last_tick",
         "_rng",
+        "_stale",
         "_u",
         "_windows",
         "mode",
@@ -90,6 +93,7 @@ class LinkModel:
         faultless = loss.model == "none" and spec.duplicate == 0 and jitter == 0
         # partition windows of this link, as half-open tick ranges [t0, t1) of the send tick
         self._windows = partition_windows(spec, dt, sender, receiver)
+        self._stale = partition_windows(spec, dt, sender, receiver, "stale_age")
         # _fate: the one fate of an otherwise faultless link (no draws); _fixed: the same when no
         # partition touches the link either (then deliveries() is a constant)
         self._fate = (self._delay(0.0),) if faultless else None
@@ -147,6 +151,13 @@ class LinkModel:
                 return True
         return False
 
+    def stale(self, tick: int) -> bool:
+        """True if a message sent at ``tick`` falls in a ``stale_age`` window of this link (lost as too old)."""
+        for t0, t1 in self._stale:
+            if t0 <= tick < t1:
+                return True
+        return False
+
     @property
     def fixed_delays(self) -> tuple[int, ...] | tuple[float, ...] | None:
         """The one fate of every message on a link without loss, jitter or duplication, else None.
@@ -170,7 +181,8 @@ class LinkStats:
     included); ``dropped``: messages lost by the fault model; ``duplicated``: extra copies;
     ``late``: copies that arrived after the receiver had moved past their tick; ``malformed``:
     payloads rejected by :func:`net.schema.decode`; ``partitioned``: messages lost because a partition
-    cut the link when they were sent (not counted in ``dropped``, which is random loss only).
+    cut the link when they were sent (not counted in ``dropped``, which is random loss only);
+    ``stale_age``: messages of a ``drop = "stale_age"`` window, modelled as arriving too old to be used.
     """
 
     sent: int = 0
@@ -180,11 +192,15 @@ class LinkStats:
     late: int = 0
     malformed: int = 0
     partitioned: int = 0
+    stale_age: int = 0
 
     def count_lost(self, link: LinkModel, send_tick: int) -> None:
         """A message the link did not deliver: cut by a partition, or lost at random."""
         if link.partitioned(send_tick):
-            self.partitioned += 1
+            if link.stale(send_tick):
+                self.stale_age += 1
+            else:
+                self.partitioned += 1
         else:
             self.dropped += 1
 
@@ -289,9 +305,11 @@ def window_ticks(start: float, end: float, dt: float) -> tuple[int, int]:
     return round(start / dt), round(end / dt)
 
 
-def partition_windows(spec: LinkSpec, dt: float | None, sender: int, receiver: int) -> tuple[tuple[int, int], ...]:
-    """The send-tick windows during which the link ``sender -> receiver`` is cut."""
-    parts = [p for p in spec.partitions if p.cuts(sender, receiver)]
+def partition_windows(spec: LinkSpec, dt: float | None, sender: int, receiver: int,
+                      drop: str | None = None) -> tuple[tuple[int, int], ...]:
+    """The send-tick windows during which the link ``sender -> receiver`` is cut (``drop``: only the
+    windows of that kind, ``partitioned`` or ``stale_age``)."""
+    parts = [p for p in spec.partitions if p.cuts(sender, receiver) and drop in (None, p.drop)]
     if not parts:
         return ()
     if dt is None or dt <= 0:
@@ -315,6 +333,8 @@ def partition_events(scenario: Scenario) -> list[dict]:
                 ev = {"tick": tick, "t": tick * scenario.dt, "event": kind, "partition": p}
                 if kind == "partition_start":
                     ev["cut"] = cut
+                    if part.drop != "partitioned":
+                        ev["drop"] = part.drop
                 events.append(ev)
     events.sort(key=lambda e: (e["tick"], e["partition"], e["event"] == "partition_start"))
     return events

@@ -45,4 +45,21 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "b_local",  # this agent's own b, before the averaging consensus (N s/m)
     "c_local",  # this agent's own c, before the averaging consensus (N m s)
     "filter_restarts",  # restarts of the dynamical phase's filter by its lock check (count; DynamicsSpec.lock_nis)
+    # estimate trust (agents/estimate_trust.py, docs/estimate-trust.md; NaN before the estimate's stages)
+    "m_trusted",  # 1: the m stages' data sufficed; 0: untrusted (too few fresh neighbour states in a stage)
+    "m_fresh",  # fresh fraction of the neighbour states of the poorest m stage so far (-)
+    "m_sd",  # one standard deviation of m: own filter's sd and the consensus spread (kg)
+    "J_trusted",  # the same for J (J excitation and averaging stages)
+    "J_fresh",
+    "J_sd",  # (kg m^2)
+    # innovation monitor (agents/innovation_monitor.py, docs/innovation-monitor.md; report-only; NaN before
+    # its first complete window or without it): the last window's p-values and alarm, and counts
+    "mon_p_white",  # whiteness (against positive autocorrelation) of the own filter's whitened velocity innovations
+    "mon_p_vc",  # correlation with v_C (viscous friction)
+    "mon_p_sgn",  # with v_C / |v_C| (Coulomb friction)
+    "mon_p_om",  # with omega q_i^perp (rotational damping)
+    "mon_p_f",  # with the own applied force (actuator gain)
+    "mon_alarm",  # 1: some p-value below monitor_alpha / 5 in the last window, else 0
+    "mon_windows",  # windows tested so far (count)
+    "mon_alarms",  # windows with an alarm so far (count)
 )

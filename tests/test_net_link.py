@@ -279,6 +279,6 @@ def test_link_stats() -> None:
     a = LinkStats(sent=3, delivered=2, dropped=1)
     b = LinkStats(sent=1, duplicated=1, late=2, malformed=4)
     assert (a + b).as_dict() == {"sent": 4, "delivered": 2, "dropped": 1, "duplicated": 1, "late": 2, "malformed": 4,
-                                 "partitioned": 0}
+                                 "partitioned": 0, "stale_age": 0}
     assert list(LinkStats().as_dict()) == ["sent", "delivered", "dropped", "duplicated", "late", "malformed",
-                                           "partitioned"]
+                                           "partitioned", "stale_age"]

@@ -24,6 +24,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
 from coload.analysis import metrics  # noqa: E402
+from coload.analysis.summary import monitor_block, trust_block  # noqa: E402
 from coload.rundir import format as rundir_format  # noqa: E402
 from coload.rundir.format import REPORT_PNG, RunData, read_run  # noqa: E402
 
@@ -178,6 +179,10 @@ def _scalar_panel(col: str, truth_col: str, ylabel: str, title: str) -> Callable
                 ax.set_ylim(min(0.0, lo - pad), hi + pad)
         ax.set_ylabel(ylabel)
         ax.set_title(title, loc="left", fontsize=9)
+        block = trust_block(c.run).get(col)
+        if block and block["untrusted_agents"]:
+            ax.set_title(f"UNTRUSTED at agents {block['untrusted_agents']} (fresh neighbour states "
+                         f"{block['fresh_min']:.0%})", loc="right", fontsize=9, color="crimson")
 
     return draw
 
@@ -331,6 +336,16 @@ def summary_table(run: RunData, errors: dict[str, Any]) -> str:
     ]
     if extra:
         lines.append("; ".join(extra))
+    for name, block in trust_block(run).items():
+        sd = block["sd_max"]
+        verdict = "trusted" if block["trusted"] else f"UNTRUSTED at agents {block['untrusted_agents']}"
+        lines.append(f"{name}: {verdict} (fresh neighbour states >= {_fmt(block['fresh_min'], '.0%')} in its "
+                     f"stages; sd <= {_fmt(sd, '.3g')})")
+    mon = monitor_block(run)
+    if mon:
+        firsts = [t for t in mon["per_agent"]["first_alarm_t"] if t is not None]
+        lines.append(f"innovation monitor: {mon['alarms']} of {mon['windows']} windows alarmed"
+                     + (f", first at t = {min(firsts):.1f} s" if firsts else "") + " (report-only)")
     lines += centralized_lines(run.summary)
     return "\n".join(lines)
 

@@ -1,5 +1,7 @@
-"""Completes a finished run's summary.json with what is computed from its files: the error metrics
-and the centralized batch-fit yardstick (docs/run-directory.md, docs/batch-fit.md).
+"""Completes a finished run's summary.json with what is computed from its files: the error metrics,
+the agents' estimate trust (docs/estimate-trust.md), their innovation monitors' counts
+(docs/innovation-monitor.md) and the centralized batch-fit yardstick
+(docs/run-directory.md, docs/batch-fit.md).
 
 The recorder only records; every engine calls :func:`complete_summary` once the run directory is
 closed.
@@ -7,8 +9,11 @@ closed.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from coload.analysis import yardstick
 from coload.analysis.metrics import final_errors
@@ -25,6 +30,17 @@ def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any])
     try:
         run = fmt.read_run(run_dir)
         summary["errors"] = final_errors(run)
+        trust = trust_block(run)
+        if trust:
+            summary["trust"] = trust
+            for name, block in trust.items():
+                if block["untrusted_agents"]:
+                    summary.setdefault("warnings", []).append(
+                        f"{name} untrusted at agents {block['untrusted_agents']}: fresh neighbour states down to "
+                        f"{block['fresh_min']:.0%} in one of its stages (docs/estimate-trust.md)")
+        monitor = monitor_block(run)
+        if monitor:
+            summary["monitor"] = monitor
     except (ValueError, OSError) as exc:
         summary["errors"] = {}
         summary.setdefault("warnings", []).append(f"errors not computed: {exc}")
@@ -46,3 +62,73 @@ def _centralized(run: fmt.RunData | None) -> dict[str, Any]:
         reason = f"batch fit not run: {type(exc).__name__}: {exc}"
         return {"centralized": {**dict.fromkeys(yardstick.CENTRAL_KEYS), "flags": [], "reason": reason},
                 "distributed_over_centralized": {**dict.fromkeys(yardstick.RATIO_KEYS), "reason": reason}}
+
+
+def trust_block(run: fmt.RunData | None) -> dict[str, Any]:
+    """The agents' final trust in their m and J estimates (the ``*_trusted``, ``*_fresh``, ``*_sd`` columns
+    of estimates.csv, last row each agent reported): per estimate, whether every agent trusts it, the
+    untrusted agents, the poorest fresh fraction and the largest sd. Empty for a run without those columns
+    (an older run, a run without the dynamical phase) or before any agent judged."""
+    est = None if run is None else run.estimates
+    out: dict[str, Any] = {}
+    if est is None or len(est.t) == 0:
+        return out
+    for name in ("m", "J"):
+        cols = [f"{name}_trusted", f"{name}_fresh", f"{name}_sd"]
+        if not all(est.has(c) for c in cols):
+            continue
+        flag, fresh, sd = (_last_finite(est.columns[c]) for c in cols)
+        judged = np.isfinite(flag)
+        if not judged.any():
+            continue
+        out[name] = {
+            "trusted": bool(np.all(flag[judged] == 1.0)),
+            "untrusted_agents": [int(i) for i in np.flatnonzero(flag == 0.0)],
+            "fresh_min": _finite_or_none(np.nanmin(fresh) if np.isfinite(fresh).any() else math.nan),
+            "sd_max": _finite_or_none(np.nanmax(sd) if np.isfinite(sd).any() else math.nan),
+            "fresh": [_finite_or_none(v) for v in fresh],
+            "sd": [_finite_or_none(v) for v in sd],
+        }
+    return out
+
+
+def monitor_block(run: fmt.RunData | None) -> dict[str, Any]:
+    """The agents' innovation monitors at the end (``mon_windows``, ``mon_alarms`` of estimates.csv): windows
+    tested and windows that alarmed, in total and per agent, and the first time each agent's count of alarms
+    was seen above 0 (None: never). Empty for a run without those columns or before any window."""
+    est = None if run is None else run.estimates
+    if est is None or len(est.t) == 0 or not (est.has("mon_windows") and est.has("mon_alarms")):
+        return {}
+    windows = _last_finite(est.columns["mon_windows"])
+    alarms = _last_finite(est.columns["mon_alarms"])
+    if not np.isfinite(windows).any():
+        return {}
+    first = []
+    col = est.columns["mon_alarms"]
+    for i in range(col.shape[1]):
+        hit = np.flatnonzero(col[:, i] > 0.0)
+        first.append(float(est.t[hit[0]]) if hit.size else None)
+    return {
+        "windows": int(np.nansum(windows)),
+        "alarms": int(np.nansum(alarms)),
+        "per_agent": {"windows": [_int_or_none(v) for v in windows], "alarms": [_int_or_none(v) for v in alarms],
+                      "first_alarm_t": first},
+    }
+
+
+def _int_or_none(v: float) -> int | None:
+    return int(v) if math.isfinite(v) else None
+
+
+def _last_finite(col: np.ndarray) -> np.ndarray:
+    """Each agent's (column's) last finite value, NaN if none."""
+    out = np.full(col.shape[1], math.nan)
+    for i in range(col.shape[1]):
+        ok = np.flatnonzero(np.isfinite(col[:, i]))
+        if ok.size:
+            out[i] = col[ok[-1], i]
+    return out
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None

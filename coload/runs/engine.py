@@ -80,9 +80,9 @@ class LinkNetwork:
     def close(self, ticks: int) -> dict[str, dict[str, int]]:
         """Settles the counters of a run of ``ticks`` ticks; the summary's ``links`` block."""
         for st in self.stats.values():
-            # one message per link per tick; each one delivered once unless dropped, partitioned or duplicated
+            # one message per link per tick; each one delivered once unless dropped, partitioned, stale or duplicated
             st.sent += ticks
-            st.delivered += ticks - st.dropped - st.partitioned + st.duplicated
+            st.delivered += ticks - st.dropped - st.partitioned - st.stale_age + st.duplicated
         return {f"{s}->{r}": st.as_dict() for (s, r), st in sorted(self.stats.items())}
 
 
