@@ -502,9 +502,12 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
     return theta, omega, zb * C, np.ones(T, bool)
 
 
-def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, list[str]]:
-    """(g0, x0, warnings) for the nominal layout ``pb.base``."""
-    lay = pb.base
+def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """(g0, x0, warnings) for the nominal layout ``pb.base`` with ``effects``: equation error, linear least
+    squares on the measured kinematics. From velocities, viscous and Coulomb friction and a force bias
+    enter the translation's regression (their integrals of the measured velocity and time) and
+    rotational damping the rate's (the integral of the rate); the other effects start at 0."""
+    lay = pb.base.with_effects(effects)
     warns: list[str] = []
     t = rec.t
     T, n = t.size, rec.n
@@ -538,8 +541,29 @@ def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, 
         yb = np.nanmean(rec.pos[..., 0] + 1j * rec.pos[..., 1], axis=1)
     okb = ~np.isnan(yb) & good
     nloc = 1 if use_vel else 2
-    ncol = 2 * nloc * S + 1 + (2 if lay.rotation else 0)
+    axes = np.array(lay.axes)
+    na = int(axes.sum())
+    iax = np.flatnonzero(axes)
+    # effect columns after the mass's (velocities only): -int v, -int v/|v|, and time per active axis
+    cols_eff: dict[str, int] = {}
+    k_ = 2 * nloc * S + 1
+    for name, width in (("viscous_friction", 1), ("coulomb_friction", 1), ("force_bias", na)):
+        if use_vel and name in lay.effects:
+            cols_eff[name] = k_
+            k_ += width
+    ncol = k_ + (2 if lay.rotation else 0)
     Ar = np.zeros((2 * T, ncol))
+    if cols_eff:
+        ok_y = ~np.isnan(yb)
+        yf = np.interp(t, t[ok_y], yb[ok_y].real) + 1j * np.interp(t, t[ok_y], yb[ok_y].imag)
+        yc = yf / np.sqrt(np.abs(yf) ** 2 + pb.coulomb_speed**2 + 1e-300)
+        Iv = np.zeros(T, complex)
+        Ic = np.zeros(T, complex)
+        for s in range(S):
+            k = np.flatnonzero(wid == s)
+            if k.size:
+                Iv[k] = _cumint(t[k], yf[k], "foh")
+                Ic[k] = _cumint(t[k], yc[k], "foh")
     for c in range(2):  # real part (x) rows 0..T-1, imaginary (y) rows T..2T-1
         rows = np.arange(T) + c * T
         if use_vel:
@@ -549,12 +573,18 @@ def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, 
             Ar[rows, 4 * wid + c] = 1.0
             Ar[rows, 4 * wid + 2 + c] = t - t0w
             Ar[rows, 2 * nloc * S] = SSint[:, c]
+        part = (lambda z: z.real) if c == 0 else (lambda z: z.imag)  # noqa: E731
+        if "viscous_friction" in cols_eff:
+            Ar[rows, cols_eff["viscous_friction"]] = -part(Iv)
+        if "coulomb_friction" in cols_eff:
+            Ar[rows, cols_eff["coulomb_friction"]] = -part(Ic)
+        if "force_bias" in cols_eff and axes[c]:
+            Ar[rows, cols_eff["force_bias"] + int(np.sum(axes[:c]))] = t - t0w
     if lay.rotation:
         rot = e if use_vel else np.exp(1j * theta)
         Ar[:T, -2], Ar[T:, -2] = rot.real, rot.imag  # zc real part
         Ar[:T, -1], Ar[T:, -1] = (1j * rot).real, (1j * rot).imag
     yr = np.concatenate((yb.real, yb.imag))
-    axes = np.array(lay.axes)
     rowok = np.concatenate((okb & axes[0], okb & axes[1]))
     coef = np.linalg.lstsq(Ar[rowok], yr[rowok], rcond=None)[0]
     a = float(coef[2 * nloc * S])
@@ -564,9 +594,10 @@ def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, 
     zc = complex(coef[-2], coef[-1]) if lay.rotation else 0j
     g0 = np.zeros(lay.G)
     g0[lay.ia] = a
-    na = int(axes.sum())
+    for name, col in cols_eff.items():
+        val = coef[col : col + lay.q(name)] / a
+        g0[lay.slot(name)] = val if name == "force_bias" else np.maximum(val, 0.0)
     x0 = np.zeros((S, lay.K))
-    iax = np.flatnonzero(axes)
     for s in range(S):
         if use_vel:
             v0 = coef[2 * s : 2 * s + 2]
@@ -594,15 +625,23 @@ def initial_guess(pb: Problem, rec: Recording) -> tuple[np.ndarray, np.ndarray, 
             k = np.flatnonzero(wid == s)
             if k.size:
                 C[k] = _cumint(t[k], Tq[k], rec.hold)
-        Ab = np.zeros((T, S + 1))
+        damp = "rotational_damping" in lay.effects
+        Ab = np.zeros((T, S + 1 + damp))
         Ab[np.arange(T), wid] = 1.0
         Ab[:, S] = C
+        if damp:  # b c_r multiplies -int omega
+            for s in range(S):
+                k = np.flatnonzero(wid == s)
+                if k.size:
+                    Ab[k, S + 1] = -_cumint(t[k], omega[k], "foh")
         cb = np.linalg.lstsq(Ab[good], omega[good], rcond=None)[0]
         b = float(cb[S])
         if not b > 0:
             warns.append("initial 1/J non-positive (weak torque excitation); starting from J = 100 kg m^2")
             b = 0.01
         g0[lay.ib] = b
+        if damp:
+            g0[lay.slot("rotational_damping")] = max(float(cb[S + 1]) / b, 0.0)
         for s in range(S):
             k = np.flatnonzero(wid == s)
             if k.size:

@@ -52,6 +52,7 @@ class DiagnoseOptions:
     block_s: float = 0.1  # block length (s) in front of Ljung-Box
     ambiguous_bic: float = 10.0  # two substitutes closer than this in BIC cannot be told apart
     holdout: float = 0.25  # trailing share of the recording held out for the prediction error
+    restart_misfit: float = 1.3  # a candidate's fit above this x the noise floor also starts from the kinematics
     max_effects: int = 3
     max_fits: int = 3  # candidates fitted per round: those with the strongest score tests
     explained: float = 0.9  # share of the nominal excess residual the effects must remove when not white
@@ -351,7 +352,11 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     init = {"viscous_friction": 0.0, "coulomb_friction": 0.0}
     while remaining and len(accepted) < opt.max_effects:
         alpha_k = opt.alpha / len(remaining)
-        ranked = sorted((c for c in remaining if scores[c].p < alpha_k), key=lambda c: (scores[c].logp, -scores[c].lm))
+        # far above the noise floor the score test, linearised at a poor fit, can miss the effect that
+        # made the fit poor: every candidate left is then fitted (strongest scores first)
+        screened = current.sigma2 <= opt.restart_misfit**2
+        ranked = sorted((c for c in remaining if scores[c].p < alpha_k or not screened),
+                        key=lambda c: (scores[c].logp, -scores[c].lm))  # fmt: skip
         trials: dict[str, tuple[Fit, float]] = {}
         eligible: list[str] = []
         for j, c in enumerate(ranked):
@@ -363,6 +368,15 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             sl = lay.slot(c)
             g[sl] = np.maximum(scores[c].step, lay.lower()[sl])  # the score test's Gauss-Newton step
             f = lm_fit(pb, lay, g, current.x)
+            if f.sigma2 > opt.restart_misfit**2:
+                # the model without the candidate may have moved far to make up for it (a large J for a
+                # strong damping): start again from the kinematics' equation error with the candidate
+                try:
+                    g1, x1, _ = initial_guess(pb, rec, effects=lay.effects)
+                    f1 = lm_fit(pb, lay, g1, x1)
+                    f = f1 if f1.lin.cost < f.lin.cost else f
+                except FitError:
+                    pass
             F, pF = stats.nested_f(current.rss, f.rss, lay.G - current.lay.G, f.N, f.P)
             trials[c] = (f, pF)
             val, ci = f.param(c)
