@@ -353,14 +353,14 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     while remaining and len(accepted) < opt.max_effects:
         alpha_k = opt.alpha / len(remaining)
         # far above the noise floor the score test, linearised at a poor fit, can miss the effect that
-        # made the fit poor: every candidate left is then fitted (strongest scores first)
+        # made the fit poor and misrank the rest: every candidate left is then fitted
         screened = current.sigma2 <= opt.restart_misfit**2
         ranked = sorted((c for c in remaining if scores[c].p < alpha_k or not screened),
                         key=lambda c: (scores[c].logp, -scores[c].lm))  # fmt: skip
         trials: dict[str, tuple[Fit, float]] = {}
         eligible: list[str] = []
         for j, c in enumerate(ranked):
-            if j and j % opt.max_fits == 0 and eligible:
+            if screened and j and j % opt.max_fits == 0 and eligible:
                 break  # fit the next strongest only when none of these qualifies
             lay = current.lay.with_effects(current.lay.effects + (c,))
             say(f"candidate {c} ({j + 1}/{len(ranked)}) on top of {list(current.lay.effects) or 'nominal'}")
@@ -368,9 +368,10 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             sl = lay.slot(c)
             g[sl] = np.maximum(scores[c].step, lay.lower()[sl])  # the score test's Gauss-Newton step
             f = lm_fit(pb, lay, g, current.x)
-            if f.sigma2 > opt.restart_misfit**2:
+            if f.sigma2 > opt.restart_misfit**2 or not screened:
                 # the model without the candidate may have moved far to make up for it (a large J for a
-                # strong damping): start again from the kinematics' equation error with the candidate
+                # strong damping), and a fit from there can stop halfway: start again from the
+                # kinematics' equation error with the candidate, and keep the better
                 try:
                     g1, x1, _ = initial_guess(pb, rec, effects=lay.effects)
                     f1 = lm_fit(pb, lay, g1, x1)
