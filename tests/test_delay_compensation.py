@@ -14,6 +14,9 @@ Three mechanisms in ``agents/agent.py``, each tested against the rigid-body trut
 
 from __future__ import annotations
 
+import math
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -71,12 +74,18 @@ class _FeedForward:
     def __init__(self) -> None:
         self.alpha = 0.0
 
-    def decode(self, *args: object) -> None:
-        return None
+    def decode(self, j: int, t: int, *rest: object) -> SimpleNamespace:
+        return SimpleNamespace(sender=j, tick=t)  # what the agent's estimate-trust count reads
 
     def step(self, kin: KinematicTick) -> DynamicOut:
-        return DynamicOut(kin.wrench, 1, {}, {j: () for j, _, _ in kin.pairs}, {},
+        return DynamicOut(kin.wrench, 1, {}, {j: () for j, _, _ in kin.pairs}, {"m": math.nan, "J": math.nan},
                           DynamicFeedback(alpha=self.alpha))
+
+    def uncertainties(self) -> tuple[float, float]:
+        return math.nan, math.nan
+
+    def monitor_entries(self) -> dict[str, float]:
+        return {}
 
 
 def _ramp_onset_error(delay: int, seed: int) -> float:
