@@ -410,7 +410,7 @@ def _own_masses_at_the_end_of_the_m_stage(sc) -> tuple[list[float], list[int]]:
 @pytest.mark.parametrize("sigma, seed, bad", [
     # n20-s0.9-r21: agent 6's filter restarted at kinematic readiness from an omega_hat 0.63 rad/s off and
     # locked onto a wrong (q_i, omega): its own m 651 % off, the team's averaged m 33 %
-    (0.9, 2454811040, 6.5),
+    pytest.param(0.9, 2454811040, 6.5, marks=pytest.mark.long),  # 1-2 min: out of CI's budget
     # n20-s0.8-r20: half the line (agents 0-7, 11, 12, 14) lost lock, their omega_hat -1.2..+0.8 rad/s
     # with the load at 2.5: own m up to 53 % off, the team's 6.6 %
     (0.8, 2244023880, 0.5),

@@ -45,7 +45,7 @@ def test_the_gated_axis_form_loses_lock_there(tmp_path: Path) -> None:
     assert err["omega_rms"] > 1.0 and err["zi_rms_window"] > 0.5
 
 
-@pytest.mark.slow
+@pytest.mark.long  # a minute on a quiet machine: out of CI's budget
 def test_a_late_short_pair_is_helped_by_the_omega_boost(tmp_path: Path) -> None:
     """Grid cell n8-s0.9-r0 with the whole Algorithm 1: pair 3-4 is 0.89 m apart, and at 1.5 rad/s
     its tangential speed 1.34 m/s is under the circle-fit window's per-sample noise sqrt(2) sigma =
