@@ -52,7 +52,7 @@ from net import access_policy as ap  # noqa: E402
 from net import keys  # noqa: E402
 from net.messages import Control, Estimate, Measurement, StateMsg, Wrench  # noqa: E402
 from net.schema import DecodeError, decode, encode  # noqa: E402
-from net.zenoh_transport import free_tcp_port, zenoh_config  # noqa: E402
+from net.zenoh_transport import client_session, free_tcp_port  # noqa: E402
 
 SCENARIOS = ROOT / "config" / "scenarios"
 BIAS = 0.5  # m/s, added to a forged velocity (measurement, state); 20 N to a forged wrench
@@ -227,14 +227,6 @@ ATTACKS = {
 }
 
 
-def _session(endpoint: str, tls: dict | None, timeout_ms: int = 20_000) -> zenoh.Session:
-    conf = zenoh_config(mode="client", connect=[endpoint])
-    conf.insert_json5("connect/timeout_ms", str(timeout_ms))
-    if tls is not None:
-        conf.insert_json5("transport/link/tls", json.dumps(tls))
-    return zenoh.open(conf)
-
-
 def _sorted_rows(path: Path) -> list[str]:
     lines = path.read_text().splitlines()
     return [lines[0], *sorted(lines[1:])]
@@ -346,12 +338,12 @@ def run_team(tmp: Path, tag: str, attack: str | None, secure: bool, scenario: Pa
             for ep, tls in ((endpoint, {"root_ca_certificate": str(tls_dir / ap.CA_CERT)}),
                             (endpoint.replace("tls/", "tcp/"), None)):
                 try:
-                    _session(ep, tls, 1500).close()
+                    client_session(ep, tls, 1500).close()
                     res["no_cert_connected"] = True
                 except zenoh.ZError:
                     res.setdefault("no_cert_refused", 0)
                     res["no_cert_refused"] += 1
-        session = _session(endpoint, ap.tls_block(tls_dir, ap.agent_role(1)) if secure else None) if attack else None
+        session = client_session(endpoint, ap.tls_block(tls_dir, ap.agent_role(1)) if secure else None) if attack else None
         if session is not None:
             att.arm(session)
         t0 = time.perf_counter()

@@ -148,6 +148,17 @@ def close_session(session: zenoh.Session) -> None:
         _linger_guard.release()
 
 
+def client_session(endpoint: str, tls: dict | None = None, timeout_ms: int = 20_000) -> zenoh.Session:
+    """A client session on one endpoint, with a ``transport/link/tls`` block (``net.access_policy.tls_block``)
+    when given; the connection attempt gives up after ``timeout_ms``. What a monitor or an outside
+    client (the security tests' attacker) opens."""
+    conf = zenoh_config(mode="client", connect=[endpoint])
+    conf.insert_json5("connect/timeout_ms", str(timeout_ms))
+    if tls is not None:
+        conf.insert_json5("transport/link/tls", json.dumps(tls))
+    return zenoh.open(conf)
+
+
 def zenoh_config(
     mode: Mode | None = None,
     connect: Sequence[str] | None = None,

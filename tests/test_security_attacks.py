@@ -33,7 +33,7 @@ from net import access_policy as ap
 from net import keys
 from net.messages import Control, Estimate, Measurement, StateMsg, Wrench
 from net.schema import DecodeError, decode, encode
-from net.zenoh_transport import free_tcp_port, zenoh_config
+from net.zenoh_transport import client_session, free_tcp_port, zenoh_config
 from tests.conftest import SCENARIOS, Processes, coload_cmd, max_table_difference
 
 pytestmark = [pytest.mark.zenoh, pytest.mark.slow]
@@ -93,14 +93,6 @@ class Watch:
             return self.tick
 
 
-def _session(endpoint: str, tls: dict | None, timeout_ms: int = 20_000) -> zenoh.Session:
-    conf = zenoh_config(mode="client", connect=[endpoint])
-    conf.insert_json5("connect/timeout_ms", str(timeout_ms))
-    if tls is not None:
-        conf.insert_json5("transport/link/tls", json.dumps(tls))
-    return zenoh.open(conf)
-
-
 def _run_team(tmp_path: Path, tls_dir: Path | None, endpoint: str, run: str, attack) -> dict:
     sc = load_scenario(SCENARIOS / "quick.toml", OVERRIDES)
     sc_path = tmp_path / "scenario.toml"
@@ -150,21 +142,21 @@ def test_secure_team_refuses_every_forgery_and_eavesdropper(tmp_path):
     def attack(sc) -> None:
         watch = Watch(sc.ticks)
         estimates = Counter()
-        with _session(endpoint, ap.tls_block(tls_dir, ap.MONITOR)) as monitor:
+        with client_session(endpoint, ap.tls_block(tls_dir, ap.MONITOR)) as monitor:
             monitor.declare_subscriber(keys.sim_control(run), watch.on_control)
             monitor.declare_subscriber(keys.agent_all(run, "estimate"), lambda s: estimates.update([str(s.key_expr)]))
-            compromised = _session(endpoint, ap.tls_block(tls_dir, "agent-1"))
+            compromised = client_session(endpoint, ap.tls_block(tls_dir, "agent-1"))
             old = ap.tls_block(tls_dir, "agent-4")
             old.update(connect_certificate=str(revoked / "agent-4.pem"),
                        connect_private_key=str(revoked / "agent-4.key"))
-            replaced = _session(endpoint, old)  # the CA signed it: it connects, and may do nothing
+            replaced = client_session(endpoint, old)  # the CA signed it: it connects, and may do nothing
             for who, s in (("compromised", compromised), ("replaced", replaced)):
                 for ke in (f"coload/{run}/**", keys.meas(run, 0), keys.agent_all(run, "estimate")):
                     s.declare_subscriber(ke, lambda smp, who=who: heard.update(
                         [who] if smp.payload.to_bytes() not in mine else []))
             for tls in (None, {"root_ca_certificate": str(tls_dir / ap.CA_CERT)}):  # plain TCP, TLS without a cert
                 with pytest.raises(zenoh.ZError):
-                    _session(endpoint if tls else endpoint.replace("tls/", "tcp/"), tls, 1500).close()
+                    client_session(endpoint if tls else endpoint.replace("tls/", "tcp/"), tls, 1500).close()
             now = watch.wait(30, 120)
             lies = forgeries(run, now, sc.ticks)
             mine.update(p for _, p in lies)
