@@ -180,6 +180,7 @@ def test_velocity_bias_from_velocities_alone_is_not_guessed(tmp_path):
     assert abs(rel_err(d["nominal"]["m"], truth["m"])) < 0.02, info
 
 
+@pytest.mark.long
 def test_pair_viscous_friction_and_rotational_damping(tmp_path):
     effects = ["viscous_friction", "rotational_damping"]
     rec, truth = record(tmp_path, n=5, rate_hz=50, duration_s=20.0, seed=51, effects=effects)

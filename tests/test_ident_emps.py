@@ -38,8 +38,8 @@ def test_import_writes_a_one_agent_position_recording(emps):
     assert "n = 1" in toml and "edges = []" in toml and "dt = 0.001" in toml
 
 
-@pytest.mark.slow
-@pytest.mark.timeout(1200)  # ~60 s of CPU: 25 000 stamps, three effects, a held-out fit and a prediction
+@pytest.mark.long  # 1-2 min: out of CI's budget; python -m pytest -m long tests/test_ident_emps.py
+@pytest.mark.timeout(1200)  # ~70 s of CPU: 25 000 stamps, three effects, a held-out fit and a prediction
 def test_diagnosis_names_the_published_effects_and_predicts_the_pulses_file(emps):
     r = diagnose_dir(emps / "id", validate=emps / "val")
     assert sorted(e["name"] for e in r.effects) == sorted(PUBLISHED) and not r.unexplained
