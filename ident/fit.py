@@ -402,6 +402,15 @@ def _cumint(t: np.ndarray, u: np.ndarray, hold: str) -> np.ndarray:
     return np.concatenate((np.zeros((1,) + u.shape[1:]), np.cumsum(inc, axis=0)), axis=0)
 
 
+def _cumint_windows(t: np.ndarray, wid: np.ndarray, u: np.ndarray, hold: str) -> np.ndarray:
+    """:func:`_cumint` of u restarted at each window's first stamp (``wid``: each stamp's window)."""
+    out = np.zeros(u.shape, dtype=u.dtype)
+    for s in np.unique(wid):
+        k = np.flatnonzero(wid == s)
+        out[k] = _cumint(t[k], u[k], hold)
+    return out
+
+
 def _principal_shape(x: np.ndarray, what: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The contact samples ``x`` (T, n, complex) about their per-stamp centroid, the stamps where every
     agent has one, and the geometry's principal shape ``zb``: for a rigid body both the relative
@@ -526,14 +535,8 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
         good = np.ones(T, bool)
         e = np.zeros(T, complex)
     # translation: linear in (per-window v0 [and p0], a, zc)
-    Sint = np.zeros((T, 2))
-    SSint = np.zeros((T, 2))
-    for s in range(S):
-        k = np.flatnonzero(wid == s)
-        if k.size == 0:
-            continue
-        Sint[k] = _cumint(t[k], F[k], rec.hold)
-        SSint[k] = _cumint(t[k], Sint[k], "foh")
+    Sint = _cumint_windows(t, wid, F, rec.hold)
+    SSint = _cumint_windows(t, wid, Sint, "foh")
     use_vel = rec.vel is not None
     if use_vel:
         yb = np.nanmean(rec.vel[..., 0] + 1j * rec.vel[..., 1], axis=1)
@@ -557,13 +560,8 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
         ok_y = ~np.isnan(yb)
         yf = np.interp(t, t[ok_y], yb[ok_y].real) + 1j * np.interp(t, t[ok_y], yb[ok_y].imag)
         yc = yf / np.sqrt(np.abs(yf) ** 2 + pb.coulomb_speed**2 + 1e-300)
-        Iv = np.zeros(T, complex)
-        Ic = np.zeros(T, complex)
-        for s in range(S):
-            k = np.flatnonzero(wid == s)
-            if k.size:
-                Iv[k] = _cumint(t[k], yf[k], "foh")
-                Ic[k] = _cumint(t[k], yc[k], "foh")
+        Iv = _cumint_windows(t, wid, yf, "foh")
+        Ic = _cumint_windows(t, wid, yc, "foh")
     for c in range(2):  # real part (x) rows 0..T-1, imaginary (y) rows T..2T-1
         rows = np.arange(T) + c * T
         if use_vel:
@@ -620,20 +618,13 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
         P = fy @ r.real - fx @ r.imag
         Q = -(fx @ r.real + fy @ r.imag)
         Tq = tq + np.cos(theta) * P + np.sin(theta) * Q
-        C = np.zeros(T)
-        for s in range(S):
-            k = np.flatnonzero(wid == s)
-            if k.size:
-                C[k] = _cumint(t[k], Tq[k], rec.hold)
+        C = _cumint_windows(t, wid, Tq, rec.hold)
         damp = "rotational_damping" in lay.effects
         Ab = np.zeros((T, S + 1 + damp))
         Ab[np.arange(T), wid] = 1.0
         Ab[:, S] = C
         if damp:  # b c_r multiplies -int omega
-            for s in range(S):
-                k = np.flatnonzero(wid == s)
-                if k.size:
-                    Ab[k, S + 1] = -_cumint(t[k], omega[k], "foh")
+            Ab[:, S + 1] = -_cumint_windows(t, wid, omega, "foh")
         cb = np.linalg.lstsq(Ab[good], omega[good], rcond=None)[0]
         b = float(cb[S])
         if not b > 0:
