@@ -13,6 +13,7 @@ from pathlib import Path
 
 from coload.commands.analysis import cmd_diagnose, cmd_export, cmd_import, cmd_report
 from coload.commands.campaign import cmd_campaign
+from coload.commands.loop import cmd_loop
 from coload.commands.common import VIEW_PORT, DaemonStartError, writable  # noqa: F401  (public names of the CLI)
 from coload.commands.daemons import (
     cmd_agent,
@@ -304,6 +305,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also predict the recording OTHER (same plant) with the nominal and the augmented model and "
                         "report both errors")
 
+    p = sub.add_parser("loop", help="run (or take) a run, diagnose it, re-run with the named effects estimated online",
+                       description="Close the loop offline: run SCENARIO into OUT/before (or take a finished run "
+                                   "directory as it is), diagnose it (coload diagnose), re-run the same scenario and "
+                                   "seed with the named effects the agents can estimate online "
+                                   "(dynamics.estimate_effects) into OUT/after, and write OUT/loop.json, OUT/loop.md "
+                                   "(a before/after table) and OUT/loop.png. OUT must not exist, be empty or hold a "
+                                   "finished loop (replaced); nothing is written until the loop is done "
+                                   "(docs/loop.md).")
+    p.add_argument("input", metavar="RUN_DIR_OR_SCENARIO",
+                   help="a finished run directory (taken as 'before', not re-run), or a scenario TOML file or a "
+                        "bundled scenario's name (run as it says)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="loop directory to write")
+    p.add_argument("--engine", choices=["zenoh", "inproc"], default="zenoh",
+                   help="zenoh: router, simulator and agents as separate processes; inproc: one process")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="scenario override for both runs (dotted key, TOML value; repeatable); not with a run directory")
+    p.add_argument("--seed", type=int, help="run seed for both runs (overrides the scenario's); not with a run directory")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
     p = sub.add_parser("import", help="convert a dataset into a recording (measured-data format)",
                        description="Write a recording directory (run.toml + samples.csv) from a published dataset "
                                    "(docs/diagnose.md, 'EMPS').")
@@ -353,7 +373,7 @@ class _MoreVerbose(argparse.Action):
 COMMANDS = {"run": cmd_run, "sim": cmd_sim, "agent": cmd_agent, "router": cmd_router, "report": cmd_report,
             "compose": cmd_compose, "alive": cmd_alive, "keys": cmd_keys, "campaign": cmd_campaign,
             "observer": cmd_observer, "hinf": cmd_hinf, "arms": cmd_arms, "diagnose": cmd_diagnose,
-            "export": cmd_export, "view": cmd_view, "import": cmd_import}
+            "export": cmd_export, "view": cmd_view, "import": cmd_import, "loop": cmd_loop}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
