@@ -34,12 +34,13 @@ ESTIMATE_COLUMN: dict[str, str] = {"viscous_friction": "b", "rotational_damping"
 effect without one is reported as "not recorded"."""
 
 MONITOR_TESTS = 5  # the innovation monitor's p-values per window: an alarm is any below alpha / 5
+P_FLOOR = 1e-20  # the figure's lowest p-value
 
 
 @dataclass(frozen=True)
 class Plan:
     """What the loop does after the diagnosis: ``online`` (re-run with these in ``dynamics.estimate_effects``,
-    in the diagnosis vocabulary's order) when ``rerun``, else ``reason`` says why not; ``offline`` the named
+    in :data:`ONLINE_EFFECTS`' order) when ``rerun``, else ``reason`` says why not; ``offline`` the named
     effects the agents cannot estimate (the diagnosis's ``effects`` entries)."""
 
     online: tuple[str, ...]
@@ -52,7 +53,7 @@ def plan(diagnosis: dict[str, Any], before_effects: Sequence[str]) -> Plan:
     """Split the diagnosis's named effects into online-capable and offline-only and decide on the re-run.
     ``before_effects``: the before run's ``dynamics.estimate_effects``."""
     named = list(diagnosis.get("effects") or [])
-    online = tuple(e["name"] for e in named if e["name"] in ONLINE_EFFECTS)
+    online = tuple(n for n in ONLINE_EFFECTS if n in {e["name"] for e in named})
     offline = tuple(e for e in named if e["name"] not in ONLINE_EFFECTS)
     if not named:
         if diagnosis.get("unexplained"):
@@ -276,47 +277,50 @@ def markdown(loop: dict[str, Any]) -> str:
 
 
 # --- figure ------------------------------------------------------------------------------------------------
-def error_series(run: RunData, col: str, truth_col: str) -> tuple[np.ndarray, np.ndarray]:
-    """t and the median over agents of |x_i - x| / x against the truth at that time (NaN before any estimate)."""
+def final_per_agent(run: RunData, col: str, truth_col: str) -> tuple[np.ndarray, float | None]:
+    """Each agent's |x_i - x| / x of its last reported ``col`` against the truth at that time (NaN for an
+    agent without one), and the first time any agent reported it (the end of its stage)."""
     est, tr = run.estimates, run.truth
     if est is None or tr is None or not est.has(col) or truth_col not in tr.columns:
-        return np.zeros(0), np.zeros(0)
+        return np.zeros(0), None
     true = tr.columns[truth_col][run.truth_index(est.t)]
     rel = np.abs(est.columns[col] - true[:, None]) / true[:, None]
-    with np.errstate(all="ignore"):
-        med = np.full(len(est.t), np.nan)
-        has = np.isfinite(rel).any(axis=1)
-        med[has] = np.nanmedian(rel[has], axis=1)
-    return est.t, med
+    seen = np.isfinite(rel).any(axis=1)
+    return _last_finite(rel), (float(est.t[np.argmax(seen)]) if seen.any() else None)
 
 
 def draw_loop(fig: Any, before: RunData, after: RunData | None, residual: dict[str, Any] | None,
               alpha: float, title: str = "") -> None:
-    """The loop figure into ``fig``: m and J relative error vs time before (red) and after (blue); the agents'
+    """The loop figure into ``fig``: each agent's final m and J relative error before (red) and after (blue)
+    (the agents report m and J once their stage ends: a time axis would show one step); the agents'
     innovation monitor's whiteness p per window with its alarm level ``alpha`` / 5; the offline residual's
     autocorrelation (diagnosis ``residual`` panels) with the nominal and with the named effects, and the
     white-noise 95 % band. Axes labelled ``m``, ``J``, ``monitor``, ``acf``."""
     axes = fig.subplots(2, 2)
     runs = [("before", before, "tab:red")] + ([("after", after, "tab:blue")] if after is not None else [])
-    for ax, (col, tcol, label) in zip(axes[0], (("m", "mass", "m"), ("J", "inertia", "J"))):
-        ax.set_label(label)
-        for name, run, color in runs:
-            t, e = error_series(run, col, tcol)
-            if np.isfinite(e).any():
-                ax.semilogy(t, e, color=color, lw=1.0, label=name)
-        ax.axhline(0.01, color="k", ls=":", lw=0.7)
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel(f"{label}: median |relative error| over agents", fontsize=8)
+    for ax, (col, tcol) in zip(axes[0], (("m", "mass"), ("J", "inertia"))):
+        ax.set_label(col)
+        for k, (name, run, color) in enumerate(runs):
+            rel, t0 = final_per_agent(run, col, tcol)
+            if np.isfinite(rel).any():
+                x = np.arange(len(rel)) + (0.12 if k else -0.12)
+                when = f", reported from {t0:.1f} s" if t0 is not None else ""
+                ax.semilogy(x, rel, "o", color=color, ms=5, label=f"{name}{when}")
+        ax.axhline(0.01, color="k", ls=":", lw=0.7, label="1 %")
+        ax.set_xlabel("agent")
+        ax.set_ylabel(f"{col}: final |relative error|", fontsize=8)
         ax.legend(fontsize=8)
     ax = axes[1, 0]
     ax.set_label("monitor")
     for name, run, color in runs:
         t, p = monitor_windows(run)
         if t.size:
-            ax.semilogy(t, np.maximum(p, 1e-300), "o", ms=3, color=color, alpha=0.6, label=name)
+            # p underflows to 0 on a badly wrong model: drawn at the panel's floor
+            ax.semilogy(t, np.clip(p, P_FLOOR, 1.0), "o", ms=3, color=color, alpha=0.6, label=name)
     ax.axhline(alpha / MONITOR_TESTS, color="k", ls="--", lw=0.8, label=f"alarm level {alpha}/{MONITOR_TESTS}")
     ax.set_xlabel("t (s)")
-    ax.set_ylabel("innovation monitor: whiteness p per window", fontsize=8)
+    ax.set_ylim(P_FLOOR / 3, 3.0)
+    ax.set_ylabel(f"innovation monitor: whiteness p per window (floor {P_FLOOR:g})", fontsize=8)
     ax.legend(fontsize=8)
     ax = axes[1, 1]
     ax.set_label("acf")
