@@ -272,7 +272,7 @@ def markdown(loop: dict[str, Any]) -> str:
             "`m_rel`, `J_rel`); values are the mean over agents of the final estimates. Offline: the diagnosis's "
             "fit of the before run's recording (signed errors against truth). Monitor: windows of every agent "
             "(docs/innovation-monitor.md).", "",
-            "Wall time: " + ", ".join(f"{k} {v:.1f} s" for k, v in w.items()), ""]
+            "Wall time: " + ", ".join(f"{k.replace('_', ' ')} {v:.1f} s" for k, v in w.items()), ""]
     return "\n".join(head + rows + tail)
 
 

@@ -91,19 +91,18 @@ def _run(args: argparse.Namespace, scenario: Scenario, run_dir: Path, label: str
     return summary
 
 
-def _loop(args: argparse.Namespace, work: Path) -> dict:
-    """The whole loop into ``work``; returns loop.json's content."""
+def _loop(args: argparse.Namespace, work: Path, scenario: Scenario, given: Path | None, overrides: list[str]) -> None:
+    """The whole loop into ``work``: the runs, diagnosis.json, loop.json, loop.md, loop.png."""
     from coload.analysis import loop as L
     from coload.rundir.format import read_run
     from ident.diagnose import DiagnoseError, diagnose_dir, stderr_progress
 
     t0 = time.perf_counter()
     wall: dict[str, float] = {}
-    scenario, given, overrides = args.resolved
     if given is None:
         _run(args, scenario, work / "before", "before")
         before_dir = work / "before"
-        wall["before run"] = time.perf_counter() - t0
+        wall["before_run"] = time.perf_counter() - t0
     else:
         before_dir = given
         _say(args, f"before: {given} (given; not re-run)")
@@ -126,7 +125,7 @@ def _loop(args: argparse.Namespace, work: Path) -> dict:
         after_sc = load_scenario(source, [*overrides, f"dynamics.estimate_effects={effects}"])
         after_summary = _run(args, after_sc, work / "after", "after")
         after_run = read_run(work / "after")
-        wall["after run"] = time.perf_counter() - t2
+        wall["after_run"] = time.perf_counter() - t2
     before_run = read_run(before_dir)
     truth = L.plant_truth(scenario)
     before = L.run_side(before_run, before_run.summary or {}, truth, scenario.dynamics.estimate_effects)
@@ -141,7 +140,6 @@ def _loop(args: argparse.Namespace, work: Path) -> dict:
     (work / LOOP_JSON).write_text(json.dumps(loop, indent=1) + "\n", encoding="utf-8")
     (work / LOOP_MD).write_text(L.markdown(loop), encoding="utf-8")
     _figure(work / LOOP_PNG, before_run, after_run, diag.get("residual"), scenario, loop)
-    return loop
 
 
 def _figure(path: Path, before_run, after_run, residual, scenario: Scenario, loop: dict) -> None:
@@ -179,20 +177,20 @@ def _install(work: Path, out: Path, replace: bool) -> None:
 
 
 def cmd_loop(args: argparse.Namespace) -> int:
+    from coload.commands.common import check_law
+
     out = args.out
     try:
-        args.resolved = _input(args)
-        replace = _check_out(out, args.resolved[1])
+        scenario, given, overrides = _input(args)
+        replace = _check_out(out, given)
+        check_law(scenario, args.input, range(scenario.n))
     except (LoopError, ScenarioError) as exc:
         print(f"coload loop: {exc}", file=sys.stderr)
         return 2
-    from coload.commands.common import check_law
-
-    check_law(args.resolved[0], args.input, range(args.resolved[0].n))
     work = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.resolve().parent))
     try:
-        loop = _loop(args, work)
-        if _check_out(out, args.resolved[1]) != replace:
+        _loop(args, work, scenario, given, overrides)
+        if _check_out(out, given) != replace:
             raise LoopError(f"--out {out}: changed while the loop ran; the result is not installed")
         _install(work, out, replace)
     except (LoopError, ScenarioError) as exc:
@@ -206,4 +204,4 @@ def cmd_loop(args: argparse.Namespace) -> int:
         _say(args, f"{out} held a finished loop: replaced")
     print((out / LOOP_MD).read_text(encoding="utf-8"))
     print(f"loop: {out / LOOP_JSON}, {out / LOOP_MD}, {out / LOOP_PNG}")
-    return 0 if loop else 1
+    return 0
