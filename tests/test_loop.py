@@ -36,6 +36,7 @@ def _leftovers(parent: Path, name: str) -> list[str]:
     return [p.name for p in parent.iterdir() if p.name.startswith(f".{name}.")]
 
 
+@pytest.mark.slow  # two 34 s runs and a diagnosis: 21 s CPU, ~30 s wall on an idle machine
 def test_loop_names_viscous_friction_and_reruns_with_it_online(tmp_path, capsys):
     out = tmp_path / "loop"
     code, stdout, err = _loop(capsys, "quick-dynamics", *VISCOUS, "--out", str(out))
