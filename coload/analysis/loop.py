@@ -144,7 +144,7 @@ def run_side(run: RunData, summary: dict[str, Any], truth: dict[str, Any], effec
     _, p_white = monitor_windows(run)
     p_white = p_white[np.isfinite(p_white)]
     out: dict[str, Any] = {
-        "estimate_effects": list(effects),
+        "engine": summary.get("engine"), "estimate_effects": list(effects),
         "m": _team(run, "m"), "m_rel": _f(errors.get("m_rel")),
         "J": _team(run, "J"), "J_rel": _f(errors.get("J_rel")),
         "finished_s": _f(errors.get("finished_s")),

@@ -86,8 +86,8 @@ def _run(args: argparse.Namespace, scenario: Scenario, run_dir: Path, label: str
     else:
         summary = run_processes(scenario, run_dir, quiet=args.quiet, verbose=args.verbose)
     if summary is None or summary.get("failed_members"):
-        raise LoopError(f"the {label} run failed (logs in its logs/ directory, removed with the loop's "
-                        f"unfinished output; re-run it with coload run to keep them)", code=1)
+        raise LoopError(f"the {label} run failed; nothing is kept (coload run of the same scenario keeps its "
+                        f"logs)", code=1)
     return summary
 
 
@@ -120,9 +120,9 @@ def _loop(args: argparse.Namespace, work: Path, scenario: Scenario, given: Path 
     after_run = after_summary = None
     if the_plan.rerun:
         t2 = time.perf_counter()
-        source = given if given is not None else Path(args.input)
+        # the before run's resolved run.toml: the same scenario and seed whatever the input was
         effects = json.dumps(list(the_plan.online))
-        after_sc = load_scenario(source, [*overrides, f"dynamics.estimate_effects={effects}"])
+        after_sc = load_scenario(before_dir, [f"dynamics.estimate_effects={effects}"])
         after_summary = _run(args, after_sc, work / "after", "after")
         after_run = read_run(work / "after")
         wall["after_run"] = time.perf_counter() - t2
