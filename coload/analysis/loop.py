@@ -17,6 +17,7 @@ import numpy as np
 from coload.rundir.format import RunData
 from config.agent_params import DynamicsSpec
 from config.scenario import Scenario
+from ident.model import EFFECTS
 
 
 def _online_effects() -> tuple[str, ...]:
@@ -182,7 +183,8 @@ def compare(*, source: dict[str, Any], diagnosis: dict[str, Any], the_plan: Plan
                        key=lambda n: list(truth).index(n) if n in truth else len(truth)):
         e = named.get(name, {})
         effects.append({
-            "name": name, "unit": e.get("unit"), "truth": truth.get(name),
+            "name": name, "unit": e.get("unit") or (EFFECTS[name][0] if name in EFFECTS else None),
+            "truth": truth.get(name),
             "named": name in named, "online": name in ONLINE_EFFECTS,
             "offline": e.get("value"), "offline_ci95": e.get("ci95"),
             "before": before["effects"].get(name), "after": (after or {}).get("effects", {}).get(name),
