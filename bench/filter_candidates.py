@@ -433,8 +433,6 @@ def update_matrix(S, P, r, vr, vi, u, uvar, udc, udw, nis0):  # noqa: ANN001, AN
     return np.where(ok[:, None], Sn, S), np.where(ok[:, None, None], Pn, P), nis, innov
 
 
-_DIAG: dict = {}
-
 
 def predict_matrix(S, P, fr, fi, T, dt, qd, qb, qa):  # noqa: ANN001, ANN201
     B, d = S.shape
