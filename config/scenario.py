@@ -403,6 +403,9 @@ class Scenario(_Strict):
         if self.control.law and self.dynamics.algorithm == "none":
             raise ValueError('control.law: a law acts where the dynamical phase allows one: set dynamics.algorithm '
                              '= "sequential" (from done on) or "background"')
+        if self.dynamics.online_detection and (self.dynamics.algorithm == "none" or self.dynamics.monitor_window_s <= 0):
+            raise ValueError('dynamics.online_detection: needs the dynamical phase (dynamics.algorithm "sequential" or '
+                             '"background") and its windows (dynamics.monitor_window_s > 0)')
         if self.arms is not None and self.arms.bases is not None and len(self.arms.bases) != self.n:
             raise ValueError(f"arms.bases: must list exactly n = {self.n} bases (got {len(self.arms.bases)})")
         if self.ticks < 1:
