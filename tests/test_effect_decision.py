@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 
 from agents.consensus import FlowAverage
 from agents.effect_decision import (
+    DETECT_NAMES,
     N_EFF,
     N_POOL,
     DecisionFlood,
@@ -27,6 +28,7 @@ from agents.effect_decision import (
 )
 from coload.runs.engine import run_inproc
 from config.loader import ScenarioError, load_scenario
+from net.vocabulary import ESTIMATE_NAMES
 from tests.conftest import SCENARIOS, max_table_difference
 
 LAGS = 10
@@ -166,6 +168,10 @@ def test_every_agent_switches_on_the_agreed_tick():
             d.merge(dets[1 - i].flood.best)
     assert on[0] == on[1] == [(2 * w - 1 + h, 1)]
     assert dets[0].entries()["eff_on"] == dets[1].entries()["eff_on"] == 2.0
+
+
+def test_estimate_names_end_with_the_detection_entries():
+    assert ESTIMATE_NAMES[-len(DETECT_NAMES):] == DETECT_NAMES
 
 
 def test_online_detection_needs_the_dynamical_phase_and_its_windows():
