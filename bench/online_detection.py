@@ -1,6 +1,7 @@
 """Online effect detection: which effect the team switches on, when, and m / J at the end against the nominal run.
 
     python bench/online_detection.py [--seeds 1-5] [--plants viscous,rotational,clean] [--jobs 1] [--no-nominal]
+                                     [--faults]
 
 In-process engine (lockstep: equal to a Zenoh run bit for bit), friction-online.toml (paper-fig4 geometry,
 n = 10, line graph, sigma 0.3, J stage 40 s) with nothing declared (``dynamics.estimate_effects = []``)
@@ -8,6 +9,8 @@ and ``dynamics.online_detection = true``, run to 110 s (done at ~102 s). Plants:
 5 N s/m alone, rotational damping 8.69 N m s alone, clean. For each run: the switches the team agreed
 (summary.json ``effects``), the time from the m stage's start to the first one, m and J relative errors
 at the end; and the same plant and seed with the nominal model (detection off) for comparison.
+``--faults``: every link loses 20 % of the states (Bernoulli) and delays them by 10 ticks (100 ms).
+Plants out of the online vocabulary: ``coulomb`` (5 N), ``slope`` (a constant 5 N force along x).
 """
 
 from __future__ import annotations
@@ -34,12 +37,16 @@ PLANTS = {
     "viscous": ["plant.friction={viscous=5.0}"],
     "rotational": ["plant.friction={rotational=8.69}"],
     "clean": ["plant.friction={}"],
+    "coulomb": ["plant.friction={coulomb=5.0}"],
+    "slope": ["plant.external_force=[5.0, 0.0]"],
 }
-TRUE = {"viscous": "viscous_friction", "rotational": "rotational_damping", "clean": None}
+FAULTS = ['link.loss={model="bernoulli", p=0.2}', "link.delay_ticks=10"]
+TRUE = {"viscous": "viscous_friction", "rotational": "rotational_damping", "clean": None, "coulomb": None,
+        "slope": None}
 
 
-def one(plant: str, seed: int, detect: bool) -> dict:
-    sc = load_scenario(SCENARIO, [*BASE, *PLANTS[plant], f"seed={seed}",
+def one(plant: str, seed: int, detect: bool, faults: bool) -> dict:
+    sc = load_scenario(SCENARIO, [*BASE, *PLANTS[plant], *(FAULTS if faults else []), f"seed={seed}",
                                   f"dynamics.online_detection={'true' if detect else 'false'}"])
     with tempfile.TemporaryDirectory() as d:
         s = run_inproc(sc, Path(d) / "run")
@@ -50,7 +57,7 @@ def one(plant: str, seed: int, detect: bool) -> dict:
     return {"plant": plant, "seed": seed, "detect": detect, "m_rel": s["errors"].get("m_rel"),
             "J_rel": s["errors"].get("J_rel"), "b": float(c["b"][-1, 0]), "c": float(c["c"][-1, 0]),
             "events": eff.get("events", []), "unexplained": eff.get("unexplained_windows"), "m_start": float(m_start),
-            "dt": sc.dt}
+            "dt": sc.dt, "step_us": s.get("agent_step_us")}
 
 
 def main() -> None:
@@ -59,6 +66,7 @@ def main() -> None:
     ap.add_argument("--plants", default=",".join(PLANTS), help="comma-separated, of: " + ", ".join(PLANTS))
     ap.add_argument("--jobs", type=int, default=1, help="parallel runs (default 1)")
     ap.add_argument("--no-nominal", action="store_true", help="skip the nominal twins (detection off)")
+    ap.add_argument("--faults", action="store_true", help="20 %% loss and a 100 ms delay on every link")
     a = ap.parse_args()
     if "-" in a.seeds:
         lo, hi = map(int, a.seeds.split("-"))
@@ -69,11 +77,14 @@ def main() -> None:
     bad = [p for p in plants if p not in PLANTS]
     if bad:
         ap.error(f"unknown plant {bad[0]!r}: expected one of {', '.join(PLANTS)}")
-    jobs = [(p, s, True) for p in plants for s in seeds]
+    jobs = [(p, s, True, a.faults) for p in plants for s in seeds]
     if not a.no_nominal:
-        jobs += [(p, s, False) for p in plants if p != "clean" for s in seeds]
+        jobs += [(p, s, False, a.faults) for p in plants if TRUE[p] for s in seeds]
+    out = []
     with ProcessPoolExecutor(a.jobs) as ex:
-        out = list(ex.map(one, *zip(*jobs)))
+        for r in ex.map(one, *zip(*jobs)):  # each run as it ends (a long bench shows its progress)
+            out.append(r)
+            print("run", {k: v for k, v in r.items() if k != "dt"}, flush=True)
     nominal = {(r["plant"], r["seed"]): r for r in out if not r["detect"]}
     print("| plant | seed | switched (tick: effect, z) | from m stage start (s) | unexplained windows | m err | J err "
           "| nominal m err | nominal J err | b | c |")

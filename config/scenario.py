@@ -403,7 +403,8 @@ class Scenario(_Strict):
         if self.control.law and self.dynamics.algorithm == "none":
             raise ValueError('control.law: a law acts where the dynamical phase allows one: set dynamics.algorithm '
                              '= "sequential" (from done on) or "background"')
-        if self.dynamics.online_detection and (self.dynamics.algorithm == "none" or self.dynamics.monitor_window_s <= 0):
+        dyn = self.dynamics
+        if dyn.online_detection and (dyn.algorithm == "none" or dyn.monitor_window_s <= 0):
             raise ValueError('dynamics.online_detection: needs the dynamical phase (dynamics.algorithm "sequential" or '
                              '"background") and its windows (dynamics.monitor_window_s > 0)')
         if self.arms is not None and self.arms.bases is not None and len(self.arms.bases) != self.n:

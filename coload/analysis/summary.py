@@ -1,7 +1,7 @@
 """Completes a finished run's summary.json with what is computed from its files: the error metrics,
 the agents' estimate trust (docs/estimate-trust.md), their innovation monitors' counts
-(docs/innovation-monitor.md), the online detection's switches (docs/online-detection.md) and the centralized batch-fit yardstick
-(docs/run-directory.md, docs/batch-fit.md).
+(docs/innovation-monitor.md), the online detection's switches (docs/online-detection.md) and the
+centralized batch-fit yardstick (docs/run-directory.md, docs/batch-fit.md).
 
 The recorder only records; every engine calls :func:`complete_summary` once the run directory is
 closed.
