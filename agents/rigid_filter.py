@@ -243,8 +243,10 @@ class RigidEKF:
 
     def _sens_update(self, K: np.ndarray, D: np.ndarray, qx: float, qy: float, om: float,
                      hd2: np.ndarray | None) -> None:
-        """The sensitivities through the update, D <- D - K H D (the gain's own dependence on the rates is
-        second order); H D's own-velocity rows are kept for the detection's score."""
+        """The sensitivities through the update, D <- D - K H D; H D's own-velocity rows are kept for the
+        detection's score. The gain's own dependence on the rates is left out: it multiplies the innovation,
+        zero-mean under the nominal model (tests/test_effect_decision.py: D equals the finite difference of
+        the posterior on data the filter predicts exactly)."""
         hd0 = D[0] - om * D[3] - qy * D[5]
         hd1 = D[1] + om * D[2] + qx * D[5]
         self.sens_h = (float(hd0[0]), float(hd1[0]), float(hd0[1]), float(hd1[1]))

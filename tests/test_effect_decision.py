@@ -116,6 +116,42 @@ def test_the_flooded_proposal_does_not_depend_on_the_order_of_arrival(props, rnd
     assert decode(a.encode()) == a.best
 
 
+@pytest.mark.parametrize("k", [0, 1])
+def test_filter_sensitivity_is_the_derivative_of_its_estimate_in_the_rate(k):
+    """The filter's D equals d(posterior state)/d(rate) by finite differences: a twin filter with the rate
+    pinned at eps instead of 0, on measurements that the first filter predicts exactly (so that the gain's
+    own dependence on the rate multiplies a zero innovation)."""
+    import copy
+
+    from agents.rigid_filter import RigidEKF
+    from config.agent_params import DynamicsSpec
+
+    spec = DynamicsSpec(algorithm="sequential", online_detection=True)
+    kf = RigidEKF(0.1, spec, False)
+    kf.start(complex(0.3, -0.2), complex(1.5, 0.4), 0.8)
+    kf.s = kf.s.copy()
+    kf.s[4], kf.s[6] = 1 / 50, 1 / 87  # 1/m, 1/J known roughly
+    twin = copy.copy(kf)
+    eps = 1e-7
+    twin.s = kf.s.copy()
+    twin.s[7 + k] = eps
+    dt = 0.01
+    for t in range(400):
+        force = 150 * complex(math.cos(0.02 * t), math.sin(0.013 * t))
+        torque = 30 * math.sin(0.05 * t)
+        for f in (kf, twin):
+            f.predict(force, torque, dt)
+        s = kf.s
+        v = complex(s[0] - s[5] * s[3], s[1] + s[5] * s[2])  # kf's own prediction: its innovation is 0
+        for f in (kf, twin):
+            f.update(v, math.nan, 0.0)
+    keep = [0, 1, 2, 3, 4, 5, 6, 9]  # every state but the rates themselves (d beta / d beta = 1 is not carried)
+    fd = ((twin.s - kf.s) / eps)[keep]
+    d = kf.sens[keep, k]
+    assert np.max(np.abs(d)) > 1e-3
+    assert np.max(np.abs(fd - d)) < 1e-4 * np.max(np.abs(d)) + 1e-9, (fd, d)
+
+
 def _line_pool(n, inputs, ticks, rng, loss=0.0, dead=None):
     """Flow-updating consensus of the pool channels on a line of n agents; ``dead`` stops sending and
     receiving after its first exchange. Returns every agent's channels."""
