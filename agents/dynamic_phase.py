@@ -219,6 +219,8 @@ class DynamicPhase:
                 kf.release_effects()
         self.stage = stage
         self.stage_tick = tick
+        if self.detect is not None:
+            self.detect.regime_change()
         if stage == M_EXCITE:
             self.m_start = tick
         elif stage == J_EXCITE:
@@ -315,6 +317,7 @@ class DynamicPhase:
             kf.release_effects()
         if self.detect is not None:
             self.detect.ev.restart()
+            self.detect.regime_change()
             for k in range(N_EFF):  # the effects switched on online
                 if (self.detect.on >> k) & 1 and EFFECTS[k] not in self.spec.estimate_effects:
                     kf.release_effect(k)
@@ -336,6 +339,8 @@ class DynamicPhase:
         else:  # the restart did no better: back to the old filter, and wait longer before the next try
             if self.monitor is not None:
                 self.monitor.reset()
+            if self.detect is not None:
+                self.detect.regime_change()
             self.kf = self.shadow
             self.nis_avg = self.shadow_nis
             self.lock_fails += 1
@@ -440,6 +445,8 @@ class DynamicPhase:
                             # the m stage to recover
                             self.restarted = True
                             kf.start(v, zi, omega_hat)
+                            if self.detect is not None:
+                                self.detect.regime_change()
                             self.lock_from = tick + self.lock_hold
                         self.barrier.set_ready(tick)
                 else:

@@ -180,7 +180,7 @@ class OnlineDetection:
     channels are ``ch0 .. ch0 + N_POOL - 1`` of its FlowAverage."""
 
     __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "last_tick", "last_z",
-                 "unexplained", "zp", "zs", "settle_from", "late")
+                 "unexplained", "zp", "zs", "settle_from", "late", "mixed")
 
     def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0) -> None:
         self.n = n
@@ -198,6 +198,15 @@ class OnlineDetection:
         self.zs = [math.nan] * N_EFF
         self.settle_from = 0  # windows starting before this tick are not judged (a switch is settling)
         self.late = 0
+        self.mixed = False  # the window being filled spans a change of regime (see regime_change)
+
+    def regime_change(self) -> None:
+        """The agent's stage changed or its filter (re)started: the window being filled is not offered. The
+        scores hold for a filter whose other states have converged under one excitation; across a stage
+        switch (the m stage's force starting, 1/J forgotten) or a filter start they are still moving, and
+        the transient correlates with the candidates' sensitivities (a clean plant's viscous score reached
+        z = 3.0 in the window of the m stage's start, friction-online seed 1)."""
+        self.mixed = True
 
     def observe(self, innov: Sequence[float], sens_h: Sequence[float]) -> None:
         """One filter update: innovation (e0, e1, s00, s01, s11) and the sensitivities' rows H D."""
@@ -226,8 +235,11 @@ class OnlineDetection:
         r = tick % w
         if r == 0 and tick > 0:
             stats = self.ev.close()
+            if self.mixed or (tick - w) < self.settle_from:
+                stats = None
+            self.mixed = False
             c = self.ch0
-            u[c:c + N_POOL] = stats if stats is not None and (tick - w) >= self.settle_from else [0.0] * N_POOL
+            u[c:c + N_POOL] = stats if stats is not None else [0.0] * N_POOL
         elif r == w - 1 and tick + 1 >= 2 * w:
             c = self.ch0
             if (tick + 1 - 2 * w) >= self.settle_from:
