@@ -24,6 +24,8 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
+from agents.effect_decision import DETECT_NAMES, EFFECTS, N_EFF, N_POOL, OnlineDetection
+from agents.effect_decision import decode as decode_decision
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.laws import ControlLawError, LawInput, checked_wrench
@@ -53,7 +55,9 @@ N_CH = 10
 # and J weight channels (b is offered exactly when m is, c when J is)
 CH_BN, CH_CN = 10, 11
 N_CH_AUG = 12
-CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG))  # their names in StateMsg.shared
+# online detection (DynamicsSpec.online_detection): the pooled window statistics (agents/effect_decision.py)
+CH_POOL = N_CH_AUG
+CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG + N_POOL))  # their names in StateMsg.shared
 
 
 class DynamicPhase:
@@ -80,7 +84,8 @@ class DynamicPhase:
         self.dt = dt
         self.spec = spec
         self.background = spec.algorithm == "background"
-        self.avg = FlowAverage(nbr_ids, N_CH_AUG if spec.estimate_effects else N_CH)
+        nch = N_CH_AUG + N_POOL if spec.online_detection else N_CH_AUG if spec.estimate_effects else N_CH
+        self.avg = FlowAverage(nbr_ids, nch)
         self.ch_keys = CH_KEYS[:self.avg.nch]
         self.m_local_sd = self.j_local_sd = math.nan  # the filter's sd of m_local and J_local when offered
         self.b_local = math.nan  # augmented model: own b = beta m and c = gamma J, before the averaging
@@ -144,6 +149,11 @@ class DynamicPhase:
         self.monitor = (InnovationMonitor(ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha)
                         if spec.monitor_window_s > 0.0 else None)
         self.last_f = 0j  # the own force applied over the last prediction (a signature of the monitor)
+        # online detection: the team pools its filters' scores and switches a missing effect on
+        declared = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
+        self.detect = (OnlineDetection(n, ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha,
+                                       ticks(spec.horizon_s), CH_POOL, declared)
+                       if spec.online_detection else None)
 
     # ------------------------------------------------------------------ messages
     def decode(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float] | None) -> DynamicMsg:
@@ -164,7 +174,8 @@ class DynamicPhase:
         bar = decode_barrier(sh, self.barrier.mask_keys)
         if not all(map(isfinite, xj)):
             raise ValueError("non-finite")
-        return DynamicMsg(j, t, int(msg_phase), psi, degj, xj, flows, bar, int(sh["Sk"]), om)
+        dec = decode_decision(sh) if self.detect is not None else None
+        return DynamicMsg(j, t, int(msg_phase), psi, degj, xj, flows, bar, int(sh["Sk"]), om, dec)
 
     def _receive(self, m: DynamicMsg) -> None:
         """A decoded neighbour state (in arrival order: a later one of the same neighbour replaces it)."""
@@ -173,6 +184,8 @@ class DynamicPhase:
         self.nbr_stage[j] = m.stage
         self.nbr_stage_tick[j] = m.stage_tick
         self.nbr_barrier[j] = m.barrier
+        if m.decision is not None and self.detect is not None:
+            self.detect.merge(m.decision)
         if m.stage >= KINEMATIC:  # its filter (and psi) runs from the kinematic stage on
             self.nbr_psi[j] = (m.psi, m.tick)
             if m.omega_hat - m.omega_hat == 0.0:
@@ -200,12 +213,14 @@ class DynamicPhase:
     # ------------------------------------------------------------------ helpers
     def _enter(self, stage: int, tick: int) -> None:
         filters = (self.kf,) if self.shadow is None else (self.kf, self.shadow)  # a restart on trial: both
-        if stage >= M_EXCITE and self.kf.aug is not None and not self.released:
+        if stage >= M_EXCITE and self.spec.estimate_effects and not self.released:
             self.released = True  # the excitation starts (or we jumped past it): see release_effects
             for kf in filters:
                 kf.release_effects()
         self.stage = stage
         self.stage_tick = tick
+        if self.detect is not None:
+            self.detect.regime_change()
         if stage == M_EXCITE:
             self.m_start = tick
         elif stage == J_EXCITE:
@@ -300,6 +315,12 @@ class DynamicPhase:
             self.monitor.reset()
         if self.released:
             kf.release_effects()
+        if self.detect is not None:
+            self.detect.ev.restart()
+            self.detect.regime_change()
+            for k in range(N_EFF):  # the effects switched on online
+                if (self.detect.on >> k) & 1 and EFFECTS[k] not in self.spec.estimate_effects:
+                    kf.release_effect(k)
         # the trial's running mean starts at the threshold, not at the consistent 2: what is left of the
         # start after the trial (13 % at 4 s over 2 s) then leans towards keeping the old filter
         self.nis_avg = self.lock_thr
@@ -318,6 +339,8 @@ class DynamicPhase:
         else:  # the restart did no better: back to the old filter, and wait longer before the next try
             if self.monitor is not None:
                 self.monitor.reset()
+            if self.detect is not None:
+                self.detect.regime_change()
             self.kf = self.shadow
             self.nis_avg = self.shadow_nis
             self.lock_fails += 1
@@ -371,6 +394,11 @@ class DynamicPhase:
         trusted: bool, om_init: bool, wrench: tuple[float, float, float],
     ) -> tuple[float, float, float]:
         self._advance_stage(tick, v, omega_hat, phi, zi, trusted, om_init)
+        if self.detect is not None:
+            k_on = self.detect.begin_tick(tick, self.avg.u, self.avg.x)
+            if k_on >= 0:  # the team's agreed switch: the effect's state moves from here on
+                for kf in (self.kf,) if self.shadow is None else (self.kf, self.shadow):
+                    kf.release_effect(k_on)
         stage = self.stage
         rot = self._body_frame(tick, phi)
         q, zc, held = self._filter_update(tick, v, u, u_den, omega_hat, zi, rot)
@@ -417,6 +445,8 @@ class DynamicPhase:
                             # the m stage to recover
                             self.restarted = True
                             kf.start(v, zi, omega_hat)
+                            if self.detect is not None:
+                                self.detect.regime_change()
                             self.lock_from = tick + self.lock_hold
                         self.barrier.set_ready(tick)
                 else:
@@ -457,6 +487,8 @@ class DynamicPhase:
             if mon is not None:
                 e0, e1, s00, s01, s11 = kf.innov
                 mon.observe(complex(e0, e1), s00, s01, s11, vc0, om0, q0, self.last_f)
+            if self.detect is not None and self.restarted and self.q_held is None:
+                self.detect.observe(kf.innov, kf.sens_h)
             q = kf.q
         else:
             q = zi
@@ -616,9 +648,9 @@ class DynamicPhase:
     # ------------------------------------------------------------------ outputs
     def monitor_entries(self) -> dict[str, float]:
         """The innovation monitor's estimate entries (NaN without it)."""
-        if self.monitor is None:
-            return dict.fromkeys(MONITOR_NAMES, math.nan)
-        return self.monitor.entries()
+        out = dict.fromkeys(MONITOR_NAMES, math.nan) if self.monitor is None else self.monitor.entries()
+        out.update(dict.fromkeys(DETECT_NAMES, math.nan) if self.detect is None else self.detect.entries())
+        return out
 
     def uncertainties(self) -> tuple[float, float]:
         """One standard deviation of the m and J consensus values (NaN while there is none): the filter's sd
@@ -642,6 +674,8 @@ class DynamicPhase:
         out["Sk"] = float(self.stage_tick)
         out["ps"] = self.psi if self.psi == self.psi else 0.0
         out.update(self.barrier.encode())
+        if self.detect is not None:
+            out.update(self.detect.flood.encode())
         return out
 
     def _estimates(self) -> dict[str, float]:
@@ -651,6 +685,8 @@ class DynamicPhase:
         nan = math.nan
         m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
         J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
+        # the effects in the model: declared (estimate_effects) or switched on online
+        on = 3 if self.detect is None else self.detect.on
         if self.stage >= M_AVERAGE:
             zc = complex(x[CH_ZX], x[CH_ZY]) * complex(cos(self.psi), sin(self.psi))
             vc = complex(s[0], s[1])
@@ -667,9 +703,9 @@ class DynamicPhase:
             "m_local": self.m_local,
             "late_switches": float(self.late_switches),
             # augmented model (estimate_effects): b with m's weights, c with J's
-            "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 else nan,
-            "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 else nan,
-            "b_local": self.b_local,
-            "c_local": self.c_local,
+            "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 and on & 1 else nan,
+            "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 and on & 2 else nan,
+            "b_local": self.b_local if on & 1 else nan,
+            "c_local": self.c_local if on & 2 else nan,
             "filter_restarts": float(self.reseeds),
         }

@@ -38,7 +38,8 @@ class RigidEKF:
     An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
     """
 
-    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0", "nis", "innov")
+    __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0", "nis", "innov", "sens", "sens_h",
+                 "walk_eff", "detect")
 
     def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
         self.r = max(sigma_v, 1e-3) ** 2
@@ -52,11 +53,17 @@ class RigidEKF:
         # augmented model: prior variances and per-second walk intensities of (beta, gamma); 0 and 0 for
         # an effect not estimated (its state stays exactly 0)
         self.aug: tuple[float, float, float, float] | None = None
-        if spec.estimate_effects:
+        if spec.estimate_effects or spec.online_detection:
             on_b = 1.0 if "viscous_friction" in spec.estimate_effects else 0.0
             on_c = 1.0 if "rotational_damping" in spec.estimate_effects else 0.0
             w2 = spec.effect_walk**2
             self.aug = (on_b, on_c, on_b * w2, on_c * w2)
+        self.walk_eff = spec.effect_walk**2
+        # online detection (agents/effect_decision.py): d(state prediction)/d(beta, gamma) at the pinned 0,
+        # through the filter's own prediction and gain, and its own-velocity rows H D of the last update
+        self.sens: np.ndarray | None = None
+        self.sens_h = (0.0, 0.0, 0.0, 0.0)  # (H D)[v_x, beta], [v_y, beta], [v_x, gamma], [v_y, gamma]
+        self.detect = spec.online_detection
         # the pooled eq. (9) rate's own slowly varying error b (u = omega + b), the last state; pinned at 0
         # (zero variance, no walk) with u_bias_walk = 0
         self.ib = 7 if self.aug is None else 9
@@ -81,6 +88,8 @@ class RigidEKF:
         P[:ib, :ib] = self.P
         P[ib, ib] = self.b0
         self.P = P
+        if self.detect:
+            self.sens = np.zeros((ib + 1, 2))
         self.ready = True
 
     def release_effects(self) -> None:
@@ -103,6 +112,27 @@ class RigidEKF:
             P[k, :] = 0.0
             P[:, k] = 0.0
             P[k, k] = var
+        self.s = s
+        self.P = P
+
+    def release_effect(self, k: int) -> None:
+        """Online detection: let effect k (0: beta, 1: gamma) move from 0 (prior std 0.3 1/s, walk
+        ``effect_walk``) and restart the parameter it shares the data with (1/m for beta, 1/J for gamma) from
+        its current value with the start's prior, as :meth:`release_effects` does for both."""
+        if self.aug is None or not self.ready:
+            return
+        on = list(self.aug)
+        on[k] = 1.0
+        on[2 + k] = self.walk_eff
+        self.aug = (on[0], on[1], on[2], on[3])
+        P = self.P.copy()
+        s = self.s.copy()
+        for j, var in (((4, 1.0), (7, 0.1)) if k == 0 else ((6, 1e-2), (8, 0.1))):
+            if j >= 7:
+                s[j] = 0.0
+            P[j, :] = 0.0
+            P[:, j] = 0.0
+            P[j, j] = var
         self.s = s
         self.P = P
 
@@ -194,6 +224,10 @@ class RigidEKF:
             Sinv = np.array(((a00, a01, a02), (a01, a11, a12), (a02, a12, a22))) / det
             K = C @ Sinv
             self.s = s + K @ np.array((e0, e1, e2))
+            if self.sens is not None:
+                D = self.sens
+                hd2 = D[5] + D[ib] - u_dc * D[6] + (u_dw * D[8] if self.aug is not None else 0.0)
+                self._sens_update(K, D, qx, qy, om, hd2)
         else:
             det = s00 * s11 - s01 * s01
             if det <= 0.0:
@@ -202,8 +236,22 @@ class RigidEKF:
             Sinv = np.array(((s11, -s01), (-s01, s00))) / det
             K = C @ Sinv
             self.s = s + K @ np.array((e0, e1))
+            if self.sens is not None:
+                self._sens_update(K, self.sens, qx, qy, om, None)
         P = P - K @ C.T
         self.P = 0.5 * (P + P.T)
+
+    def _sens_update(self, K: np.ndarray, D: np.ndarray, qx: float, qy: float, om: float,
+                     hd2: np.ndarray | None) -> None:
+        """The sensitivities through the update, D <- D - K H D; H D's own-velocity rows are kept for the
+        detection's score. The gain's own dependence on the rates is left out: it multiplies the innovation,
+        zero-mean under the nominal model (tests/test_effect_decision.py: D equals the finite difference of
+        the posterior on data the filter predicts exactly)."""
+        hd0 = D[0] - om * D[3] - qy * D[5]
+        hd1 = D[1] + om * D[2] + qx * D[5]
+        self.sens_h = (float(hd0[0]), float(hd1[0]), float(hd0[1]), float(hd1[1]))
+        HD = np.vstack((hd0, hd1) if hd2 is None else (hd0, hd1, hd2))
+        self.sens = D - K @ HD
 
     def predict(self, force: complex, torque: float, dt: float) -> None:
         s = self.s
@@ -241,6 +289,12 @@ class RigidEKF:
             A[5, 8] = -dt * om
             nq = np.append(nq, (beta, gamma))
         nq = np.append(nq, s[self.ib])
+        if self.sens is not None:  # d/d beta: -dt v_C on v_C; d/d gamma: -dt omega on omega (at the pinned 0)
+            D = A @ self.sens
+            D[0, 0] -= dt * s[0]
+            D[1, 0] -= dt * s[1]
+            D[5, 1] -= dt * om
+            self.sens = D
         P = A @ self.P @ A.T
         qv, qa, qm, qo, qi = self.Qd
         P[0, 0] += qv * dt

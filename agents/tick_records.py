@@ -33,6 +33,7 @@ class DynamicMsg(NamedTuple):
     barrier: tuple[int, int, int]  # (ready mask, latest ready tick, switch tick)
     stage_tick: int  # tick its stage began
     omega_hat: float  # its kinematic omega_hat (NaN if absent)
+    decision: tuple[int, int, float] | None = None  # its flooded effect switch (online detection only)
 
 
 class KinematicTick(NamedTuple):

@@ -299,6 +299,13 @@ class DynamicsSpec(_Strict):
                     "domega = (T - c omega) dt/J; each an extra filter state averaged by consensus like m and "
                     "J; empty: the nominal model",
     )
+    online_detection: bool = Field(
+        False, description="the team decides online which effect is missing (agents/effect_decision.py, "
+                           "docs/online-detection.md): every filter carries beta = b/m and gamma = c/J pinned at 0, "
+                           "the agents pool the score of each over windows of monitor_window_s by consensus and "
+                           "switch the one significant at monitor_alpha / 3 (one-sided) on, on an agreed tick; "
+                           "false: only estimate_effects, decided beforehand",
+    )
     effect_walk: float = Field(
         3e-3, ge=0, description="Kalman filter: random walk of the estimated effects' rates b/m and c/J "
                                 "(1/s/sqrt(s)); lets a filter forget a wrong start (1e-3 left one agent's b "

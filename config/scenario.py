@@ -403,6 +403,10 @@ class Scenario(_Strict):
         if self.control.law and self.dynamics.algorithm == "none":
             raise ValueError('control.law: a law acts where the dynamical phase allows one: set dynamics.algorithm '
                              '= "sequential" (from done on) or "background"')
+        dyn = self.dynamics
+        if dyn.online_detection and (dyn.algorithm == "none" or dyn.monitor_window_s <= 0):
+            raise ValueError('dynamics.online_detection: needs the dynamical phase (dynamics.algorithm "sequential" or '
+                             '"background") and its windows (dynamics.monitor_window_s > 0)')
         if self.arms is not None and self.arms.bases is not None and len(self.arms.bases) != self.n:
             raise ValueError(f"arms.bases: must list exactly n = {self.n} bases (got {len(self.arms.bases)})")
         if self.ticks < 1:

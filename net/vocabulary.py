@@ -62,4 +62,12 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "mon_alarm",  # 1: some p-value below monitor_alpha / 5 in the last window, else 0
     "mon_windows",  # windows tested so far (count)
     "mon_alarms",  # windows with an alarm so far (count)
+    # online detection (agents/effect_decision.py, docs/online-detection.md; NaN without it)
+    "eff_on",  # effects in the filters: bit 0 viscous friction, bit 1 rotational damping (declared or switched on)
+    "eff_tick",  # tick of the last switch the team agreed (-1: none)
+    "eff_z",  # its pooled statistic (z, one-sided)
+    "eff_unexplained",  # windows the team judged structured with no candidate significant (count)
+    "eff_zp",  # the last judged window's pooled persistence z (this agent's view of the team means)
+    "eff_zb",  # ... pooled score z of viscous friction
+    "eff_zc",  # ... of rotational damping
 )

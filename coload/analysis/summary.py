@@ -1,7 +1,7 @@
 """Completes a finished run's summary.json with what is computed from its files: the error metrics,
 the agents' estimate trust (docs/estimate-trust.md), their innovation monitors' counts
-(docs/innovation-monitor.md) and the centralized batch-fit yardstick
-(docs/run-directory.md, docs/batch-fit.md).
+(docs/innovation-monitor.md), the online detection's switches (docs/online-detection.md) and the
+centralized batch-fit yardstick (docs/run-directory.md, docs/batch-fit.md).
 
 The recorder only records; every engine calls :func:`complete_summary` once the run directory is
 closed.
@@ -41,6 +41,14 @@ def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any])
         monitor = monitor_block(run)
         if monitor:
             summary["monitor"] = monitor
+        effects = effects_block(run)
+        if effects:
+            summary["effects"] = effects
+            # every switch the team agreed online is an event of the run, beside the partitions
+            events = summary.get("events", []) + [
+                {"tick": e["tick"], "t": e["tick"] * scenario.dt, "event": "effect_switch", "effect": e["effect"],
+                 "statistic": e["statistic"], "agents": e["agents"]} for e in effects["events"] if e["tick"] >= 0]
+            summary["events"] = sorted(events, key=lambda e: e["tick"])
     except (ValueError, OSError) as exc:
         summary["errors"] = {}
         summary.setdefault("warnings", []).append(f"errors not computed: {exc}")
@@ -113,6 +121,42 @@ def monitor_block(run: fmt.RunData | None) -> dict[str, Any]:
         "alarms": int(np.nansum(alarms)),
         "per_agent": {"windows": [_int_or_none(v) for v in windows], "alarms": [_int_or_none(v) for v in alarms],
                       "first_alarm_t": first},
+    }
+
+
+EFFECT_BITS = ("viscous_friction", "rotational_damping")  # bit k of eff_on (agents/effect_decision.py EFFECTS)
+
+
+def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
+    """The online detection's decisions (``eff_*`` columns, docs/online-detection.md): every switch the team
+    agreed as an event (tick, effect, pooled statistic, the agents that applied it), the effects on at the
+    end, and the windows judged ``unexplained`` (the largest count over the agents). Empty without those
+    columns (a run without online detection)."""
+    est = None if run is None else run.estimates
+    if est is None or len(est.t) == 0 or not all(est.has(c) for c in ("eff_on", "eff_tick", "eff_z")):
+        return {}
+    on, tick, z = (est.columns[c] for c in ("eff_on", "eff_tick", "eff_z"))
+    if not np.isfinite(on).any():
+        return {}
+    events: dict[tuple[int, str], dict[str, Any]] = {}
+    for i in range(on.shape[1]):
+        prev = 0
+        for r in np.flatnonzero(np.isfinite(on[:, i])):
+            new = int(on[r, i]) & ~prev
+            for k, name in enumerate(EFFECT_BITS):
+                if (new >> k) & 1:
+                    ev = events.setdefault((int(tick[r, i]), name), {
+                        "tick": int(tick[r, i]), "effect": name, "statistic": _finite_or_none(z[r, i]), "agents": []})
+                    ev["agents"].append(i)
+            prev = int(on[r, i])
+    final = _last_finite(on)
+    unexplained = _last_finite(est.columns["eff_unexplained"]) if est.has("eff_unexplained") else final * math.nan
+    names = sorted({name for v in final if math.isfinite(v) for k, name in enumerate(EFFECT_BITS) if (int(v) >> k) & 1})
+    return {
+        "events": sorted(events.values(), key=lambda e: (e["tick"], e["effect"])),
+        "on": names,
+        "agree": len({v for v in final if math.isfinite(v)}) <= 1,
+        "unexplained_windows": _int_or_none(float(np.nanmax(unexplained))) if np.isfinite(unexplained).any() else None,
     }
 
 

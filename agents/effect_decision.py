@@ -1,0 +1,272 @@
+"""Online effect detection: the team pools its filters' evidence and agrees which missing effect to switch on.
+
+Every agent's filter (agents/rigid_filter.py, ``sens``) carries the sensitivity of its own-velocity
+prediction to each candidate effect's rate (beta = b/m: viscous friction; gamma = c/J: rotational
+damping), propagated through the filter's own prediction and gain: what the innovation would look like
+if the effect were there, after the filter's states (1/m, omega, 1/J, ...) had absorbed what they can.
+Per update, :class:`WindowEvidence` takes the whitened innovation w and the whitened sensitivities g_k
+(both from S = L L^T) and sums, over global windows of ``window`` ticks (tick // window, the same at
+every agent):
+
+- per candidate k the score numerator s_k = sum w.g_k and its variance v_k = sigma^2 sum |g_k|^2
+  (sigma^2 = sum |w|^2 / 2N): the Lagrange-multiplier test of the rate at 0;
+- the persistence z of the window (agents/innovation_monitor.py: positive autocorrelation at lags 1..h).
+
+Pooling without a coordinator: each agent puts its window's (s_k, v_k, z, 1) on flow-updating average
+consensus channels (agents/consensus.py) for the next window; the team statistics are
+z_k = sum_i s_ik / sqrt(sum_i v_ik) and z_p = sum_i z_i / sqrt(count) (:func:`pooled`), N(0, 1) under the
+nominal model for independent agents. At the next window's last tick each agent judges them
+(:func:`judge`): one-sided at the Bonferroni level ``alpha / (1 + candidates)``; the significant
+candidate with the largest z is proposed with a switch tick ``horizon`` later; structure (z_p
+significant) with no significant candidate is ``unexplained``. Proposals are flooded
+(:class:`DecisionFlood`): the earliest switch tick, then the largest z wins, so every agent that has
+heard all proposals by the switch tick switches the same effect on the same tick.
+
+Pure: no clock, socket or RNG. See docs/online-detection.md.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+EFFECTS = ("viscous_friction", "rotational_damping")  # candidate k: filter state 7 + k (beta, gamma)
+N_EFF = len(EFFECTS)
+# consensus channels per window: (s_k, v_k) per candidate, then the persistence z and the count
+N_POOL = 2 * N_EFF + 2
+DECISION_KEYS = ("Ds", "De", "Dz")  # StateMsg.shared: switch tick (-1: none), effect index, statistic
+DETECT_NAMES = ("eff_on", "eff_tick", "eff_z", "eff_unexplained", "eff_zp", "eff_zb", "eff_zc")
+
+
+def normal_sf(z: float) -> float:
+    """P(Z > z) for a standard normal Z."""
+    return 0.5 * math.erfc(z / math.sqrt(2.0))
+
+
+def pooled(means: Sequence[float], n: int) -> tuple[float, list[float]]:
+    """(z_p, [z_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
+    agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v))."""
+    nan = math.nan
+    zs = []
+    for k in range(N_EFF):
+        s, v = means[2 * k], means[2 * k + 1]
+        zs.append(math.sqrt(n) * s / math.sqrt(v) if v > 0.0 else nan)
+    zsum, cnt = means[2 * N_EFF], means[2 * N_EFF + 1]
+    zp = math.sqrt(n) * zsum / math.sqrt(cnt) if cnt > 0.0 else nan
+    return zp, zs
+
+
+def judge(zp: float, zs: Sequence[float], alpha: float, on: int) -> tuple[int, bool]:
+    """The team's verdict on one window: (candidate to switch on or -1, unexplained).
+
+    Every test is one-sided (a missing effect has a positive coefficient; the persistence test is one-sided
+    too) at alpha / (1 + number of candidates); candidates already on (bit k of ``on``) are not tested but
+    still count in the level, which stays the same whatever has been switched."""
+    level = alpha / (1 + N_EFF)
+    best, zbest = -1, -math.inf
+    for k, z in enumerate(zs):
+        if (on >> k) & 1 or not (z == z):
+            continue
+        if normal_sf(z) < level and z > zbest:
+            best, zbest = k, z
+    structured = zp == zp and normal_sf(zp) < level
+    return best, best < 0 and structured
+
+
+class WindowEvidence:
+    """One agent's sums over the current global window (module docstring)."""
+
+    __slots__ = ("lags", "hist", "k", "sw", "sg", "sww", "n", "acc", "den")
+
+    def __init__(self, lags: int) -> None:
+        self.lags = lags
+        self.hist: list[tuple[float, float]] = []  # the last ``lags`` whitened innovations, newest last
+        self.clear()
+
+    def clear(self) -> None:
+        """A new window."""
+        self.sw = [0.0] * N_EFF
+        self.sg = [0.0] * N_EFF
+        self.sww = 0.0
+        self.n = 0
+        self.acc = [0.0, 0.0]  # sum over lags 1..h of the lag products, per component
+        self.den = [0.0, 0.0]
+
+    def restart(self) -> None:
+        """The filter restarted: no lag products across the restart."""
+        self.hist = []
+
+    def observe(self, w0: float, w1: float, g: Sequence[tuple[float, float]]) -> None:
+        """One update's whitened innovation (w0, w1) and each candidate's whitened sensitivity."""
+        for k, (g0, g1) in enumerate(g):
+            self.sw[k] += w0 * g0 + w1 * g1
+            self.sg[k] += g0 * g0 + g1 * g1
+        self.sww += w0 * w0 + w1 * w1
+        self.n += 1
+        a, d = self.acc, self.den
+        d[0] += w0 * w0
+        d[1] += w1 * w1
+        for h0, h1 in self.hist:
+            a[0] += w0 * h0
+            a[1] += w1 * h1
+        hist = self.hist
+        hist.append((w0, w1))
+        if len(hist) > self.lags:
+            del hist[0]
+
+    def close(self) -> list[float] | None:
+        """The window's :data:`N_POOL` consensus inputs, None if it had too few updates to test (the sums are
+        cleared either way)."""
+        out = None
+        if self.n > 2 * self.lags and self.sww > 0.0:
+            sigma2 = self.sww / (2 * self.n)
+            out = []
+            for k in range(N_EFF):
+                out += [self.sw[k], sigma2 * self.sg[k]]
+            r = sum(a / d for a, d in zip(self.acc, self.den, strict=True) if d > 0.0)
+            out += [math.sqrt(self.n) * r / math.sqrt(2 * self.lags), 1.0]
+        self.clear()
+        return out
+
+
+def better(a: tuple[int, int, float], b: tuple[int, int, float]) -> bool:
+    """Is proposal a = (switch tick, effect, z) preferred to b? The earliest switch, then the largest z,
+    then the lowest effect index: a total order, so every agent picks the same from the same set."""
+    if a[0] < 0:
+        return False
+    if b[0] < 0:
+        return True
+    return (a[0], -a[2], a[1]) < (b[0], -b[2], b[1])
+
+
+class DecisionFlood:
+    """One agent's view of the pending switch (module docstring); ``done`` is the last applied switch tick."""
+
+    __slots__ = ("best", "done")
+
+    def __init__(self) -> None:
+        self.best: tuple[int, int, float] = (-1, -1, 0.0)
+        self.done = -1
+
+    def merge(self, prop: tuple[int, int, float]) -> None:
+        if prop[0] > self.done and better(prop, self.best):
+            self.best = prop
+
+    def due(self, tick: int) -> tuple[int, int, float] | None:
+        """The pending proposal if its switch tick has come (then it is applied: cleared, ``done`` set)."""
+        b = self.best
+        if b[0] < 0 or tick < b[0]:
+            return None
+        self.done = b[0]
+        self.best = (-1, -1, 0.0)
+        return b
+
+    def encode(self) -> dict[str, float]:
+        s, e, z = self.best
+        return {"Ds": float(s), "De": float(e), "Dz": z if z == z else 0.0}
+
+
+def decode(sh: Mapping[str, float]) -> tuple[int, int, float]:
+    """A neighbour's flooded proposal; KeyError or ValueError if malformed."""
+    s, e, z = float(sh["Ds"]), float(sh["De"]), float(sh["Dz"])
+    if s != int(s) or e != int(e) or not (-1 <= e < N_EFF) or z - z != 0.0:
+        raise ValueError("bad decision")
+    return int(s), int(e), z
+
+
+class OnlineDetection:
+    """One agent's part of the online detection: its window sums, its view of the pooled statistics, the
+    flooded proposal and what the team has switched on (module docstring). Driven by DynamicPhase: the pool
+    channels are ``ch0 .. ch0 + N_POOL - 1`` of its FlowAverage."""
+
+    __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "last_tick", "last_z",
+                 "unexplained", "zp", "zs", "settle_from", "late", "mixed")
+
+    def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0) -> None:
+        self.n = n
+        self.window = window
+        self.horizon = horizon
+        self.alpha = alpha
+        self.ch0 = ch0
+        self.ev = WindowEvidence(lags)
+        self.flood = DecisionFlood()
+        self.on = on  # bit k: effect k is in the filters (declared beforehand or switched on)
+        self.last_tick = -1  # the last switch: its tick and statistic
+        self.last_z = math.nan
+        self.unexplained = 0  # windows judged structured with no candidate significant
+        self.zp = math.nan  # the last judged window's pooled statistics (this agent's view)
+        self.zs = [math.nan] * N_EFF
+        self.settle_from = 0  # windows starting before this tick are not judged (a switch is settling)
+        self.late = 0
+        self.mixed = False  # the window being filled spans a change of regime (see regime_change)
+
+    def regime_change(self) -> None:
+        """The agent's stage changed or its filter (re)started: the window being filled is not offered. The
+        scores hold for a filter whose other states have converged under one excitation; across a stage
+        switch (the m stage's force starting, 1/J forgotten) or a filter start they are still moving, and
+        the transient correlates with the candidates' sensitivities (a clean plant's viscous score reached
+        z = 3.0 in the window of the m stage's start, friction-online seed 1)."""
+        self.mixed = True
+
+    def observe(self, innov: Sequence[float], sens_h: Sequence[float]) -> None:
+        """One filter update: innovation (e0, e1, s00, s01, s11) and the sensitivities' rows H D."""
+        e0, e1, s00, s01, s11 = innov
+        if not (s00 > 0.0) or e0 != e0:
+            return
+        l00 = math.sqrt(s00)
+        l10 = s01 / l00
+        d = s11 - l10 * l10
+        if not (d > 0.0):
+            return
+        l11 = math.sqrt(d)
+        w0 = e0 / l00
+        g = []
+        for k in range(N_EFF):
+            h0, h1 = sens_h[2 * k], sens_h[2 * k + 1]
+            g0 = h0 / l00
+            g.append((g0, (h1 - l10 * g0) / l11))
+        self.ev.observe(w0, (e1 - l10 * w0) / l11, g)
+
+    def begin_tick(self, tick: int, u: list[float], x: Sequence[float]) -> int:
+        """Window bookkeeping at the start of ``tick``: closes a finished window into the pool inputs ``u``,
+        judges the previous one on the team means ``x`` at a window's last tick, and returns the effect due to
+        be switched on at this tick (-1: none)."""
+        w = self.window
+        r = tick % w
+        if r == 0 and tick > 0:
+            stats = self.ev.close()
+            if self.mixed or (tick - w) < self.settle_from:
+                stats = None
+            self.mixed = False
+            c = self.ch0
+            u[c:c + N_POOL] = stats if stats is not None else [0.0] * N_POOL
+        elif r == w - 1 and tick + 1 >= 2 * w:
+            c = self.ch0
+            if (tick + 1 - 2 * w) >= self.settle_from:
+                self.zp, zs = pooled(x[c:c + N_POOL], self.n)
+                self.zs = zs
+                k, unexplained = judge(self.zp, zs, self.alpha, self.on)
+                if k >= 0:
+                    self.flood.merge((tick + self.horizon, k, zs[k]))
+                self.unexplained += unexplained
+        due = self.flood.due(tick)
+        if due is None:
+            return -1
+        if tick > due[0]:
+            self.late += 1
+        self.on |= 1 << due[1]
+        self.last_tick, self.last_z = due[0], due[2]
+        # judge again on windows that start after the switched effect has settled for a window
+        self.settle_from = due[0] + w
+        return due[1]
+
+    def merge(self, prop: tuple[int, int, float]) -> None:
+        """A neighbour's flooded proposal (ignored for an effect already on)."""
+        if prop[0] >= 0 and not (self.on >> prop[1]) & 1:
+            self.flood.merge(prop)
+
+    def entries(self) -> dict[str, float]:
+        """The estimate entries (:data:`DETECT_NAMES`)."""
+        return {"eff_on": float(self.on), "eff_tick": float(self.last_tick), "eff_z": self.last_z,
+                "eff_unexplained": float(self.unexplained), "eff_zp": self.zp, "eff_zb": self.zs[0],
+                "eff_zc": self.zs[1]}

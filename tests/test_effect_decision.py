@@ -1,0 +1,260 @@
+"""Online effect detection (agents/effect_decision.py, docs/online-detection.md): the window statistics'
+levels and power on synthetic innovations, pooling by flow-updating consensus (lossy, a dead agent), the
+flooded decision's agreement, and closed loops that name viscous friction, switch nothing on a clean
+plant, and equal over Zenoh processes the in-process engine bit for bit."""
+
+from __future__ import annotations
+
+import math
+from statistics import NormalDist
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agents.consensus import FlowAverage
+from agents.effect_decision import (
+    DETECT_NAMES,
+    N_EFF,
+    N_POOL,
+    DecisionFlood,
+    OnlineDetection,
+    WindowEvidence,
+    decode,
+    judge,
+    normal_sf,
+    pooled,
+)
+from coload.runs.engine import run_inproc
+from config.loader import ScenarioError, load_scenario
+from net.vocabulary import ESTIMATE_NAMES
+from tests.conftest import SCENARIOS, max_table_difference
+
+LAGS = 10
+
+
+def _window(rng, n, theta=(0.0, 0.0), ar=0.0):
+    """One window's evidence: w = sum_k theta_k g_k + e, e AR(1) with coefficient ``ar`` (white at 0), and
+    signatures g_k smooth random signals drawn before (independent of e)."""
+    g = np.cumsum(rng.normal(size=(N_EFF, n, 2)), axis=1) / 10.0
+    e = rng.normal(size=(n, 2))
+    for k in range(1, n):
+        e[k] += ar * e[k - 1]
+    w = e + np.tensordot(np.asarray(theta), g, axes=1)
+    ev = WindowEvidence(LAGS)
+    for k in range(n):
+        ev.observe(w[k, 0], w[k, 1], [(g[c, k, 0], g[c, k, 1]) for c in range(N_EFF)])
+    return ev.close()
+
+
+def _z(stats, n_agents=1):
+    """Pooled statistics of a list of agents' window stats (the team sums; no consensus)."""
+    means = np.mean(np.array(stats), axis=0)
+    return pooled(list(means), n_agents)
+
+
+def test_each_test_rejects_at_its_level_on_white_innovations():
+    """Under H0 the one-sided scores and the persistence z are N(0, 1): rejection rate at 1 % and 5 % within
+    four binomial sd over 600 windows of 250 updates (the closed loop's shortest)."""
+    rng = np.random.default_rng(3)
+    zs = np.array([[zp, *z] for zp, z in (_z([_window(rng, 250)]) for _ in range(600))])
+    for level in (0.01, 0.05):
+        rate = np.mean(np.vectorize(normal_sf)(zs) < level, axis=0)
+        sd = math.sqrt(level * (1 - level) / len(zs))
+        assert np.all(np.abs(rate - level) < 4 * sd), (level, rate)
+
+
+def test_pooling_ten_agents_names_an_effect_one_agent_cannot():
+    """An effect whose score is ~1.2 sd in one agent's window is named by the pool of ten (~3.8 sd), and the
+    right one: the other candidate stays insignificant."""
+    rng = np.random.default_rng(5)
+    named = single = wrong = 0
+    for _ in range(60):
+        stats = [_window(rng, 200, theta=(0.06, 0.0)) for _ in range(10)]
+        zp, zs = _z(stats, 10)
+        k, unexplained = judge(zp, zs, 0.01, 0)
+        named += k == 0
+        wrong += k == 1
+        k1, _ = judge(*_z(stats[:1]), 0.01, 0)
+        single += k1 == 0
+    assert named >= 40 and single <= 10 and wrong == 0, (named, single, wrong)
+
+
+def test_structure_no_candidate_explains_is_unexplained():
+    """A slowly varying residual (AR(1), 0.5) unrelated to either signature: structured, no switch."""
+    rng = np.random.default_rng(11)
+    stats = [_window(rng, 200, ar=0.5) for _ in range(10)]
+    k, unexplained = judge(*_z(stats, 10), 0.01, 0)
+    assert k == -1 and unexplained
+
+
+def test_judge_level_is_bonferroni_and_skips_effects_already_on():
+    lvl = 0.01 / 3
+    z_at = NormalDist().inv_cdf(1 - lvl)  # P(Z > z_at) = lvl
+    assert judge(0.0, [z_at + 1e-6, 0.0], 0.01, 0) == (0, False)
+    assert judge(0.0, [z_at - 1e-6, 0.0], 0.01, 0) == (-1, False)
+    assert judge(0.0, [5.0, 6.0], 0.01, 0) == (1, False)  # the one that explains best
+    assert judge(0.0, [5.0, 6.0], 0.01, 0b10) == (0, False)
+    assert judge(9.0, [5.0, 6.0], 0.01, 0b11) == (-1, True)
+    assert judge(9.0, [-5.0, math.nan], 0.01, 0) == (-1, True)  # a negative coefficient is no candidate
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 50), st.integers(0, N_EFF - 1), st.floats(2.0, 20.0)), min_size=1,
+                max_size=6), st.randoms())
+def test_the_flooded_proposal_does_not_depend_on_the_order_of_arrival(props, rnd):
+    a, b = DecisionFlood(), DecisionFlood()
+    for p in props:
+        a.merge(p)
+    order = list(props)
+    rnd.shuffle(order)
+    for p in order:
+        b.merge(p)
+        b.merge(b.best)  # a neighbour echoing our own flood back
+    assert a.best == b.best == min(props, key=lambda p: (p[0], -p[2], p[1]))
+    assert decode(a.encode()) == a.best
+
+
+@pytest.mark.parametrize("k", [0, 1])
+def test_filter_sensitivity_is_the_derivative_of_its_estimate_in_the_rate(k):
+    """The filter's D equals d(posterior state)/d(rate) by finite differences: a twin filter with the rate
+    pinned at eps instead of 0, on measurements that the first filter predicts exactly (so that the gain's
+    own dependence on the rate multiplies a zero innovation)."""
+    import copy
+
+    from agents.rigid_filter import RigidEKF
+    from config.agent_params import DynamicsSpec
+
+    spec = DynamicsSpec(algorithm="sequential", online_detection=True)
+    kf = RigidEKF(0.1, spec, False)
+    kf.start(complex(0.3, -0.2), complex(1.5, 0.4), 0.8)
+    kf.s = kf.s.copy()
+    kf.s[4], kf.s[6] = 1 / 50, 1 / 87  # 1/m, 1/J known roughly
+    twin = copy.copy(kf)
+    eps = 1e-7
+    twin.s = kf.s.copy()
+    twin.s[7 + k] = eps
+    dt = 0.01
+    for t in range(400):
+        force = 150 * complex(math.cos(0.02 * t), math.sin(0.013 * t))
+        torque = 30 * math.sin(0.05 * t)
+        for f in (kf, twin):
+            f.predict(force, torque, dt)
+        s = kf.s
+        v = complex(s[0] - s[5] * s[3], s[1] + s[5] * s[2])  # kf's own prediction: its innovation is 0
+        for f in (kf, twin):
+            f.update(v, math.nan, 0.0)
+    keep = [0, 1, 2, 3, 4, 5, 6, 9]  # every state but the rates themselves (d beta / d beta = 1 is not carried)
+    fd = ((twin.s - kf.s) / eps)[keep]
+    d = kf.sens[keep, k]
+    assert np.max(np.abs(d)) > 1e-3
+    assert np.max(np.abs(fd - d)) < 1e-4 * np.max(np.abs(d)) + 1e-9, (fd, d)
+
+
+def _line_pool(n, inputs, ticks, rng, loss=0.0, dead=None):
+    """Flow-updating consensus of the pool channels on a line of n agents; ``dead`` stops sending and
+    receiving after its first exchange. Returns every agent's channels."""
+    nbrs = [[j for j in (i - 1, i + 1) if 0 <= j < n] for i in range(n)]
+    fa = [FlowAverage(nbrs[i], N_POOL) for i in range(n)]
+    for i in range(n):
+        fa[i].u = list(inputs[i])
+    for t in range(ticks):
+        msgs = {i: (list(fa[i].x), {j: list(f) for j, f in fa[i].flow.items()}, fa[i].deg) for i in range(n)}
+        for i in range(n):
+            if dead == i and t > 0:
+                continue
+            for j in nbrs[i]:
+                if (dead == j and t > 0) or rng.random() < loss:
+                    continue
+                x, flows, deg = msgs[j]
+                fa[i].receive(j, x, flows[i], deg)
+            fa[i].update()
+    return [f.x for f in fa]
+
+
+def test_consensus_pools_the_team_statistic_with_loss_and_a_dead_agent():
+    """Every agent's view of the pooled z equals the centralized one (20 % of the states lost), and with an
+    agent dead after the first exchange the others still agree with each other."""
+    rng = np.random.default_rng(2)
+    n = 10
+    inputs = [_window(rng, 200, theta=(0.01, 0.0)) for _ in range(n)]
+    central = _z(inputs, n)
+    for x in _line_pool(n, inputs, 1500, rng, loss=0.2):
+        zp, zs = pooled(x, n)
+        assert abs(zp - central[0]) < 1e-3 and max(abs(a - b) for a, b in zip(zs, central[1])) < 1e-3
+    views = [pooled(x, n) for i, x in enumerate(_line_pool(n, inputs, 1500, rng, loss=0.2, dead=9)) if i != 9]
+    for zp, zs in views:
+        assert abs(zp - views[0][0]) < 1e-3 and abs(zs[0] - views[0][1][0]) < 1e-3
+
+
+def test_every_agent_switches_on_the_agreed_tick():
+    """Two agents judge a window with slightly different views (one finds effect 0 significant, the other
+    effect 1 more so); after the flood both switch the stronger one on the same tick, and ignore its echo."""
+    w, h = 100, 20
+    dets = [OnlineDetection(2, w, LAGS, 0.01, h, 0) for _ in range(2)]
+    views = [[4.0, 1.0, 0.0, 1.0, 0.0, 1.0], [0.0, 1.0, 5.0, 1.0, 0.0, 1.0]]  # z_0 = 4 sqrt 2, z_1 = 5 sqrt 2
+    on = [[], []]
+    for tick in range(2 * w - 1, 4 * w):
+        for i, d in enumerate(dets):
+            k = d.begin_tick(tick, [0.0] * N_POOL, views[i])
+            if k >= 0:
+                on[i].append((tick, k))
+        for i, d in enumerate(dets):  # one exchange per tick
+            d.merge(dets[1 - i].flood.best)
+    assert on[0] == on[1] == [(2 * w - 1 + h, 1)]
+    assert dets[0].entries()["eff_on"] == dets[1].entries()["eff_on"] == 2.0
+
+
+def test_estimate_names_end_with_the_detection_entries():
+    assert ESTIMATE_NAMES[-len(DETECT_NAMES):] == DETECT_NAMES
+
+
+def test_online_detection_needs_the_dynamical_phase_and_its_windows():
+    with pytest.raises(ScenarioError, match="dynamics.online_detection"):
+        load_scenario(SCENARIOS / "quick.toml", ["dynamics.online_detection=true"])
+    with pytest.raises(ScenarioError, match="dynamics.online_detection"):
+        load_scenario(SCENARIOS / "quick.toml", ['dynamics.algorithm="sequential"', "dynamics.online_detection=true",
+                                                 "dynamics.monitor_window_s=0"])
+
+
+# quick.toml (n = 5, sigma 0.1) with a short kinematic settle, m and J stages of 10 s, windows of 2.5 s
+SHORT = ['dynamics.algorithm="sequential"', "dynamics.kin_settle_s=3", "dynamics.m_excite_s=10",
+         "dynamics.j_excite_s=10", "duration=30", "dynamics.monitor_window_s=2.5", "dynamics.online_detection=true"]
+VISCOUS = ["plant.friction={viscous=5.0}"]
+
+
+@pytest.fixture(scope="module")
+def viscous_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("detect") / "inproc"
+    return d, run_inproc(load_scenario(SCENARIOS / "quick.toml", SHORT + VISCOUS + ["seed=1"]), d)
+
+
+def test_closed_loop_names_viscous_friction_and_only_it(viscous_run):
+    """Undeclared viscous friction: the team switches it on, every agent on the same tick, nothing else (~12 s)."""
+    _, s = viscous_run
+    eff = s["effects"]
+    assert eff["on"] == ["viscous_friction"] and eff["agree"]
+    (ev,) = eff["events"]
+    assert ev["agents"] == [0, 1, 2, 3, 4] and ev["statistic"] > NormalDist().inv_cdf(1 - 0.01 / 3)
+    assert [e["effect"] for e in s["events"] if e["event"] == "effect_switch"] == ["viscous_friction"]
+
+
+def test_closed_loop_clean_plant_switches_nothing(tmp_path):
+    s = run_inproc(load_scenario(SCENARIOS / "quick.toml", SHORT + ["seed=1"]), tmp_path / "clean")
+    assert s["effects"]["events"] == [] and s["effects"]["on"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.zenoh
+def test_lockstep_over_zenoh_reproduces_the_decision(tmp_path, viscous_run):
+    """Router, simulator and agents as processes, lockstep == the in-process engine with detection on (~30 s)."""
+    from coload.runs.orchestrate import run_processes
+
+    a, sa = viscous_run
+    b = tmp_path / "zenoh"
+    sb = run_processes(load_scenario(SCENARIOS / "quick.toml", SHORT + VISCOUS + ["seed=1"]), b, quiet=True)
+    assert sb is not None and sb["engine"] == "zenoh"
+    for name, keys in (("samples.csv", 2), ("estimates.csv", 2), ("truth.csv", 1)):
+        assert max_table_difference(a, b, name, keys) <= 1e-9, name
+    assert sb["effects"] == sa["effects"] and sa["effects"]["events"]
