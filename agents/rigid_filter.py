@@ -104,16 +104,7 @@ class RigidEKF:
         """
         if self.aug is None or not self.ready:
             return
-        P = self.P.copy()
-        s = self.s.copy()  # replaced, never changed in place (snapshots hold it)
-        for k, var in ((4, 1.0), (6, 1e-2), (7, 0.1 * self.aug[0]), (8, 0.1 * self.aug[1])):
-            if k >= 7:
-                s[k] = 0.0
-            P[k, :] = 0.0
-            P[:, k] = 0.0
-            P[k, k] = var
-        self.s = s
-        self.P = P
+        self._restart(((4, 1.0), (6, 1e-2), (7, 0.1 * self.aug[0]), (8, 0.1 * self.aug[1])))
 
     def release_effect(self, k: int) -> None:
         """Online detection: let effect k (0: beta, 1: gamma) move from 0 (prior std 0.3 1/s, walk
@@ -125,14 +116,19 @@ class RigidEKF:
         on[k] = 1.0
         on[2 + k] = self.walk_eff
         self.aug = (on[0], on[1], on[2], on[3])
+        self._restart(((4, 1.0), (7, 0.1)) if k == 0 else ((6, 1e-2), (8, 0.1)))
+
+    def _restart(self, entries: tuple[tuple[int, float], ...]) -> None:
+        """Each (state k, variance) in ``entries``: its correlations dropped, its variance set; the effect
+        rates (k >= 7) also restart from 0, the parameters (1/m, 1/J) from their current values."""
         P = self.P.copy()
-        s = self.s.copy()
-        for j, var in (((4, 1.0), (7, 0.1)) if k == 0 else ((6, 1e-2), (8, 0.1))):
-            if j >= 7:
-                s[j] = 0.0
-            P[j, :] = 0.0
-            P[:, j] = 0.0
-            P[j, j] = var
+        s = self.s.copy()  # replaced, never changed in place (snapshots hold it)
+        for k, var in entries:
+            if k >= 7:
+                s[k] = 0.0
+            P[k, :] = 0.0
+            P[:, k] = 0.0
+            P[k, k] = var
         self.s = s
         self.P = P
 
