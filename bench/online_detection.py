@@ -46,7 +46,8 @@ PLANTS = {
 }
 FAULTS = ['link.loss={model="bernoulli", p=0.2}', "link.delay_ticks=10"]
 TRUE = {"viscous": ["viscous_friction"], "rotational": ["rotational_damping"], "clean": [],
-        "both": ["rotational_damping", "viscous_friction"], "coulomb": [], "slope": [], "periodic": []}  # the right switches
+        "both": ["rotational_damping", "viscous_friction"], "coulomb": [], "slope": [],
+        "periodic": []}  # the right switches
 NOMINAL = {"periodic"}  # plants out of the vocabulary whose nominal twin also runs (how far off the model is)
 
 

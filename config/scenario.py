@@ -276,7 +276,8 @@ class PlantSpec(_Strict):
         (0.0, 0.0), description="constant external force on the CoM, world frame, e.g. a slope m g sin(alpha) (N)"
     )
     periodic_force: PeriodicForceSpec = Field(
-        PeriodicForceSpec(), description="an oscillating external force on the CoM, world frame (outside the agents' online vocabulary)"
+        PeriodicForceSpec(),
+        description="an oscillating external force on the CoM, world frame (outside the agents' online vocabulary)",
     )
     load_changes: list[LoadChangeSpec] = Field(
         [], description="step changes of mass, inertia and CoM during the run, in time order"
