@@ -254,6 +254,16 @@ class LoadChangeSpec(_Strict):
     )
 
 
+class PeriodicForceSpec(_Strict):
+    """An external force that oscillates along a fixed world direction: F(t) = amplitude sin(2 pi t / period_s) u."""
+
+    amplitude: float = Field(0.0, ge=0, description="peak force on the CoM (N); 0: no periodic force")
+    period_s: float = Field(10.0, gt=0, description="period of the oscillation (s, simulated)")
+    direction_deg: float = Field(
+        0.0, description="direction u of the force from the world x axis (degrees, counter-clockwise)"
+    )
+
+
 class PlantSpec(_Strict):
     """Physical effects of the plant that the agents' model lacks. Never told to the agents (see docs/diagnose.md)."""
 
@@ -264,6 +274,10 @@ class PlantSpec(_Strict):
     )
     external_force: Vec2 = Field(
         (0.0, 0.0), description="constant external force on the CoM, world frame, e.g. a slope m g sin(alpha) (N)"
+    )
+    periodic_force: PeriodicForceSpec = Field(
+        PeriodicForceSpec(),
+        description="an oscillating external force on the CoM, world frame (outside the agents' online vocabulary)",
     )
     load_changes: list[LoadChangeSpec] = Field(
         [], description="step changes of mass, inertia and CoM during the run, in time order"
@@ -418,6 +432,10 @@ class Scenario(_Strict):
             if not _inside(offset, _outline_about_centroid(self.load)):
                 raise ValueError(f"{field}: ({offset[0]:g}, {offset[1]:g}) lies outside the load's outline "
                                  "(the CoM of a rigid load is inside its convex hull)")
+        pf = self.plant.periodic_force
+        if pf.amplitude > 0 and pf.period_s < 4 * self.dt:
+            raise ValueError(f"plant.periodic_force.period_s: {pf.period_s:g} s is shorter than four ticks "
+                             f"(dt = {self.dt:g} s): the sampled force would alias")
         if not _connected(self.n, self.edges()):
             field = "graph.edges" if self.graph.topology == "explicit" else "graph"
             raise ValueError(f"{field}: the communication graph must be connected (agents 0..{self.n - 1})")

@@ -1,4 +1,5 @@
-"""Plant effects the agents' model lacks: friction, sensor delay and bias, actuator gain, a slope, a load change.
+"""Plant effects the agents' model lacks: friction, sensor delay and bias, actuator gain, a slope, a periodic
+force, a load change.
 
 Configured per scenario in ``[plant]`` (:class:`config.scenario.PlantSpec`) and never told to the
 agents. :class:`simulator.plant.Plant` builds an :class:`Effects` only when some effect is set, so
@@ -13,6 +14,8 @@ Euler, like pymunk's own integration).
 - Coulomb friction: F = -F_c tanh(|v_C|/v_s) v_C/|v_C| (N; smoothing speed v_s in m/s);
 - rotational damping: torque = -c_r omega (N m s);
 - external force: constant, world frame (N), e.g. a slope;
+- periodic force: F(k) = A sin(2 pi k dt / T) u at the CoM, u = (cos theta, sin theta) fixed in the
+  world frame (N), evaluated at tick k like the other forces of tick k;
 - actuator gain: the plant receives gain x the commanded wrench (what the agents record);
 - measurement delay: whole ticks d = round(delay/dt); the measurement at tick k is the true contact
   velocity at tick k - d (tick 0 before that), plus noise;
@@ -40,7 +43,7 @@ class Effects:
     """The configured effects of one plant; holds the little state they need (sensor history, CoM offset)."""
 
     __slots__ = (
-        "dt", "gain", "viscous", "coulomb", "coulomb_speed", "rotational", "fext", "bias", "delay_ticks",
+        "dt", "gain", "viscous", "coulomb", "coulomb_speed", "rotational", "fext", "periodic", "bias", "delay_ticks",
         "_hist", "_changes", "_offset", "_outline",
     )  # fmt: skip
 
@@ -53,6 +56,13 @@ class Effects:
         self.coulomb_speed = p.friction.coulomb_speed
         self.rotational = p.friction.rotational
         self.fext = tuple(p.external_force)
+        pf = p.periodic_force
+        theta = math.radians(pf.direction_deg)
+        # (A cos theta, A sin theta, 2 pi dt / T): the force of tick k is sin(k w) times the first two.
+        self.periodic = (
+            (pf.amplitude * math.cos(theta), pf.amplitude * math.sin(theta), 2.0 * math.pi * scenario.dt / pf.period_s)
+            if pf.amplitude else None
+        )
         self.bias = np.asarray(p.sensor.velocity_bias, dtype=float)
         self.delay_ticks = int(round(p.sensor.delay / scenario.dt))
         self._hist: deque[np.ndarray] = deque(maxlen=self.delay_ticks + 1)
@@ -80,6 +90,8 @@ class Effects:
         """Resultant (force, torque about the CoM) the body gets for the agents' commanded resultant."""
         g = self.gain
         fx, fy, torque = g * fx + self.fext[0], g * fy + self.fext[1], g * torque
+        if self.periodic is not None:
+            fx, fy = self._add_periodic(plant.tick, fx, fy)
         vx, vy = plant.com_velocity
         if self.viscous:
             fx -= self.viscous * vx
@@ -93,6 +105,16 @@ class Effects:
         if self.rotational:
             torque -= self.rotational * plant.angular_velocity
         return fx, fy, torque
+
+    def periodic_force(self, tick: int) -> tuple[float, float]:
+        """The periodic force acting during the step tick -> tick + 1 (world frame, N); (0, 0) when off."""
+        return self._add_periodic(tick, 0.0, 0.0) if self.periodic is not None else (0.0, 0.0)
+
+    def _add_periodic(self, tick: int, fx: float, fy: float) -> tuple[float, float]:
+        ax, ay, w = self.periodic
+        # The phase from the integer tick (not an accumulated angle): no drift over a long run.
+        s = math.sin(w * tick)
+        return fx + s * ax, fy + s * ay
 
     def measure(self, plant: Plant, rng: np.random.Generator) -> list[tuple[float, float]]:
         """Delayed true velocities plus bias plus the plant's usual N(0, sigma^2) draw (same stream as nominal)."""

@@ -1,0 +1,100 @@
+"""The periodic external force (``plant.periodic_force``, simulator/effects.py) against its closed form, its
+validation, and the online detection's verdict on it (docs/online-detection.md): an effect outside the
+vocabulary is ``unexplained`` and switches nothing on."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from coload.runs.engine import run_inproc
+from config.loader import ScenarioError, load_scenario, scenario_from_dict
+from simulator.plant import Plant
+from tests.conftest import SCENARIOS
+
+M, J, DT = 50.0, 86.89, 0.01
+
+
+def make(plant: dict, dt: float = DT):
+    return scenario_from_dict({
+        "n": 4, "dt": dt,
+        "load": {"width": 4.0, "height": 2.2, "mass": M, "inertia": J, "com_offset": [0.3, -0.2]},
+        "contacts": {"start": 0.05},
+        "noise": {"sigma_v": 0.0},
+        "plant": plant,
+    })  # fmt: skip
+
+
+def test_force_of_each_tick_is_the_closed_form_and_moves_the_com_by_it():
+    """F(k) = A sin(2 pi k dt / T) u acts over k -> k+1: v_C steps by F(k) dt / m, no torque."""
+    amp, period, deg = 4.0, 0.37, 120.0
+    p = Plant(make({"periodic_force": {"amplitude": amp, "period_s": period, "direction_deg": deg}}))
+    u = np.array((math.cos(math.radians(deg)), math.sin(math.radians(deg))))
+    for k in (0, 1, 9, 10, 37, 123):
+        np.testing.assert_allclose(p.effects.periodic_force(k), amp * math.sin(2 * math.pi * k * DT / period) * u,
+                                   rtol=1e-12, atol=1e-12)
+    v_prev = np.zeros(2)
+    for k in range(200):
+        p.apply_and_step([(0.0, 0.0, 0.0)] * p.n)
+        v = np.array(p.truth().vc)
+        np.testing.assert_allclose(v - v_prev, amp * math.sin(2 * math.pi * k * DT / period) * u * DT / M,
+                                   rtol=1e-6, atol=1e-15)
+        v_prev = v
+    assert p.truth().omega == 0.0  # the force acts at the CoM
+
+
+def test_off_by_default():
+    assert Plant(make({})).effects is None
+    assert Plant(make({"periodic_force": {"amplitude": 1.0}})).effects is not None
+
+
+@pytest.mark.parametrize("pf, match", [
+    ({"amplitude": -1.0}, "plant.periodic_force.amplitude"),
+    ({"amplitude": 1.0, "period_s": 0.0}, "plant.periodic_force.period_s"),
+    ({"amplitude": 1.0, "period_s": 0.03}, "shorter than four ticks"),
+    ({"amplitude": 1.0, "perod_s": 3.0}, "perod_s"),
+])  # fmt: skip
+def test_bad_periodic_force_is_a_clear_error(pf, match):
+    with pytest.raises(ScenarioError, match=match):
+        make({"periodic_force": pf})
+
+
+# quick.toml (n = 5, sigma 0.1) with a short kinematic settle, m and J stages of 10 s, windows of 2.5 s
+# (as tests/test_effect_decision.py), and a force of 6 N at the m stage's flip period (10 s) along its force.
+SHORT = ['dynamics.algorithm="sequential"', "dynamics.kin_settle_s=3", "dynamics.m_excite_s=10",
+         "dynamics.j_excite_s=10", "duration=30", "dynamics.monitor_window_s=2.5", "dynamics.online_detection=true"]
+PERIODIC = ["plant.periodic_force={amplitude=6.0, period_s=10.0, direction_deg=28.6479}"]
+
+
+@pytest.fixture(scope="module")
+def periodic_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("periodic") / "inproc"
+    return run_inproc(load_scenario(SCENARIOS / "quick.toml", SHORT + PERIODIC + ["seed=1"]), d)
+
+
+def test_closed_loop_periodic_force_switches_nothing_on(periodic_run):
+    """An effect outside the vocabulary: no candidate is switched on (~8 s)."""
+    assert periodic_run["effects"]["events"] == [] and periodic_run["effects"]["on"] == []
+
+
+@pytest.mark.xfail(strict=True, reason="the persistence test stays below its level in all windows here (0 "
+                   "unexplained) while m ends ~40 % off: the filter's 1/m absorbs a force at the m stage's own "
+                   "period (docs/online-detection.md, Measured, periodic force)")
+def test_closed_loop_periodic_force_leaves_windows_unexplained(periodic_run):
+    assert periodic_run["effects"]["unexplained_windows"] >= 1
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the team switches viscous friction on (tick 4099, z 5.56; over seeds 1-5 of "
+                   "the full bench in 5 of 5, its b then ends negative) besides counting windows unexplained "
+                   "(docs/online-detection.md, Measured, periodic force)")
+def test_paper_fig4_geometry_periodic_force_switches_nothing_on(tmp_path):
+    """friction-online (n = 10, sigma 0.3) without friction, m stage 25 s: the bench's plant, shorter (~16 s)."""
+    sc = load_scenario(SCENARIOS / "friction-online.toml", [
+        "dynamics.estimate_effects=[]", "plant.friction={}", "dynamics.online_detection=true", *PERIODIC,
+        "dynamics.m_excite_s=25", "dynamics.j_excite_s=5", "duration=48", "seed=1"])
+    eff = run_inproc(sc, tmp_path / "run")["effects"]
+    assert eff["unexplained_windows"] >= 1
+    assert eff["events"] == [] and eff["on"] == []
