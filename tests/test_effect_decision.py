@@ -121,6 +121,20 @@ def test_a_force_error_common_to_the_team_is_not_named_friction():
     assert false_raw >= 40 and false_orth <= 2 and named >= 30, (false_raw, false_orth, named)
 
 
+def test_a_window_nobody_offered_is_not_judged_on_the_consensus_residue():
+    """Every agent withheld the window (a stage switch): the delayed consensus still holds a small residue
+    of the last window's sums; the team count below one agent says no data, whatever the residue's z."""
+    n = 10
+    residue = [0.4, 1e-3, 0.02, 1e-4, 0.066, 0.002]  # team means: count 0.02 agents; else z_p 4.7, z_b 40
+    assert N_POOL == len(residue)
+    zp, zs = pooled(residue, n)
+    assert zp != zp and all(z != z for z in zs)
+    assert judge(zp, zs, 0.01, 0) == (-1, False)
+    one = [0.4 / n, 1.0 / n, 0.0, 1.0 / n, 3.0 / n, 1.0 / n]  # one agent's window, the others nothing
+    zp, zs = pooled(one, n)
+    assert zp == pytest.approx(3.0) and zs[0] == pytest.approx(0.4)
+
+
 def test_judge_level_is_bonferroni_and_skips_effects_already_on():
     lvl = 0.01 / 3
     z_at = NormalDist().inv_cdf(1 - lvl)  # P(Z > z_at) = lvl
