@@ -51,9 +51,9 @@ def pooled(means: Sequence[float], n: int) -> tuple[float, list[float]]:
     """(z_p, [z_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
     agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v)).
 
-    The count's team sum is a whole number of agents; below one half no agent contributed and what the
-    channels hold is the consensus still forgetting an earlier window (with delayed states it converges
-    over more than a window), not data: NaN."""
+    The count's team sum is a whole number of agents; below one half no agent contributed, and what the
+    channels hold is what the consensus has not yet forgotten of an earlier window (with delayed states a
+    residue of ~0.002 agents is left), not data: NaN."""
     nan = math.nan
     if n * means[2 * N_EFF + 1] < 0.5:
         return nan, [nan] * N_EFF
