@@ -420,8 +420,8 @@ class DynamicPhase:
             self.barrier.set_ready(tick)
         elif stage == J_AVERAGE and self._converged(CH_JN, CH_JW, tick):
             self.barrier.set_ready(tick)
-        self._predict(tick, rot, excitation.j_sign(k, self.j_ticks, spec) if jstage else None)
         self.last_f = complex(fx, fy)
+        self._predict(tick, rot, excitation.j_sign(k, self.j_ticks, spec) if jstage else None)
         return fx, fy, tau
 
     def _advance_stage(self, tick: int, v: complex, omega_hat: float, phi: float, zi: complex, trusted: bool,
@@ -597,9 +597,17 @@ class DynamicPhase:
             self.cc += dt * torque
             self.cw += dt * kf.omega
             self.f_int += dt * n * fbar
-            kf.predict(n * fbar, torque, dt)
+            # the detection's nuisance: the known error of the consensus force, which lags the applied one
+            # (the m stage's common force is n times the own; the J stage's net force is zero)
+            ferr = 0j
+            if self.detect is not None:
+                if self.stage == M_EXCITE:
+                    ferr = n * (self.last_f - fbar)
+                elif j_sign is not None:
+                    ferr = -n * fbar
+            kf.predict(n * fbar, torque, dt, ferr)
             if self.shadow is not None:
-                self.shadow.predict(n * fbar, torque, dt)
+                self.shadow.predict(n * fbar, torque, dt, ferr)
             iota = kf.iota
             # only once 1/J is known to 10 % (or, with j_feedforward, through the whole J stage: its torque
             # is exact and 1/J keeps its pre-stage value when it is forgotten)

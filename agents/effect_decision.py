@@ -9,7 +9,11 @@ Per update, :class:`WindowEvidence` takes the whitened innovation w and the whit
 every agent):
 
 - per candidate k the score numerator s_k = sum w.g_k and its variance v_k = sigma^2 sum |g_k|^2
-  (sigma^2 = sum |w|^2 / 2N): the Lagrange-multiplier test of the rate at 0;
+  (sigma^2 = sum |w|^2 / 2N): the Lagrange-multiplier test of the rate at 0, made orthogonal to the
+  score of the team force's known error (the force error's whitened sensitivity h: s_k - (g_k.h / h.h)
+  h.w, variance sigma^2 (|g_k|^2 - (g_k.h)^2 / h.h); Neyman's C(alpha) score with the force error's
+  gain a nuisance): the consensus force the filter integrates lags the applied one, and that lag,
+  common to every agent, must not read as friction;
 - the persistence z of the window (agents/innovation_monitor.py: positive autocorrelation at lags 1..h).
 
 Pooling without a coordinator: each agent puts its window's (s_k, v_k, z, 1) on flow-updating average
@@ -45,8 +49,14 @@ def normal_sf(z: float) -> float:
 
 def pooled(means: Sequence[float], n: int) -> tuple[float, list[float]]:
     """(z_p, [z_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
-    agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v))."""
+    agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v)).
+
+    The count's team sum is a whole number of agents; below one half no agent contributed, and what the
+    channels hold is what the consensus has not yet forgotten of an earlier window (with delayed states a
+    residue of ~0.002 agents is left), not data: NaN."""
     nan = math.nan
+    if n * means[2 * N_EFF + 1] < 0.5:
+        return nan, [nan] * N_EFF
     zs = []
     for k in range(N_EFF):
         s, v = means[2 * k], means[2 * k + 1]
@@ -76,7 +86,7 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int) -> tuple[int, b
 class WindowEvidence:
     """One agent's sums over the current global window (module docstring)."""
 
-    __slots__ = ("lags", "hist", "k", "sw", "sg", "sww", "n", "acc", "den")
+    __slots__ = ("lags", "hist", "k", "sw", "sg", "sww", "n", "acc", "den", "sh", "shh", "swh")
 
     def __init__(self, lags: int) -> None:
         self.lags = lags
@@ -88,6 +98,9 @@ class WindowEvidence:
         self.sw = [0.0] * N_EFF
         self.sg = [0.0] * N_EFF
         self.sww = 0.0
+        self.sh = [0.0] * N_EFF  # g_k.h: each candidate's sensitivity against the force error's
+        self.shh = 0.0
+        self.swh = 0.0
         self.n = 0
         self.acc = [0.0, 0.0]  # sum over lags 1..h of the lag products, per component
         self.den = [0.0, 0.0]
@@ -96,11 +109,17 @@ class WindowEvidence:
         """The filter restarted: no lag products across the restart."""
         self.hist = []
 
-    def observe(self, w0: float, w1: float, g: Sequence[tuple[float, float]]) -> None:
-        """One update's whitened innovation (w0, w1) and each candidate's whitened sensitivity."""
+    def observe(self, w0: float, w1: float, g: Sequence[tuple[float, float]],
+                h: tuple[float, float] = (0.0, 0.0)) -> None:
+        """One update's whitened innovation (w0, w1), each candidate's whitened sensitivity and the force
+        error's ``h`` (the nuisance)."""
+        h0, h1 = h
         for k, (g0, g1) in enumerate(g):
             self.sw[k] += w0 * g0 + w1 * g1
             self.sg[k] += g0 * g0 + g1 * g1
+            self.sh[k] += g0 * h0 + g1 * h1
+        self.shh += h0 * h0 + h1 * h1
+        self.swh += w0 * h0 + w1 * h1
         self.sww += w0 * w0 + w1 * w1
         self.n += 1
         a, d = self.acc, self.den
@@ -121,8 +140,14 @@ class WindowEvidence:
         if self.n > 2 * self.lags and self.sww > 0.0:
             sigma2 = self.sww / (2 * self.n)
             out = []
+            shh = self.shh
             for k in range(N_EFF):
-                out += [self.sw[k], sigma2 * self.sg[k]]
+                s, gg = self.sw[k], self.sg[k]
+                if shh > 0.0:  # the part of g_k along h is the force error's, not the candidate's
+                    c = self.sh[k] / shh
+                    s -= c * self.swh
+                    gg = max(gg - c * self.sh[k], 0.0)
+                out += [s, sigma2 * gg]
             r = sum(a / d for a, d in zip(self.acc, self.den, strict=True) if d > 0.0)
             out += [math.sqrt(self.n) * r / math.sqrt(2 * self.lags), 1.0]
         self.clear()
@@ -209,7 +234,8 @@ class OnlineDetection:
         self.mixed = True
 
     def observe(self, innov: Sequence[float], sens_h: Sequence[float]) -> None:
-        """One filter update: innovation (e0, e1, s00, s01, s11) and the sensitivities' rows H D."""
+        """One filter update: innovation (e0, e1, s00, s01, s11) and the sensitivities' rows H D (per
+        candidate, then the force error's if given)."""
         e0, e1, s00, s01, s11 = innov
         if not (s00 > 0.0) or e0 != e0:
             return
@@ -225,7 +251,11 @@ class OnlineDetection:
             h0, h1 = sens_h[2 * k], sens_h[2 * k + 1]
             g0 = h0 / l00
             g.append((g0, (h1 - l10 * g0) / l11))
-        self.ev.observe(w0, (e1 - l10 * w0) / l11, g)
+        hn = (0.0, 0.0)
+        if len(sens_h) > 2 * N_EFF:
+            h0 = sens_h[2 * N_EFF] / l00
+            hn = (h0, (sens_h[2 * N_EFF + 1] - l10 * h0) / l11)
+        self.ev.observe(w0, (e1 - l10 * w0) / l11, g, hn)
 
     def begin_tick(self, tick: int, u: list[float], x: Sequence[float]) -> int:
         """Window bookkeeping at the start of ``tick``: closes a finished window into the pool inputs ``u``,

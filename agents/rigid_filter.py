@@ -62,7 +62,8 @@ class RigidEKF:
         # online detection (agents/effect_decision.py): d(state prediction)/d(beta, gamma) at the pinned 0,
         # through the filter's own prediction and gain, and its own-velocity rows H D of the last update
         self.sens: np.ndarray | None = None
-        self.sens_h = (0.0, 0.0, 0.0, 0.0)  # (H D)[v_x, beta], [v_y, beta], [v_x, gamma], [v_y, gamma]
+        # (H D)[v_x, beta], [v_y, beta], [v_x, gamma], [v_y, gamma], then the force error's [v_x], [v_y]
+        self.sens_h = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self.detect = spec.online_detection
         # the pooled eq. (9) rate's own slowly varying error b (u = omega + b), the last state; pinned at 0
         # (zero variance, no walk) with u_bias_walk = 0
@@ -89,7 +90,7 @@ class RigidEKF:
         P[ib, ib] = self.b0
         self.P = P
         if self.detect:
-            self.sens = np.zeros((ib + 1, 2))
+            self.sens = np.zeros((ib + 1, 3))  # beta, gamma, the gain of the force error (predict)
         self.ready = True
 
     def release_effects(self) -> None:
@@ -245,11 +246,14 @@ class RigidEKF:
         the posterior on data the filter predicts exactly)."""
         hd0 = D[0] - om * D[3] - qy * D[5]
         hd1 = D[1] + om * D[2] + qx * D[5]
-        self.sens_h = (float(hd0[0]), float(hd1[0]), float(hd0[1]), float(hd1[1]))
+        self.sens_h = (float(hd0[0]), float(hd1[0]), float(hd0[1]), float(hd1[1]), float(hd0[2]), float(hd1[2]))
         HD = np.vstack((hd0, hd1) if hd2 is None else (hd0, hd1, hd2))
         self.sens = D - K @ HD
 
-    def predict(self, force: complex, torque: float, dt: float) -> None:
+    def predict(self, force: complex, torque: float, dt: float, force_err: complex = 0j) -> None:
+        """Prediction by dt under ``force`` and ``torque``. ``force_err``: the known error of ``force`` (the
+        applied total minus it, 0 where unknown), used only by the online detection's sensitivity: the
+        third column is d(state)/d(delta) for the force force + delta force_err at delta = 0."""
         s = self.s
         qx, qy, mu, om, iota = s[2], s[3], s[4], s[5], s[6]
         c, sn = cos(om * dt), sin(om * dt)
@@ -290,6 +294,8 @@ class RigidEKF:
             D[0, 0] -= dt * s[0]
             D[1, 0] -= dt * s[1]
             D[5, 1] -= dt * om
+            D[0, 2] += dt * s[4] * force_err.real
+            D[1, 2] += dt * s[4] * force_err.imag
             self.sens = D
         P = A @ self.P @ A.T
         qv, qa, qm, qo, qi = self.Qd

@@ -89,6 +89,52 @@ def test_structure_no_candidate_explains_is_unexplained():
     assert k == -1 and unexplained
 
 
+def _window_with_force_error(rng, n, theta, delta, with_h):
+    """One window with a residual of the force model's error delta h as well as theta_0 g_0: h, the force
+    error's sensitivity, shares half its shape with viscous friction's g_0 (both act on v_C)."""
+    g = np.cumsum(rng.normal(size=(N_EFF, n, 2)), axis=1) / 10.0
+    h = 0.5 * g[0] + np.cumsum(rng.normal(size=(n, 2)), axis=0) / 10.0
+    w = rng.normal(size=(n, 2)) + theta * g[0] + delta * h
+    ev = WindowEvidence(LAGS)
+    for k in range(n):
+        ev.observe(w[k, 0], w[k, 1], [(g[c, k, 0], g[c, k, 1]) for c in range(N_EFF)],
+                   (h[k, 0], h[k, 1]) if with_h else (0.0, 0.0))
+    return ev.close()
+
+
+def test_a_force_error_common_to_the_team_is_not_named_friction():
+    """The team's force model off by the same delta at every agent (the consensus force lagging the applied
+    one): without its sensitivity the pool of ten takes it for viscous friction in most windows; with it
+    (the score orthogonal to the force error's) the false rate stays at the level's scale, and a real
+    friction beside the force error is still named."""
+    rng = np.random.default_rng(17)
+    trials = 60
+    false_raw = false_orth = named = 0
+    for _ in range(trials):
+        raw = [_window_with_force_error(rng, 200, 0.0, 0.15, False) for _ in range(10)]
+        orth = [_window_with_force_error(rng, 200, 0.0, 0.15, True) for _ in range(10)]
+        both = [_window_with_force_error(rng, 200, 0.06, 0.15, True) for _ in range(10)]
+        false_raw += judge(*_z(raw, 10), 0.01, 0)[0] == 0
+        false_orth += judge(*_z(orth, 10), 0.01, 0)[0] == 0
+        named += judge(*_z(both, 10), 0.01, 0)[0] == 0
+    # level 0.01 / 3 per window: 60 windows expect 0.2 false switches; 3 is beyond four binomial sd
+    assert false_raw >= 40 and false_orth <= 2 and named >= 30, (false_raw, false_orth, named)
+
+
+def test_a_window_nobody_offered_is_not_judged_on_the_consensus_residue():
+    """Every agent withheld the window (a stage switch): the delayed consensus still holds a small residue
+    of the last window's sums; the team count below one agent says no data, whatever the residue's z."""
+    n = 10
+    residue = [0.4, 1e-3, 0.02, 1e-4, 0.066, 0.002]  # team means: count 0.02 agents; else z_p 4.7, z_b 40
+    assert N_POOL == len(residue)
+    zp, zs = pooled(residue, n)
+    assert zp != zp and all(z != z for z in zs)
+    assert judge(zp, zs, 0.01, 0) == (-1, False)
+    one = [0.4 / n, 1.0 / n, 0.0, 1.0 / n, 3.0 / n, 1.0 / n]  # one agent's window, the others nothing
+    zp, zs = pooled(one, n)
+    assert zp == pytest.approx(3.0) and zs[0] == pytest.approx(0.4)
+
+
 def test_judge_level_is_bonferroni_and_skips_effects_already_on():
     lvl = 0.01 / 3
     z_at = NormalDist().inv_cdf(1 - lvl)  # P(Z > z_at) = lvl
