@@ -34,6 +34,8 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+from agents.innovation_monitor import cholesky2, whiten
+
 EFFECTS = ("viscous_friction", "rotational_damping")  # candidate k: filter state 7 + k (beta, gamma)
 N_EFF = len(EFFECTS)
 # consensus channels per window: (s_k, v_k) per candidate, then the persistence z and the count
@@ -237,25 +239,12 @@ class OnlineDetection:
         """One filter update: innovation (e0, e1, s00, s01, s11) and the sensitivities' rows H D (per
         candidate, then the force error's if given)."""
         e0, e1, s00, s01, s11 = innov
-        if not (s00 > 0.0) or e0 != e0:
+        chol = cholesky2(s00, s01, s11)
+        if chol is None or e0 != e0:
             return
-        l00 = math.sqrt(s00)
-        l10 = s01 / l00
-        d = s11 - l10 * l10
-        if not (d > 0.0):
-            return
-        l11 = math.sqrt(d)
-        w0 = e0 / l00
-        g = []
-        for k in range(N_EFF):
-            h0, h1 = sens_h[2 * k], sens_h[2 * k + 1]
-            g0 = h0 / l00
-            g.append((g0, (h1 - l10 * g0) / l11))
-        hn = (0.0, 0.0)
-        if len(sens_h) > 2 * N_EFF:
-            h0 = sens_h[2 * N_EFF] / l00
-            hn = (h0, (sens_h[2 * N_EFF + 1] - l10 * h0) / l11)
-        self.ev.observe(w0, (e1 - l10 * w0) / l11, g, hn)
+        g = [whiten(chol, sens_h[2 * k], sens_h[2 * k + 1]) for k in range(N_EFF)]
+        hn = whiten(chol, sens_h[2 * N_EFF], sens_h[2 * N_EFF + 1]) if len(sens_h) > 2 * N_EFF else (0.0, 0.0)
+        self.ev.observe(*whiten(chol, e0, e1), g, hn)
 
     def begin_tick(self, tick: int, u: list[float], x: Sequence[float]) -> int:
         """Window bookkeeping at the start of ``tick``: closes a finished window into the pool inputs ``u``,

@@ -74,6 +74,26 @@ def window_pvalues(w: np.ndarray, sig: np.ndarray, lags: int) -> list[float]:
     return [persistence_p(w, lags)] + [score_test(w, sig[:, k, :]) for k in range(sig.shape[1])]
 
 
+
+def cholesky2(s00: float, s01: float, s11: float) -> tuple[float, float, float] | None:
+    """The lower Cholesky factor (l00, l10, l11) of the 2x2 covariance [[s00, s01], [s01, s11]]; None when
+    it is not positive definite (the update is then not tested)."""
+    if not (s00 > 0.0):
+        return None
+    l00 = math.sqrt(s00)
+    l10 = s01 / l00
+    d = s11 - l10 * l10
+    if not (d > 0.0):
+        return None
+    return l00, l10, math.sqrt(d)
+
+
+def whiten(chol: tuple[float, float, float], x0: float, x1: float) -> tuple[float, float]:
+    """L^-1 x by forward substitution, L = cholesky2(...)."""
+    l00, l10, l11 = chol
+    w0 = x0 / l00
+    return w0, (x1 - l10 * w0) / l11
+
 class InnovationMonitor:
     """One agent's windows of whitened innovations and signatures (module docstring)."""
 
@@ -99,25 +119,16 @@ class InnovationMonitor:
     def observe(self, e: complex, s00: float, s01: float, s11: float, vc: complex, om: float, q: complex,
                 f: complex) -> None:
         """One update's innovation e with covariance [[s00, s01], [s01, s11]] and the signatures' inputs."""
-        if not (s00 > 0.0) or e != e:
+        chol = cholesky2(s00, s01, s11)
+        if chol is None or e != e:
             return
-        l00 = math.sqrt(s00)
-        l10 = s01 / l00
-        d = s11 - l10 * l10
-        if not (d > 0.0):
-            return
-        l11 = math.sqrt(d)
         k = self.k
-        row = self.w[k]
-        row[0] = w0 = e.real / l00
-        row[1] = (e.imag - l10 * w0) / l11
+        self.w[k] = whiten(chol, e.real, e.imag)
         a = abs(vc)
         qp = om * complex(-q.imag, q.real)  # omega q_i^perp
         sig = self.sig[k]
         for c, g in enumerate((vc, vc / a if a > 0.0 else 0j, qp, f)):
-            g0 = g.real / l00
-            sig[c, 0] = g0
-            sig[c, 1] = (g.imag - l10 * g0) / l11
+            sig[c] = whiten(chol, g.real, g.imag)
         self.k = k = k + 1
         if k == self.window:
             self.k = 0
