@@ -29,6 +29,7 @@ sys.path.insert(0, str(ROOT))
 from coload.rundir import format as fmt  # noqa: E402
 from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
+from seed_list import parse_seeds  # noqa: E402  (bench/ is the script's own directory)
 
 QUICK = ROOT / "config" / "scenarios" / "quick.toml"
 SHORT = ['dynamics.algorithm="sequential"', "dynamics.kin_settle_s=3", "dynamics.m_excite_s=4",
@@ -64,11 +65,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="parallel runs (default 1)")
     ap.add_argument("--effects", default=",".join(EFFECTS), help="comma-separated, of: " + ", ".join(EFFECTS))
     a = ap.parse_args()
-    if "-" in a.seeds:
-        lo, hi = map(int, a.seeds.split("-"))
-        seeds = list(range(lo, hi + 1))
-    else:
-        seeds = [int(s) for s in a.seeds.split(",")]
+    seeds = parse_seeds(a.seeds)
     effects = a.effects.split(",")
     bad = [e for e in effects if e not in EFFECTS]
     if bad:

@@ -32,6 +32,7 @@ from coload.rundir import format as fmt  # noqa: E402
 from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 from net.vocabulary import M_EXCITE  # noqa: E402
+from seed_list import parse_seeds  # noqa: E402  (bench/ is the script's own directory)
 
 SCENARIO = ROOT / "config" / "scenarios" / "friction-online.toml"
 BASE = ["dynamics.estimate_effects=[]", "duration=110"]
@@ -74,11 +75,7 @@ def main() -> None:
     ap.add_argument("--no-nominal", action="store_true", help="skip the nominal twins (detection off)")
     ap.add_argument("--faults", action="store_true", help="20 %% loss and a 100 ms delay on every link")
     a = ap.parse_args()
-    if "-" in a.seeds:
-        lo, hi = map(int, a.seeds.split("-"))
-        seeds = list(range(lo, hi + 1))
-    else:
-        seeds = [int(s) for s in a.seeds.split(",")]
+    seeds = parse_seeds(a.seeds)
     plants = a.plants.split(",")
     bad = [p for p in plants if p not in PLANTS]
     if bad:
