@@ -14,6 +14,7 @@ from typing import Any, get_args
 
 import numpy as np
 
+from coload.analysis.metrics import last_finite
 from coload.rundir.format import RunData
 from config.agent_params import DynamicsSpec
 from config.scenario import Scenario
@@ -92,21 +93,12 @@ def _f(x: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def _last_finite(col: np.ndarray) -> np.ndarray:
-    """Each agent's (column's) last finite value, NaN if none."""
-    ok = np.isfinite(col)
-    idx = np.where(ok, np.arange(col.shape[0])[:, None], -1).max(axis=0)
-    out = col[np.maximum(idx, 0), np.arange(col.shape[1])].astype(float)
-    out[idx < 0] = np.nan
-    return out
-
-
 def _team(run: RunData, col: str) -> float | None:
     """Mean over agents of each agent's last reported value of ``col``; None without one."""
     est = run.estimates
     if est is None or not est.has(col):
         return None
-    last = _last_finite(est.columns[col])
+    last = last_finite(est.columns[col])[0]
     return _f(np.mean(last[np.isfinite(last)])) if np.isfinite(last).any() else None
 
 
@@ -115,7 +107,7 @@ def _rel_rms(run: RunData, col: str, truth: float) -> float | None:
     est = run.estimates
     if est is None or not est.has(col) or not truth > 0:
         return None
-    last = _last_finite(est.columns[col])
+    last = last_finite(est.columns[col])[0]
     return _f(np.sqrt(np.mean(((last - truth) / truth) ** 2))) if np.isfinite(last).all() else None
 
 
@@ -288,7 +280,7 @@ def final_per_agent(run: RunData, col: str, truth_col: str) -> tuple[np.ndarray,
     true = tr.columns[truth_col][run.truth_index(est.t)]
     rel = np.abs(est.columns[col] - true[:, None]) / true[:, None]
     seen = np.isfinite(rel).any(axis=1)
-    return _last_finite(rel), (float(est.t[np.argmax(seen)]) if seen.any() else None)
+    return last_finite(rel)[0], (float(est.t[np.argmax(seen)]) if seen.any() else None)
 
 
 def draw_loop(fig: Any, before: RunData, after: RunData | None, residual: dict[str, Any] | None,
