@@ -119,6 +119,7 @@ class SimDaemon:
         self._journal_drops: dict[str, int] = {}
         self._wfmt = f"<{3 * self.n}d"
         self._expected_alive: set[int] = set()
+        self._seen: set[int] = set()  # agents seen alive in this run (by token or wrench)
         self.resumed_at = -1
         self.scenario_hash = hashlib.sha256(dump_scenario(scenario).encode()).hexdigest()
 
@@ -143,7 +144,18 @@ class SimDaemon:
         parsed = keys.parse_alive(key)
         if parsed is None or parsed[1] != "agent" or not 0 <= parsed[2] < self.n:
             return
-        i = parsed[2]
+        self._set_alive(parsed[2], alive, by_token=True)
+
+    def _set_alive(self, i: int, alive: bool, by_token: bool) -> None:
+        """Agent ``i`` came (its liveliness token, or a wrench of the current tick) or went (its token).
+
+        A joiner's token and its first wrench come on different subscriptions, each called back on a
+        thread of its own: the wrench can come first, and the agent is up from that wrench's tick.
+        Only an agent never seen in this run comes by a wrench: a wrench in flight from one that went
+        can arrive after its token's withdrawal, and must not make the run wait for it again.
+        """
+        if alive:
+            self._seen.add(i)
         was = i in self.alive
         (self.alive.add if alive else self.alive.discard)(i)
         if was != alive and (self.started or self.resumed_at >= 0) and not self.ended:  # not start-up, not shutdown
@@ -153,7 +165,7 @@ class SimDaemon:
                 self._event("agent_up" if alive else "agent_down", agent=i)
                 log.info("agent %d %s at tick %d", i, "up" if alive else "down", self.tick)
             self._write_journal({"alive": sorted(self.alive)})
-            if alive and self._meas_out is not None:
+            if alive and by_token and self._meas_out is not None:
                 # it (re)appeared while this tick's wrenches are awaited: it may have subscribed after
                 # its measurement went out, and would otherwise make the tick wait for nothing
                 self.transport.publish(self._meas_keys[i], self._meas_out[i])
@@ -181,6 +193,8 @@ class SimDaemon:
             if w.tick > self.tick + 1:
                 self.drops["future"] += 1
                 return
+            if i not in self._seen and i not in self._expected_alive:
+                self._set_alive(i, True, by_token=False)
             self.latest[i] = (w.fx, w.fy, w.tau)
             self.last_wrench[i] = w.tick
             return
@@ -194,6 +208,8 @@ class SimDaemon:
         if i in self.wrenches:
             self.drops["duplicate"] += 1  # first one wins: a replay cannot overwrite the genuine wrench
             return
+        if i not in self._seen and i not in self._expected_alive:
+            self._set_alive(i, True, by_token=False)
         self.wrenches[i] = (w.fx, w.fy, w.tau)
         self.last_wrench[i] = w.tick
         self._poke()
