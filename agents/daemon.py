@@ -11,22 +11,21 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 from collections import Counter
 
 from agents.factory import build_agent
 from agents.laws import ControlLawError
 from config.scenario import AgentView
 from net import keys
-from net.finish import FinishGate
 from net.link import DelayLine, LinkStats, build_in_links, receive_through
 from net.messages import AgentReport, Control, Measurement, StateMsg
+from net.neighbour_wait import MAX_TICK_LEAD, NeighbourWait
 from net.schema import decode_counted, encode
 from net.transport import Transport
 
 log = logging.getLogger("coload.agent")
 
-#: A measurement or state further ahead than this many ticks is treated as hostile.
-MAX_TICK_LEAD = 10_000
 #: Real time: how far ahead a measurement or a neighbour's state may be. Two bounds, both must hold:
 #: (1) ahead of the anchor by at most twice the wall-clock time since it plus the anchor's slack (a
 #: simulator cannot run faster than the clock). The anchor is the simulator's start notice (tick 0,
@@ -80,16 +79,14 @@ class AgentDaemon:
         self._last_meas_t = 0.0  # real time: loop time the last measurement was accepted
         self.seen_start = False  # the simulator's start notice arrived: we are in from tick 0
         self.pending_meas: dict[int, Measurement] = {}
-        self.last_from: dict[int, int] = {j: -1 for j in self.neighbours}
-        # neighbours whose previous-tick state a lockstep step waits for: all of them at the start
-        # (the simulator starts only when every agent is up); a dead one leaves, and comes back
-        # with its first message after a restart
-        self.expect: set[int] = set(self.neighbours)
+        # the neighbours' last states, which of them a lockstep step waits for, the end-of-run gate; a
+        # neighbour that skipped ticks comes back at most one tick past this agent's next (its state
+        # of the tick this agent is about to step is fine)
+        self.wait = NeighbourWait(self.neighbours, self.mode, self._report_and_end, lead=1)
         self.done = asyncio.Event()
         self._timer: asyncio.TimerHandle | None = None
         self._jump: Measurement | None = None  # lockstep: a measurement that skips ticks, held back
         self._jump_timer: asyncio.TimerHandle | None = None
-        self._finish = FinishGate(self._report_and_end)  # after `done`: the neighbours' last states, then report
         self._jump_base = -1  # last_meas when the skip was held back
         self._subs: list = []
         self._k_state = keys.state(run, agent_id)
@@ -131,7 +128,7 @@ class AgentDaemon:
         for timer in (self._timer, self._jump_timer, self._lost_timer):
             if timer is not None:
                 timer.cancel()
-        self._finish.cancel()
+        self.wait.finish.cancel()
         for s in reversed(self._subs):
             s.close()
         self._subs.clear()
@@ -157,11 +154,10 @@ class AgentDaemon:
         if role == "sim":
             self._on_sim_alive(alive)
             return
-        if alive or role != "agent" or ident not in self.last_from:
+        if alive or role != "agent" or not self.wait.gone(ident):
             return  # a neighbour that comes back is waited for again from its first message
-        self.expect.discard(ident)
         self._try_step()
-        self._finish.check(self.last_from, self.expect)
+        self.wait.check_finish()
 
     def _on_sim_alive(self, alive: bool) -> None:
         if alive == self.sim_alive:
@@ -202,7 +198,7 @@ class AgentDaemon:
             if self.mode == "realtime" and self._anchor is None:
                 self._anchor = (0, self.transport.loop.time(), START_SLACK_S / self.scenario.dt)
         elif msg.kind == "done":
-            self._finish.begin(msg.tick, self.last_from, self.expect)
+            self.wait.done(msg.tick)
 
     def _give_up(self) -> None:
         """The simulator stayed away for timing.sim_lost_timeout_s: report what this agent saw and end."""
@@ -310,7 +306,7 @@ class AgentDaemon:
             self._timer.cancel()
             self._timer = None
         self.next_tick = k
-        self.expect = {j for j in self.neighbours if self.last_from[j] >= k - 1}
+        self.wait.rejoin_at(k)
 
     def _horizon(self) -> float:
         """Real time: the furthest tick a genuine message can carry now (see REALTIME_LEAD_SLACK)."""
@@ -333,32 +329,21 @@ class AgentDaemon:
         if msg.sender != sender:
             self.drops["spoofed_sender"] += 1
             return
-        last = self.last_from[sender]
-        if msg.tick <= last:
-            self.drops["stale"] += 1
+        horizon = self._horizon() if self.mode == "realtime" and self._anchor is not None else math.inf
+        refused = self.wait.admit(sender, msg.tick, self.next_tick, horizon)
+        if refused is not None:
+            self.drops[refused] += 1
             return
-        if msg.tick > self.next_tick + MAX_TICK_LEAD or (
-            self.mode == "lockstep" and msg.tick != last + 1 and msg.tick > self.next_tick + 1
-        ) or (self.mode == "realtime" and self._anchor is not None and msg.tick > self._horizon()):
-            self.drops["future"] += 1
-            return
-        self.last_from[sender] = msg.tick
-        self.expect.add(sender)
         receive_through(self.links[sender], self.stats[sender], self.line, sender, msg.tick, msg, self.scenario.dt,
                         self.mode, self.next_tick)
         self._try_step()
-        self._finish.check(self.last_from, self.expect)
+        self.wait.check_finish()
 
     # ---- stepping --------------------------------------------------------------------------
-    def _ready(self, k: int) -> bool:
-        if self.mode == "realtime" or k == 0:
-            return True
-        return all(self.last_from[j] >= k - 1 for j in self.expect)
-
     def _try_step(self) -> None:
         while self.next_tick in self.pending_meas:
             k = self.next_tick
-            if not self._ready(k):
+            if not self.wait.ready(k):
                 if self._timer is None:
                     self._timer = asyncio.get_running_loop().call_later(
                         self.scenario.timing.neighbour_timeout_s, self._on_timeout, k
@@ -370,10 +355,9 @@ class AgentDaemon:
         self._timer = None
         if self.next_tick != k:
             return
-        missing = [j for j in self.expect if self.last_from[j] < k - 1]
+        missing = self.wait.stop_waiting(k)  # back in once they speak again
         log.warning("agent %d: tick %d: no state from %s in time; stepping without", self.id, k, missing)
         self.timeouts += 1
-        self.expect.difference_update(missing)  # back in once they speak again
         self._try_step()
 
     def _step(self, k: int) -> None:

@@ -28,10 +28,10 @@ from typing import Any
 import numpy as np
 
 from net import keys
-from net.finish import FinishGate
 from net.hinf_messages import HinfInput, HinfMeas, HinfState
 from net.link import DelayLine, LinkStats, receive_through
 from net.messages import AgentReport, Control
+from net.neighbour_wait import MAX_TICK_LEAD, NeighbourWait
 from net.schema import decode_counted, encode
 from net.transport import Transport
 
@@ -45,9 +45,6 @@ from .runtime import (
 )
 
 log = logging.getLogger("coload.hinf")
-
-MAX_TICK_LEAD = 10_000
-"""A measurement or state further ahead than this many ticks is treated as hostile."""
 
 
 def _resolve(fut: asyncio.Future[None]) -> None:
@@ -286,11 +283,11 @@ class HinfAgentDaemon:
         self.pending: dict[int, tuple[float, ...]] = {}
         self._held: HinfMeas | None = None  # lockstep: a measurement past a gap, until the next confirms it
         self.rejoins = 0  # lockstep gaps this estimator came back from
-        self.last_from = {j: -1 for j in self.nbrs}
-        self.expect = set(self.nbrs)
+        # the in-neighbours' last states, which of them a lockstep step waits for, the end-of-run gate;
+        # a neighbour that skipped ticks is back only at a tick this estimator has reached
+        self.wait = NeighbourWait(self.nbrs, self.mode, self._report_and_end, lead=0)
         self.done = asyncio.Event()
         self._timer: asyncio.TimerHandle | None = None
-        self._finish = FinishGate(self._report_and_end)  # after `done`: the neighbours' last states, then report
         self._subs: list = []
         self._k_input = keys.hinf(run, k, "input")
         self._k_state = keys.hinf(run, k, "state")
@@ -318,7 +315,7 @@ class HinfAgentDaemon:
         finally:
             if self._timer is not None:
                 self._timer.cancel()
-            self._finish.cancel()
+            self.wait.finish.cancel()
             for s in reversed(self._subs):
                 s.close()
             self._subs.clear()
@@ -337,11 +334,10 @@ class HinfAgentDaemon:
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)
-        if parsed is None or alive or parsed[2] not in self.last_from:
-            return
-        self.expect.discard(parsed[2])  # back in with its next message
+        if parsed is None or alive or not self.wait.gone(parsed[2]):
+            return  # back in with its next message
         self._try_step()
-        self._finish.check(self.last_from, self.expect)
+        self.wait.check_finish()
 
     def _on_control(self, key: str, payload: bytes) -> None:
         if key != self._k_control:
@@ -354,7 +350,7 @@ class HinfAgentDaemon:
             self.drops["bad_control"] += 1
             return
         if msg.kind == "done" and msg.tick == msg.ticks:
-            self._finish.begin(msg.tick, self.last_from, self.expect)
+            self.wait.done(msg.tick)
 
     def _report_and_end(self) -> None:
         self.transport.publish(keys.hinf(self.run_name, self.id, "report"), encode(self.report()))
@@ -435,29 +431,19 @@ class HinfAgentDaemon:
             self.drops["bad_shape"] += 1
             self.stats[sender].malformed += 1
             return
-        last = self.last_from[sender]
-        if msg.tick <= last:
-            self.drops["stale"] += 1
+        refused = self.wait.admit(sender, msg.tick, self.next_tick)
+        if refused is not None:
+            self.drops[refused] += 1
             return
-        if msg.tick > self.next_tick + MAX_TICK_LEAD or (
-                self.mode == "lockstep" and msg.tick != last + 1 and msg.tick > self.next_tick):
-            # lockstep: a neighbour that skipped ticks is back only at a tick this estimator has reached
-            self.drops["future"] += 1
-            return
-        self.last_from[sender] = msg.tick
-        self.expect.add(sender)
         receive_through(self.links[sender], self.stats[sender], self.line, sender, msg.tick, msg, s.dt, self.mode,
                         self.next_tick)
         self._try_step()
-        self._finish.check(self.last_from, self.expect)
-
-    def _ready(self, t: int) -> bool:
-        return self.mode == "realtime" or t == 0 or all(self.last_from[j] >= t - 1 for j in self.expect)
+        self.wait.check_finish()
 
     def _try_step(self) -> None:
         while self.next_tick in self.pending:
             t = self.next_tick
-            if not self._ready(t):
+            if not self.wait.ready(t):
                 if self._timer is None:
                     self._timer = asyncio.get_running_loop().call_later(
                         self.setup.spec.run.timing.neighbour_timeout_s, self._on_timeout, t)
@@ -468,10 +454,9 @@ class HinfAgentDaemon:
         self._timer = None
         if self.next_tick != t:
             return
-        missing = [j for j in self.expect if self.last_from[j] < t - 1]
+        missing = self.wait.stop_waiting(t)  # back in once they speak again
         log.warning("estimator %d: tick %d: no state from %s in time; holding their last data", self.id, t, missing)
         self.timeouts += 1
-        self.expect.difference_update(missing)
         self._try_step()
 
     def _step(self, t: int, z: tuple[float, ...], publish: bool = True) -> None:

@@ -95,7 +95,7 @@ def _drops(d) -> int:
 
 
 def _agent_snapshot(a: AgentDaemon):
-    return (a.last_meas, tuple(sorted(a.last_from.items())), a.seen_start, a.done.is_set(), a.ticks_stepped,
+    return (a.last_meas, tuple(sorted(a.wait.last_from.items())), a.seen_start, a.done.is_set(), a.ticks_stepped,
             len(a.pending_meas))
 
 

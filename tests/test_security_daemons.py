@@ -59,7 +59,7 @@ def test_agent_refuses_puts_on_wider_key_expressions():
         agent._on_control("coload/*/sim/control", wide["coload/sec/**"])
         agent._on_state("coload/sec/agent/*/state", wide["coload/sec/agent/*/state"])
         agent._on_state(keys.state(RUN, 3), encode(_state(0, 3)))  # not a neighbour's key
-        return dict(agent.drops), agent.last_meas, agent.pending_meas, dict(agent.last_from), agent._finish.active
+        return dict(agent.drops), agent.last_meas, agent.pending_meas, dict(agent.wait.last_from), agent.wait.finish.active
 
     drops, last_meas, pending, last_from, finishing = _agent("lockstep", scene)
     assert drops == {keys.WRONG_KEY: 6}
@@ -71,7 +71,7 @@ def test_agent_takes_the_genuine_keys():
         agent._on_control(keys.sim_control(RUN), encode(Control("start", 0, sc.ticks)))
         agent._on_state(keys.state(RUN, 0), encode(_state(0, 0)))
         agent._on_meas(keys.meas(RUN, 1), encode(Measurement(0, 1, 0.1, 0.0)))
-        return dict(agent.drops), agent.seen_start, agent.last_from[0], agent.last_meas
+        return dict(agent.drops), agent.seen_start, agent.wait.last_from[0], agent.last_meas
 
     assert _agent("lockstep", scene) == ({}, True, 0, 0)
 
@@ -89,7 +89,7 @@ def test_realtime_far_future_tick_neither_blinds_an_agent_nor_cuts_a_link():
         agent._on_state(keys.state(RUN, 0), encode(_state(0, 0)))
         agent._on_meas(keys.meas(RUN, 1), encode(Measurement(0, 1, 0.1, 0.0)))
         await asyncio.sleep(0)
-        return forged, dict(agent.drops), agent.last_from[0], agent.last_meas
+        return forged, dict(agent.drops), agent.wait.last_from[0], agent.last_meas
 
     forged, drops, last_from0, last_meas = _agent("realtime", scene)
     assert forged == {"future": 3}
@@ -108,7 +108,7 @@ def test_realtime_horizon_grows_with_the_clock():
         agent._on_meas(keys.meas(RUN, 1), encode(Measurement(int(1.5 / sc.dt), 1, 0.1, 0.0)))
         agent._on_state(keys.state(RUN, 0), encode(_state(int(1.5 / sc.dt), 0)))
         agent._on_state(keys.state(RUN, 2), encode(_state(150 + REALTIME_LEAD_SLACK + 20, 2)))
-        return dict(agent.drops), agent.last_meas, agent.last_from
+        return dict(agent.drops), agent.last_meas, agent.wait.last_from
 
     drops, last_meas, last_from = _agent("realtime", scene)
     assert drops == {"future": 1}
