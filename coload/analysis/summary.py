@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from coload.analysis import yardstick
-from coload.analysis.metrics import final_errors
+from coload.analysis.metrics import final_errors, last_finite
 from coload.provenance import versions
 from coload.rundir import format as fmt
 from coload.rundir.recorder import write_summary
@@ -166,12 +166,7 @@ def _int_or_none(v: float) -> int | None:
 
 def _last_finite(col: np.ndarray) -> np.ndarray:
     """Each agent's (column's) last finite value, NaN if none."""
-    out = np.full(col.shape[1], math.nan)
-    for i in range(col.shape[1]):
-        ok = np.flatnonzero(np.isfinite(col[:, i]))
-        if ok.size:
-            out[i] = col[ok[-1], i]
-    return out
+    return last_finite(col)[0]
 
 
 def _finite_or_none(v: float) -> float | None:
