@@ -24,7 +24,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 
 from coload.analysis import metrics  # noqa: E402
-from coload.analysis.summary import monitor_block, trust_block  # noqa: E402
+from coload.analysis.summary import effects_block, monitor_block, trust_block  # noqa: E402
 from coload.rundir import format as rundir_format  # noqa: E402
 from coload.rundir.format import REPORT_PNG, RunData, read_run  # noqa: E402
 
@@ -37,6 +37,12 @@ MAX_PLOT_POINTS = 20_000
 _TRUE_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.6, "zorder": 5}
 _TRUE_STYLE_Y = {"color": "dimgray", "linestyle": ":", "linewidth": 1.8, "zorder": 5}
 _TOTAL_COLOR = "0.2"  # sums over agents: dark grey, distinct from every agent colour
+# online detection's events (summary.json ``effect_*``): a switch solid magenta, a withdrawal dotted black,
+# any other kind dashed magenta; colours no agent line has (tab10), and stage changes stay thin grey dash-dot
+_EFFECT_STYLE = {"switch": {"color": "magenta", "linestyle": "-"},
+                 "withdrawn": {"color": "black", "linestyle": ":"}}
+_EFFECT_OTHER = {"color": "magenta", "linestyle": "--"}
+_UNEXPLAINED_COLOR = "crimson"
 
 
 # --- panels -------------------------------------------------------------------------------------
@@ -229,6 +235,67 @@ def _phase_changes(run: RunData) -> list[tuple[float, int]]:
     return out[:20]  # a flapping phase would otherwise draw a barcode
 
 
+def effect_events(run: RunData) -> list[dict[str, Any]]:
+    """The online detection's events, in time order: each ``effect_*`` entry of summary.json's ``events``
+    (``kind`` the name after ``effect_``: ``switch``, ``withdrawn``, ...; ``t`` in s). A run whose summary has
+    no ``effects`` block (not completed) gets its switches from the estimates' ``eff_*`` columns. Empty for
+    a run without online detection."""
+    summary = run.summary or {}
+    if "effects" in summary:
+        raw = [e for e in summary.get("events", []) if str(e.get("event", "")).startswith("effect_")]
+    else:
+        raw = [{**e, "event": "effect_switch"} for e in effects_block(run).get("events", []) if e["tick"] >= 0]
+    out = []
+    for e in raw:
+        tick = e.get("tick")
+        t = e.get("t", None if tick is None else tick * run.dt)
+        if t is None:
+            continue
+        out.append({"kind": e["event"][len("effect_"):], "t": float(t), "tick": tick, "effect": e.get("effect", "?"),
+                    "statistic": e.get("statistic"), "agents": e.get("agents")})
+    return sorted(out, key=lambda e: e["t"])
+
+
+def unexplained_times(run: RunData) -> list[float]:
+    """Times at which the team's count of ``unexplained`` windows grows (the largest ``eff_unexplained``
+    over the agents): the ticks the windows were judged."""
+    est = run.estimates
+    if est is None or not est.has("eff_unexplained") or len(est.t) == 0:
+        return []
+    count = metrics.hold_last(est.columns["eff_unexplained"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows before any agent judged
+        team = np.nanmax(count, axis=1)
+    team = np.where(np.isfinite(team), team, 0.0)
+    grew = np.flatnonzero(np.diff(team, prepend=0.0) > 0)
+    return [float(est.t[k]) for k in grew]
+
+
+def _effect_style(kind: str) -> dict[str, Any]:
+    return _EFFECT_STYLE.get(kind, _EFFECT_OTHER)
+
+
+def _draw_effects(axes: Sequence[Axes], events: list[dict[str, Any]], unexplained: list[float]) -> None:
+    """A vertical line per effect event on every panel, labelled once on the top panel (effect, z); the
+    unexplained windows as small triangles along the top panel's upper edge (a line each would crowd it)."""
+    for ax in axes:
+        for e in events:
+            ax.axvline(e["t"], linewidth=1.5, alpha=0.85, zorder=1, gid=f"effect_{e['kind']}",
+                       **_effect_style(e["kind"]))
+    top = axes[0]
+    for e in events:
+        z = "" if e["statistic"] is None else f", z {e['statistic']:.1f}"
+        what = "on" if e["kind"] == "switch" else e["kind"]
+        top.annotate(f"{e['effect']} {what}{z}", xy=(e["t"], 0.97), xycoords=("data", "axes fraction"),
+                     xytext=(-3, 0), textcoords="offset points", rotation=90, ha="right", va="top", fontsize=7,
+                     color=_effect_style(e["kind"])["color"], gid=f"effect_{e['kind']}_label",
+                     bbox={"boxstyle": "square,pad=0.1", "facecolor": "white", "edgecolor": "none", "alpha": 0.7})
+    if unexplained:
+        top.plot(unexplained, [1.0] * len(unexplained), linestyle="none", marker="v", markersize=6,
+                 color=_UNEXPLAINED_COLOR, transform=top.get_xaxis_transform(), clip_on=False, zorder=6,
+                 gid="effect_unexplained")
+
+
 def build_figure(run: RunData, errors: dict[str, Any] | None = None) -> Figure:
     """Draw the report figure for a run (needs truth and estimates); returns it unsaved.
 
@@ -258,11 +325,18 @@ def build_figure(run: RunData, errors: dict[str, Any] | None = None) -> Figure:
         top.set_xticks([t for t, _ in phases], labels=[f"phase {p}" for _, p in phases], fontsize=7,
                        color="dimgray")
         top.tick_params(length=3, color="gray")
+    effects, unexplained = effect_events(run), unexplained_times(run)
+    _draw_effects(list(axes[:, 0]), effects, unexplained)
     axes[-1, 0].set_xlabel("time [s]")
     t_all = series.est_t if series.pair_t is None else np.concatenate([series.est_t, series.pair_t])
     if len(t_all):
         axes[-1, 0].set_xlim(float(np.min(t_all)), float(np.max(t_all)))
-    _agent_legend(fig, run.n, ctx.colors, with_eerd="eerd" in names)
+    marks = [Line2D([], [], linewidth=1.5, label=f"effect {kind}", **_effect_style(kind))
+             for kind in dict.fromkeys(e["kind"] for e in effects)]
+    if unexplained:
+        marks.append(Line2D([], [], linestyle="none", marker="v", color=_UNEXPLAINED_COLOR,
+                            label="window unexplained"))
+    _agent_legend(fig, run.n, ctx.colors, with_eerd="eerd" in names, extra=marks)
     cfg = run.config
     fig.suptitle(
         f"coload run '{run.name}'  ({cfg.get('mode', '?')}, n = {run.n}, seed = {cfg.get('seed', '?')}, "
@@ -272,9 +346,11 @@ def build_figure(run: RunData, errors: dict[str, Any] | None = None) -> Figure:
     return fig
 
 
-def _agent_legend(fig: Figure, n: int, colors: Sequence[Any], *, with_eerd: bool) -> None:
+def _agent_legend(fig: Figure, n: int, colors: Sequence[Any], *, with_eerd: bool,
+                  extra: Sequence[Line2D] = ()) -> None:
     """One legend outside the panels so no data is covered; beyond 12 agents a colour bar names them."""
-    common = [Line2D([], [], **{k: v for k, v in _TRUE_STYLE.items() if k != "zorder"}, label="true value")]
+    common = [Line2D([], [], **{k: v for k, v in _TRUE_STYLE.items() if k != "zorder"}, label="true value"),
+              *extra]
     if with_eerd:
         common = [
             Line2D([], [], color=_TOTAL_COLOR, linewidth=1.4, label="EERD, EEC (sums)"),
@@ -346,8 +422,32 @@ def summary_table(run: RunData, errors: dict[str, Any]) -> str:
         firsts = [t for t in mon["per_agent"]["first_alarm_t"] if t is not None]
         lines.append(f"innovation monitor: {mon['alarms']} of {mon['windows']} windows alarmed"
                      + (f", first at t = {min(firsts):.1f} s" if firsts else "") + " (report-only)")
+    lines += effect_lines(run)
     lines += centralized_lines(run.summary)
     return "\n".join(lines)
+
+
+def effect_lines(run: RunData) -> list[str]:
+    """The online detection's events as a small table (event, effect, tick, t, z, the agents that applied
+    it) and the count of ``unexplained`` windows; nothing for a run without online detection."""
+    events, unexplained = effect_events(run), unexplained_times(run)
+    if not events and not unexplained and not effects_block(run):
+        return []
+    lines = [f"online detection: {len(events)} effect event(s), {len(unexplained)} window(s) unexplained"
+             + (" (judged at t = " + ", ".join(f"{t:.1f}" for t in unexplained) + " s)" if unexplained else "")]
+    if events:
+        cols = ("event", "effect", "tick", "t [s]", "z", "agents")
+        rows = []
+        for e in events:
+            agents = e["agents"]
+            who = "-" if agents is None else ("all " + str(run.n) if sorted(agents) == list(range(run.n))
+                                              else ",".join(str(a) for a in agents))  # fmt: skip
+            rows.append((e["kind"], str(e["effect"]), "-" if e["tick"] is None else str(e["tick"]),
+                         f"{e['t']:.2f}", _fmt(e["statistic"], ".2f"), who))
+        widths = [max(len(c), *(len(r[k]) for r in rows)) for k, c in enumerate(cols)]
+        lines.append("  " + "  ".join(c.ljust(w) for c, w in zip(cols, widths)).rstrip())
+        lines += ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows]
+    return lines
 
 
 def centralized_lines(summary: dict[str, Any] | None) -> list[str]:
