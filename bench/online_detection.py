@@ -11,7 +11,8 @@ the team agreed (summary.json ``effects``; the right decision counts what is on 
 the m stage's start to the first one, m and J relative errors at the end; and the same plant and seed with
 the nominal model (detection off) for comparison.
 ``--faults``: every link loses 20 % of the states (Bernoulli) and delays them by 10 ticks (100 ms).
-``both``: the two together (friction-online's own plant). Plants out of the online vocabulary: ``coulomb`` (5 N), ``slope`` (a constant 5 N force along x),
+``both``: the two together (friction-online's own plant). Plants out of the online vocabulary: ``coulomb`` (5 N),
+``slope`` (a constant 5 N force along x), ``both_slope`` (the slope on friction-online's own plant),
 ``periodic`` (a world-frame force 6 N sin(2 pi t / 10 s) along the m stage's force direction, 0.5 rad; the right
 answer: nothing on at the end, windows ``unexplained``; its nominal twin runs too).
 """
@@ -43,12 +44,14 @@ PLANTS = {
     "clean": ["plant.friction={}"],
     "both": ["plant.friction={viscous=5.0, rotational=8.69}"],
     "coulomb": ["plant.friction={coulomb=5.0}"],
-    "slope": ["plant.external_force=[5.0, 0.0]"],
+    "slope": ["plant.friction={}", "plant.external_force=[5.0, 0.0]"],
+    "both_slope": ["plant.external_force=[5.0, 0.0]"],
     "periodic": ["plant.friction={}", "plant.periodic_force={amplitude=6.0, period_s=10.0, direction_deg=28.6479}"],
 }
 FAULTS = ['link.loss={model="bernoulli", p=0.2}', "link.delay_ticks=10"]
 TRUE = {"viscous": ["viscous_friction"], "rotational": ["rotational_damping"], "clean": [],
         "both": ["rotational_damping", "viscous_friction"], "coulomb": [], "slope": [],
+        "both_slope": ["rotational_damping", "viscous_friction"],
         "periodic": []}  # the right switches
 NOMINAL = {"periodic"}  # plants out of the vocabulary whose nominal twin also runs (how far off the model is)
 
