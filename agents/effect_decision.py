@@ -27,10 +27,11 @@ significant) with no significant candidate is ``unexplained``. Proposals are flo
 heard all proposals by the switch tick switches the same effect on the same tick.
 
 Withdrawal: once a switch has settled for a window, the effect's two channels carry each filter's released
-rate and its variance (a snapshot at every window close) instead of its score; a team Wald z below the
-level's lower quantile says the coefficient is negative, and the team withdraws the effect through the same
-flood (the rate pinned at 0 again in every filter on one tick, the window ``unexplained``, the effect never
-proposed again).
+rate r_i and variance P_i as (r_i / P_i, 1 / P_i) (a snapshot at every window close) instead of its score:
+the team's Wald z = sum r_i / P_i / sqrt(sum 1 / P_i) is that of the inverse-variance weighted mean (a
+filter just restarted, its rate at the prior, weighs nothing). Below the level's lower quantile the
+coefficient is negative, and the team withdraws the effect through the same flood (the rate pinned at 0
+again in every filter on one tick, the window ``unexplained``, the effect never proposed again).
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -58,7 +59,8 @@ def normal_sf(z: float) -> float:
 def pooled(means: Sequence[float], n: int, held: int = 0) -> tuple[float, list[float]]:
     """(z_p, [z_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
     agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v)). For an effect
-    switched on (bit k of ``held``) the pair is its rate's (estimate, variance): z_k is the team's Wald z.
+    switched on (bit k of ``held``) the pair is its rate's (estimate / variance, 1 / variance): z_k is the
+team's Wald z of the inverse-variance weighted mean.
 
     The count's team sum is a whole number of agents; below one half no agent contributed a score window,
     and what the channels hold is what the consensus has not yet forgotten of an earlier window (with delayed
@@ -274,7 +276,7 @@ class OnlineDetection:
         judges the previous one on the team means ``x`` at a window's last tick, and returns the decision due
         at this tick (-1: none; k < N_EFF: switch effect k on; N_EFF + k: withdraw it). ``rates``: the filter's
         (estimate, variance) of each effect's rate now; a switched effect's pool pair carries them instead of
-        its score (the team's Wald z of the rate, sum of estimates over the root of the sum of variances)."""
+        its score (module docstring)."""
         w = self.window
         r = tick % w
         if r == 0 and tick > 0:
@@ -289,7 +291,7 @@ class OnlineDetection:
             for k in range(N_EFF):
                 if (self.switched >> k) & 1:
                     est, var = rates[k] if rates is not None and tick >= self.settle_from else (0.0, 0.0)
-                    u[c + 2 * k:c + 2 * k + 2] = (est, var) if var > 0.0 and est == est else (0.0, 0.0)
+                    u[c + 2 * k:c + 2 * k + 2] = (est / var, 1.0 / var) if var > 0.0 and est == est else (0.0, 0.0)
         elif r == w - 1 and tick + 1 >= 2 * w:
             c = self.ch0
             held = self.switched

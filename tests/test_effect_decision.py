@@ -159,6 +159,23 @@ def test_judge_withdraws_a_switched_effect_whose_rate_is_negative():
     assert judge(0.0, [9.0, 0.0], 0.01, 0b01, 0) == (-1, False)  # withdrawn
 
 
+def test_a_switched_rate_is_pooled_by_inverse_variance():
+    """The rates' pair is (r / P, 1 / P): the team z is the inverse-variance weighted mean over its standard
+    error, and an agent whose filter has just restarted (its rate at the prior, P = 0.1) does not mask the
+    others' evidence (with (r, P) pooled plainly it would take z from -3 to -0.28)."""
+    w = 100
+    inputs = []
+    for rate in [(-0.01, 1e-4)] * 9 + [(0.0, 0.1)]:
+        d = OnlineDetection(10, w, LAGS, 0.01, 20, 0)
+        d.on = d.switched = 0b01
+        u = [0.0] * N_POOL
+        d.begin_tick(w, u, [0.0] * N_POOL, [rate, (0.0, 0.0)])
+        inputs.append(u)
+    zp, zs = pooled(list(np.mean(inputs, axis=0)), 10, held=0b01)
+    assert zp != zp and zs[0] == pytest.approx(-900 / math.sqrt(9e4 + 10)) and zs[1] != zs[1]
+    assert zs[0] == pytest.approx(-3.0, rel=1e-3)
+
+
 def test_the_team_withdraws_a_switch_on_one_tick_and_never_proposes_it_again():
     """Two agents switch effect 0 on; a settled window later one sees its rate significantly negative, the
     other a weaker switch of effect 1: after the flood both withdraw effect 0 on the same tick (the larger
