@@ -395,10 +395,16 @@ class DynamicPhase:
     ) -> tuple[float, float, float]:
         self._advance_stage(tick, v, omega_hat, phi, zi, trusted, om_init)
         if self.detect is not None:
-            k_on = self.detect.begin_tick(tick, self.avg.u, self.avg.x)
-            if k_on >= 0:  # the team's agreed switch: the effect's state moves from here on
+            kf = self.kf
+            rates = ([(float(kf.s[7 + k]), float(kf.P[7 + k, 7 + k])) for k in range(N_EFF)]
+                     if kf.ready and kf.aug is not None and tick % self.detect.window == 0 else None)
+            dec = self.detect.begin_tick(tick, self.avg.u, self.avg.x, rates)
+            if dec >= 0:  # the team's agreed decision: the effect's state moves from here on, or is pinned again
                 for kf in (self.kf,) if self.shadow is None else (self.kf, self.shadow):
-                    kf.release_effect(k_on)
+                    if dec < N_EFF:
+                        kf.release_effect(dec)
+                    else:
+                        kf.withdraw_effect(dec - N_EFF)
         stage = self.stage
         rot = self._body_frame(tick, phi)
         q, zc, held = self._filter_update(tick, v, u, u_den, omega_hat, zi, rot)

@@ -23,8 +23,15 @@ nominal model for independent agents. At the next window's last tick each agent 
 (:func:`judge`): one-sided at the Bonferroni level ``alpha / (1 + candidates)``; the significant
 candidate with the largest z is proposed with a switch tick ``horizon`` later; structure (z_p
 significant) with no significant candidate is ``unexplained``. Proposals are flooded
-(:class:`DecisionFlood`): the earliest switch tick, then the largest z wins, so every agent that has
+(:class:`DecisionFlood`): the earliest switch tick, then the largest |z| wins, so every agent that has
 heard all proposals by the switch tick switches the same effect on the same tick.
+
+Withdrawal: once a switch has settled for a window, the effect's two channels carry each filter's released
+rate r_i and variance P_i as (r_i / P_i, 1 / P_i) (a snapshot at every window close) instead of its score:
+the team's Wald z = sum r_i / P_i / sqrt(sum 1 / P_i) is that of the inverse-variance weighted mean (a
+filter just restarted, its rate at the prior, weighs nothing). Below the level's lower quantile the
+coefficient is negative, and the team withdraws the effect through the same flood (the rate pinned at 0
+again in every filter on one tick, the window ``unexplained``, the effect never proposed again).
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -49,35 +56,49 @@ def normal_sf(z: float) -> float:
     return 0.5 * math.erfc(z / math.sqrt(2.0))
 
 
-def pooled(means: Sequence[float], n: int) -> tuple[float, list[float]]:
+def pooled(means: Sequence[float], n: int, held: int = 0) -> tuple[float, list[float]]:
     """(z_p, [z_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
-    agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v)).
+    agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v)). For an effect
+    switched on (bit k of ``held``) the pair is its rate's (estimate / variance, 1 / variance): z_k is the
+team's Wald z of the inverse-variance weighted mean.
 
-    The count's team sum is a whole number of agents; below one half no agent contributed, and what the
-    channels hold is what the consensus has not yet forgotten of an earlier window (with delayed states a
-    residue of ~0.002 agents is left), not data: NaN."""
+    The count's team sum is a whole number of agents; below one half no agent contributed a score window,
+    and what the channels hold is what the consensus has not yet forgotten of an earlier window (with delayed
+    states a residue of ~0.002 agents is left), not data: NaN. The rates' pairs are offered at every window's
+    close, whatever the count."""
     nan = math.nan
-    if n * means[2 * N_EFF + 1] < 0.5:
-        return nan, [nan] * N_EFF
+    empty = n * means[2 * N_EFF + 1] < 0.5
     zs = []
     for k in range(N_EFF):
         s, v = means[2 * k], means[2 * k + 1]
-        zs.append(math.sqrt(n) * s / math.sqrt(v) if v > 0.0 else nan)
+        zs.append(math.sqrt(n) * s / math.sqrt(v) if v > 0.0 and (not empty or (held >> k) & 1) else nan)
+    if empty:
+        return nan, zs
     zsum, cnt = means[2 * N_EFF], means[2 * N_EFF + 1]
     zp = math.sqrt(n) * zsum / math.sqrt(cnt) if cnt > 0.0 else nan
     return zp, zs
 
 
-def judge(zp: float, zs: Sequence[float], alpha: float, on: int) -> tuple[int, bool]:
-    """The team's verdict on one window: (candidate to switch on or -1, unexplained).
+def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0) -> tuple[int, bool]:
+    """The team's verdict on one window: (decision or -1, unexplained). Decision k < N_EFF: switch candidate
+    k on; N_EFF + k: withdraw effect k.
 
     Every test is one-sided (a missing effect has a positive coefficient; the persistence test is one-sided
-    too) at alpha / (1 + number of candidates); candidates already on (bit k of ``on``) are not tested but
-    still count in the level, which stays the same whatever has been switched."""
+    too) at alpha / (1 + number of candidates); candidates already on or withdrawn (bit k of ``on``) are not
+    tested for a switch but still count in the level, which stays the same whatever has been switched. For
+    an effect switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below
+    the level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect
+    is withdrawn (the most negative first), and the structure it was switched on for stays unexplained."""
     level = alpha / (1 + N_EFF)
+    worst, zworst = -1, math.inf
+    for k, z in enumerate(zs):
+        if (held >> k) & 1 and z == z and normal_sf(-z) < level and z < zworst:
+            worst, zworst = k, z
+    if worst >= 0:
+        return N_EFF + worst, True
     best, zbest = -1, -math.inf
     for k, z in enumerate(zs):
-        if (on >> k) & 1 or not (z == z):
+        if ((on | held) >> k) & 1 or not (z == z):
             continue
         if normal_sf(z) < level and z > zbest:
             best, zbest = k, z
@@ -157,13 +178,14 @@ class WindowEvidence:
 
 
 def better(a: tuple[int, int, float], b: tuple[int, int, float]) -> bool:
-    """Is proposal a = (switch tick, effect, z) preferred to b? The earliest switch, then the largest z,
-    then the lowest effect index: a total order, so every agent picks the same from the same set."""
+    """Is proposal a = (switch tick, decision, z) preferred to b? The earliest tick, then the largest |z|
+    (a withdrawal's z is negative), then the lowest decision index: a total order, so every agent picks the
+    same from the same set."""
     if a[0] < 0:
         return False
     if b[0] < 0:
         return True
-    return (a[0], -a[2], a[1]) < (b[0], -b[2], b[1])
+    return (a[0], -abs(a[2]), a[1]) < (b[0], -abs(b[2]), b[1])
 
 
 class DecisionFlood:
@@ -196,7 +218,7 @@ class DecisionFlood:
 def decode(sh: Mapping[str, float]) -> tuple[int, int, float]:
     """A neighbour's flooded proposal; KeyError or ValueError if malformed."""
     s, e, z = float(sh["Ds"]), float(sh["De"]), float(sh["Dz"])
-    if s != int(s) or e != int(e) or not (-1 <= e < N_EFF) or z - z != 0.0:
+    if s != int(s) or e != int(e) or not (-1 <= e < 2 * N_EFF) or z - z != 0.0:
         raise ValueError("bad decision")
     return int(s), int(e), z
 
@@ -206,8 +228,8 @@ class OnlineDetection:
     flooded proposal and what the team has switched on (module docstring). Driven by DynamicPhase: the pool
     channels are ``ch0 .. ch0 + N_POOL - 1`` of its FlowAverage."""
 
-    __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "last_tick", "last_z",
-                 "unexplained", "zp", "zs", "settle_from", "late", "mixed")
+    __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "switched", "withdrawn",
+                 "last_tick", "last_z", "unexplained", "zp", "zs", "settle_from", "late", "mixed")
 
     def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0) -> None:
         self.n = n
@@ -218,6 +240,8 @@ class OnlineDetection:
         self.ev = WindowEvidence(lags)
         self.flood = DecisionFlood()
         self.on = on  # bit k: effect k is in the filters (declared beforehand or switched on)
+        self.switched = 0  # bit k: effect k is in the filters by a team switch (tested for a withdrawal)
+        self.withdrawn = 0  # bit k: effect k was switched on and withdrawn (never proposed again)
         self.last_tick = -1  # the last switch: its tick and statistic
         self.last_z = math.nan
         self.unexplained = 0  # windows judged structured with no candidate significant
@@ -246,10 +270,13 @@ class OnlineDetection:
         hn = whiten(chol, sens_h[2 * N_EFF], sens_h[2 * N_EFF + 1]) if len(sens_h) > 2 * N_EFF else (0.0, 0.0)
         self.ev.observe(*whiten(chol, e0, e1), g, hn)
 
-    def begin_tick(self, tick: int, u: list[float], x: Sequence[float]) -> int:
+    def begin_tick(self, tick: int, u: list[float], x: Sequence[float],
+                   rates: Sequence[tuple[float, float]] | None = None) -> int:
         """Window bookkeeping at the start of ``tick``: closes a finished window into the pool inputs ``u``,
-        judges the previous one on the team means ``x`` at a window's last tick, and returns the effect due to
-        be switched on at this tick (-1: none)."""
+        judges the previous one on the team means ``x`` at a window's last tick, and returns the decision due
+        at this tick (-1: none; k < N_EFF: switch effect k on; N_EFF + k: withdraw it). ``rates``: the filter's
+        (estimate, variance) of each effect's rate now; a switched effect's pool pair carries them instead of
+        its score (module docstring)."""
         w = self.window
         r = tick % w
         if r == 0 and tick > 0:
@@ -259,30 +286,57 @@ class OnlineDetection:
             self.mixed = False
             c = self.ch0
             u[c:c + N_POOL] = stats if stats is not None else [0.0] * N_POOL
+            # a switched effect's rate: a snapshot, valid at any close once the switch has settled for a window
+            # (not a window's sum: a regime change inside the window does not void it)
+            for k in range(N_EFF):
+                if (self.switched >> k) & 1:
+                    est, var = rates[k] if rates is not None and tick >= self.settle_from else (0.0, 0.0)
+                    u[c + 2 * k:c + 2 * k + 2] = (est / var, 1.0 / var) if var > 0.0 and est == est else (0.0, 0.0)
         elif r == w - 1 and tick + 1 >= 2 * w:
             c = self.ch0
-            if (tick + 1 - 2 * w) >= self.settle_from:
-                self.zp, zs = pooled(x[c:c + N_POOL], self.n)
-                self.zs = zs
-                k, unexplained = judge(self.zp, zs, self.alpha, self.on)
+            held = self.switched
+            scores = (tick + 1 - 2 * w) >= self.settle_from  # the window started after the last switch settled
+            if scores or (held and (tick + 1 - w) >= self.settle_from):  # ... or at least its close did
+                zp, zs = pooled(x[c:c + N_POOL], self.n, held)
+                if scores:
+                    self.zp, self.zs = zp, zs
+                else:  # only the switched rates are judged
+                    zp = math.nan
+                    zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
+                    self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
+                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held)
                 if k >= 0:
-                    self.flood.merge((tick + self.horizon, k, zs[k]))
-                self.unexplained += unexplained
+                    self.flood.merge((tick + self.horizon, k, zs[k % N_EFF]))
+                # a withdrawal's window is counted where it is applied: by every agent, whatever its own view
+                self.unexplained += unexplained and k < N_EFF
         due = self.flood.due(tick)
         if due is None:
             return -1
         if tick > due[0]:
             self.late += 1
-        self.on |= 1 << due[1]
+        k = due[1] % N_EFF
+        if due[1] < N_EFF:
+            self.on |= 1 << k
+            self.switched |= 1 << k
+        else:
+            self.on &= ~(1 << k)
+            self.switched &= ~(1 << k)
+            self.withdrawn |= 1 << k
+            self.unexplained += 1  # the structure it was switched on for is not explained
         self.last_tick, self.last_z = due[0], due[2]
-        # judge again on windows that start after the switched effect has settled for a window
+        # judge again on windows that start after the switched (or withdrawn) effect has settled for a window
         self.settle_from = due[0] + w
         return due[1]
 
     def merge(self, prop: tuple[int, int, float]) -> None:
-        """A neighbour's flooded proposal (ignored for an effect already on)."""
-        if prop[0] >= 0 and not (self.on >> prop[1]) & 1:
-            self.flood.merge(prop)
+        """A neighbour's flooded proposal (a switch ignored for an effect already on or withdrawn, a withdrawal
+        for one not switched on here: declared, withdrawn, or its switch not yet applied, which precedes it)."""
+        if prop[0] < 0:
+            return
+        k = prop[1] % N_EFF
+        if ((self.on | self.withdrawn) if prop[1] < N_EFF else ~self.switched) >> k & 1:
+            return
+        self.flood.merge(prop)
 
     def entries(self) -> dict[str, float]:
         """The estimate entries (:data:`DETECT_NAMES`)."""

@@ -119,6 +119,31 @@ class RigidEKF:
         self.aug = (on[0], on[1], on[2], on[3])
         self._restart(((4, 1.0), (7, 0.1)) if k == 0 else ((6, 1e-2), (8, 0.1)))
 
+    def withdraw_effect(self, k: int) -> None:
+        """Online detection: pin effect k's rate (0: beta, 1: gamma) at 0 again. The filter's state is
+        conditioned on the rate being exactly 0 (the Gaussian conditional: s - P[:, r] s_r / P_rr,
+        P - P[:, r] P[r, :] / P_rr), which for the linear part of the model is the posterior the filter without
+        the effect would have from the switch's restart on: 1/m (or 1/J) keeps the data since the switch and
+        loses what it had learnt, with the rate, of a structure the rate did not explain."""
+        if self.aug is None or not self.ready:
+            return
+        r = 7 + k
+        s, P = self.s.copy(), self.P.copy()
+        prr = P[r, r]
+        if prr > 0.0:
+            c = P[:, r] / prr
+            s = s - c * s[r]
+            P = P - np.outer(c, P[r, :])
+        s[r] = 0.0
+        P[r, :] = 0.0
+        P[:, r] = 0.0
+        on = list(self.aug)
+        on[k] = 0.0
+        on[2 + k] = 0.0
+        self.aug = (on[0], on[1], on[2], on[3])
+        self.s = s
+        self.P = 0.5 * (P + P.T)
+
     def _restart(self, entries: tuple[tuple[int, float], ...]) -> None:
         """Each (state k, variance) in ``entries``: its correlations dropped, its variance set; the effect
         rates (k >= 7) also restart from 0, the parameters (1/m, 1/J) from their current values."""

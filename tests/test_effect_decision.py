@@ -146,10 +146,97 @@ def test_judge_level_is_bonferroni_and_skips_effects_already_on():
     assert judge(9.0, [-5.0, math.nan], 0.01, 0) == (-1, True)  # a negative coefficient is no candidate
 
 
+def test_judge_withdraws_a_switched_effect_whose_rate_is_negative():
+    """For an effect switched on online zs[k] is the Wald z of its released rate: below the lower quantile of
+    the same level the effect is withdrawn and the window is unexplained; a declared effect is never tested,
+    and a withdrawn one (in ``on``) is not proposed again."""
+    z_at = NormalDist().inv_cdf(1 - 0.01 / 3)
+    assert judge(0.0, [-z_at - 1e-6, 0.0], 0.01, 0b01, 0b01) == (N_EFF + 0, True)
+    assert judge(0.0, [-z_at + 1e-6, 0.0], 0.01, 0b01, 0b01) == (-1, False)
+    assert judge(0.0, [-5.0, -6.0], 0.01, 0b11, 0b11) == (N_EFF + 1, True)  # the most negative first
+    assert judge(0.0, [-5.0, 9.0], 0.01, 0b01, 0b01) == (N_EFF + 0, True)  # before any switch
+    assert judge(0.0, [-9.0, 0.0], 0.01, 0b01, 0) == (-1, False)  # declared
+    assert judge(0.0, [9.0, 0.0], 0.01, 0b01, 0) == (-1, False)  # withdrawn
+
+
+def test_a_switched_rate_is_pooled_by_inverse_variance():
+    """The rates' pair is (r / P, 1 / P): the team z is the inverse-variance weighted mean over its standard
+    error, and an agent whose filter has just restarted (its rate at the prior, P = 0.1) does not mask the
+    others' evidence (with (r, P) pooled plainly it would take z from -3 to -0.28)."""
+    w = 100
+    inputs = []
+    for rate in [(-0.01, 1e-4)] * 9 + [(0.0, 0.1)]:
+        d = OnlineDetection(10, w, LAGS, 0.01, 20, 0)
+        d.on = d.switched = 0b01
+        u = [0.0] * N_POOL
+        d.begin_tick(w, u, [0.0] * N_POOL, [rate, (0.0, 0.0)])
+        inputs.append(u)
+    zp, zs = pooled(list(np.mean(inputs, axis=0)), 10, held=0b01)
+    assert zp != zp and zs[0] == pytest.approx(-900 / math.sqrt(9e4 + 10)) and zs[1] != zs[1]
+    assert zs[0] == pytest.approx(-3.0, rel=1e-3)
+
+
+def test_the_team_withdraws_a_switch_on_one_tick_and_never_proposes_it_again():
+    """Two agents switch effect 0 on; a settled window later one sees its rate significantly negative, the
+    other a weaker switch of effect 1: after the flood both withdraw effect 0 on the same tick (the larger
+    |z| wins), count the window unexplained, and ignore later proposals of effect 0 and echoes."""
+    w, h = 100, 20
+    dets = [OnlineDetection(2, w, LAGS, 0.01, h, 0) for _ in range(2)]
+    switch = [4.0, 1.0, 0.0, 1.0, 0.0, 1.0]  # z_0 = 4 sqrt 2
+    views = [[-5.0, 1.0, 0.0, 1.0, 0.0, 1.0], [-1.0, 1.0, 3.0, 1.0, 0.0, 1.0]]  # Wald -5 sqrt 2; z_1 = 3 sqrt 2
+    again = [9.0, 1.0, 0.0, 1.0, 0.0, 1.0]
+    log = [[], []]
+    for tick in range(2 * w - 1, 12 * w):
+        for i, d in enumerate(dets):
+            x = switch if tick < 2 * w + h else views[i] if tick < 6 * w else again
+            dec = d.begin_tick(tick, [0.0] * N_POOL, x, [(0.0, 0.0)] * N_EFF)
+            if dec >= 0:
+                log[i].append((tick, dec))
+        for i, d in enumerate(dets):
+            d.merge(dets[1 - i].flood.best)
+            if tick >= 6 * w:
+                d.merge((tick + h, 0, 9.0))  # a neighbour proposing effect 0 again
+    # switched at the first judging tick + h; its rate judged at the first window close a window after the
+    # switch (4w), on the tick before 5w
+    assert log[0] == log[1] == [(2 * w - 1 + h, 0), (5 * w - 1 + h, N_EFF + 0)]
+    for d in dets:
+        e = d.entries()
+        assert e["eff_on"] == 0.0 and e["eff_tick"] == 5 * w - 1 + h and e["eff_z"] == pytest.approx(-5 * math.sqrt(2))
+        assert e["eff_unexplained"] == 1.0
+
+
+def test_withdrawing_an_effect_pins_its_rate_at_the_gaussian_conditional():
+    """The filter's state conditioned on the rate being exactly 0 (1/m corrected by its correlation with the
+    rate), the rate's variance and walk zero: it stays 0 through further steps."""
+    from agents.rigid_filter import RigidEKF
+    from config.agent_params import DynamicsSpec
+
+    kf = RigidEKF(0.1, DynamicsSpec(algorithm="sequential", online_detection=True), False)
+    kf.start(complex(0.3, -0.2), complex(1.5, 0.4), 0.8)
+    kf.release_effect(0)
+    rng = np.random.default_rng(4)
+    dt, vc = 0.01, complex(0.3, -0.2)
+    for t in range(600):
+        force = 150 * complex(math.cos(0.02 * t), math.sin(0.013 * t))
+        kf.predict(force, 0.0, dt)
+        vc += dt * (force / 50 - 0.3 * vc)  # friction 0.3 1/s
+        kf.update(vc + complex(*rng.normal(0, 0.1, 2)), math.nan, 0.0)
+    s, P = kf.s.copy(), kf.P.copy()
+    assert kf.beta > 0.1 and abs(P[4, 7]) > 0.0
+    kf.withdraw_effect(0)
+    np.testing.assert_allclose(kf.s[4], s[4] - P[4, 7] / P[7, 7] * s[7], rtol=1e-12)
+    np.testing.assert_allclose(kf.P[4, 4], P[4, 4] - P[4, 7] ** 2 / P[7, 7], rtol=1e-9)
+    for _ in range(50):
+        kf.predict(150j, 0.0, dt)
+        kf.update(vc, math.nan, 0.0)
+        assert kf.beta == 0.0 and not kf.P[7].any() and not kf.P[:, 7].any()
+
+
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.tuples(st.integers(0, 50), st.integers(0, N_EFF - 1), st.floats(2.0, 20.0)), min_size=1,
+@given(st.lists(st.tuples(st.integers(0, 50), st.integers(0, 2 * N_EFF - 1), st.floats(2.0, 20.0)), min_size=1,
                 max_size=6), st.randoms())
 def test_the_flooded_proposal_does_not_depend_on_the_order_of_arrival(props, rnd):
+    props = [(t, e, z if e < N_EFF else -z) for t, e, z in props]  # switches (z > 0) and withdrawals (z < 0)
     a, b = DecisionFlood(), DecisionFlood()
     for p in props:
         a.merge(p)
@@ -158,7 +245,7 @@ def test_the_flooded_proposal_does_not_depend_on_the_order_of_arrival(props, rnd
     for p in order:
         b.merge(p)
         b.merge(b.best)  # a neighbour echoing our own flood back
-    assert a.best == b.best == min(props, key=lambda p: (p[0], -p[2], p[1]))
+    assert a.best == b.best == min(props, key=lambda p: (p[0], -abs(p[2]), p[1]))
     assert decode(a.encode()) == a.best
 
 

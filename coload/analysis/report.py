@@ -244,7 +244,7 @@ def effect_events(run: RunData) -> list[dict[str, Any]]:
     if "effects" in summary:
         raw = [e for e in summary.get("events", []) if str(e.get("event", "")).startswith("effect_")]
     else:
-        raw = [{**e, "event": "effect_switch"} for e in effects_block(run).get("events", []) if e["tick"] >= 0]
+        raw = [{"event": "effect_switch", **e} for e in effects_block(run).get("events", []) if e["tick"] >= 0]
     out = []
     for e in raw:
         tick = e.get("tick")

@@ -46,7 +46,7 @@ def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any])
             summary["effects"] = effects
             # every switch the team agreed online is an event of the run, beside the partitions
             events = summary.get("events", []) + [
-                {"tick": e["tick"], "t": e["tick"] * scenario.dt, "event": "effect_switch", "effect": e["effect"],
+                {"tick": e["tick"], "t": e["tick"] * scenario.dt, "event": e["event"], "effect": e["effect"],
                  "statistic": e["statistic"], "agents": e["agents"]} for e in effects["events"] if e["tick"] >= 0]
             summary["events"] = sorted(events, key=lambda e: e["tick"])
     except (ValueError, OSError) as exc:
@@ -128,10 +128,11 @@ EFFECT_BITS = ("viscous_friction", "rotational_damping")  # bit k of eff_on (age
 
 
 def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
-    """The online detection's decisions (``eff_*`` columns, docs/online-detection.md): every switch the team
-    agreed as an event (tick, effect, pooled statistic, the agents that applied it), the effects on at the
-    end, and the windows judged ``unexplained`` (the largest count over the agents). Empty without those
-    columns (a run without online detection)."""
+    """The online detection's decisions (``eff_*`` columns, docs/online-detection.md): every switch and every
+    withdrawal the team agreed as an event (``effect_switch`` or ``effect_withdrawn``: an ``eff_on`` bit set or
+    cleared; tick, effect, pooled statistic, the agents that applied it), the effects on at the end, and the
+    windows judged ``unexplained`` (the largest count over the agents). Empty without those columns (a run
+    without online detection)."""
     est = None if run is None else run.estimates
     if est is None or len(est.t) == 0 or not all(est.has(c) for c in ("eff_on", "eff_tick", "eff_z")):
         return {}
@@ -142,13 +143,15 @@ def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
     for i in range(on.shape[1]):
         prev = 0
         for r in np.flatnonzero(np.isfinite(on[:, i])):
-            new = int(on[r, i]) & ~prev
-            for k, name in enumerate(EFFECT_BITS):
-                if (new >> k) & 1:
-                    ev = events.setdefault((int(tick[r, i]), name), {
-                        "tick": int(tick[r, i]), "effect": name, "statistic": _finite_or_none(z[r, i]), "agents": []})
-                    ev["agents"].append(i)
-            prev = int(on[r, i])
+            cur = int(on[r, i])
+            for kind, bits in (("effect_switch", cur & ~prev), ("effect_withdrawn", prev & ~cur)):
+                for k, name in enumerate(EFFECT_BITS):
+                    if (bits >> k) & 1:
+                        ev = events.setdefault((int(tick[r, i]), name), {
+                            "event": kind, "tick": int(tick[r, i]), "effect": name,
+                            "statistic": _finite_or_none(z[r, i]), "agents": []})
+                        ev["agents"].append(i)
+            prev = cur
     final = _last_finite(on)
     unexplained = _last_finite(est.columns["eff_unexplained"]) if est.has("eff_unexplained") else final * math.nan
     names = sorted({name for v in final if math.isfinite(v) for k, name in enumerate(EFFECT_BITS) if (int(v) >> k) & 1})
