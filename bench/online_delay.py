@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 from coload.rundir import format as fmt  # noqa: E402
 from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
-from net.vocabulary import M_EXCITE  # noqa: E402
+from net.vocabulary import J_EXCITE, M_EXCITE  # noqa: E402
 from seed_list import parse_seeds  # noqa: E402  (bench/ is the script's own directory)
 
 SCENARIO = ROOT / "config" / "scenarios" / "friction-online.toml"
@@ -142,14 +142,14 @@ def cost(a: argparse.Namespace) -> None:
           f"| {bank / base:.2f} |")
 
 
-def _signatures(run: Path, agent: int, dt: float) -> dict[str, np.ndarray]:
-    """The m stage of ``run``, agent ``agent``, from truth (kept every record tick, interpolated to the tick
+def _signatures(run: Path, agent: int, dt: float, phase: int) -> dict[str, np.ndarray]:
+    """The stage ``phase`` (M_EXCITE: the m stage) of ``run``, agent ``agent``, from truth (kept every record tick, interpolated to the tick
     ``dt``): the delay signature (the true contact acceleration a_i; v_meas = v_i - tau a_i to first order)
     and the columns the filter fits to the same own-velocity innovations, complex (x + i y)."""
     r = fmt.read_run(run)
     tr = r.truth
     ph = r.estimates.columns["phase"][:, 0]
-    m = r.estimates.t[ph == M_EXCITE]
+    m = r.estimates.t[ph == phase]
     t = np.arange(m[0], m[-1], dt)
     c = tr.columns
     vc = c["vc_x"] + 1j * c["vc_y"]
@@ -191,11 +191,11 @@ def separability(a: argparse.Namespace) -> None:
         n = int(cfg["n"])
         sigma = a.sigma
         w = int(round(a.window / dt))
-        print(f"\n{run.name}: m stage; v_C walk {a.v_walk} m/s/sqrt(s), sigma {sigma} m/s, windows {a.window:g} s")
+        print(f"\n{run.name}: {a.stage} stage; v_C walk {a.v_walk} m/s/sqrt(s), sigma {sigma} m/s, windows {a.window:g} s")
         hdr = None
         zs = []
         for ag in range(n):
-            sg = _signatures(run, ag, dt)
+            sg = _signatures(run, ag, dt, J_EXCITE if a.stage == "J" else M_EXCITE)
             y = sg.pop("delay")
             ac = sg.pop("a_C")
             cands = {k: sg.pop(k) for k in ("viscous", "rotational")}
@@ -253,6 +253,7 @@ def main() -> None:
     p.set_defaults(fn=cost)
     p = sub.add_parser("separability", help="the delay signature against the filter's columns over a run's m stage")
     p.add_argument("runs", nargs="+", help="run directories (runs --keep DIR keeps them)")
+    p.add_argument("--stage", choices=("m", "J"), default="m", help="the stage to take (default m)")
     p.add_argument("--v-walk", type=float, default=0.01, help="the filter's v_C walk (kf_v_walk, default 0.01)")
     p.add_argument("--sigma", type=float, default=0.3, help="velocity noise std (noise.sigma_v, default 0.3)")
     p.add_argument("--window", type=float, default=5.0, help="the tests' window (monitor_window_s, default 5)")
