@@ -73,12 +73,18 @@ def runs(a: argparse.Namespace) -> None:
             for det in (True, False):
                 r = one(dl, sd, det, a.keep)
                 out.append(r)
-                print("run", json.dumps({k: v for k, v in r.items() if k != "dt"}), flush=True)
+                print("run", json.dumps(r), flush=True)
+    table(out)
+
+
+def table(out: list[dict]) -> None:
+    """The markdown table of the runs: one row per detection run, its nominal twin's errors beside it."""
     nominal = {(r["delay"], r["seed"]): r for r in out if not r["detect"]}
     f = lambda v: "-" if v is None or v != v else f"{100 * v:.2f} %"  # noqa: E731
-    print("| delay (s) | seed | switched (tick: effect, z) | from m stage start (s) | withdrawn | unexplained windows "
-          "| m err | J err | nominal m err | nominal J err | agent step (us) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    g = lambda v: "-" if v != v else f"{v:.3f}"  # noqa: E731
+    print("| delay (s) | seed | switched (tick: effect, z) | first switch from the m stage start (s) | withdrawn | unexplained windows "
+          "| m err | J err | nominal m err | nominal J err | b | c | agent step (us) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in (r for r in out if r["detect"]):
         eff = r["effects"]
         ev = eff.get("events", [])
@@ -90,7 +96,7 @@ def runs(a: argparse.Namespace) -> None:
         nom = nominal.get((r["delay"], r["seed"]), {})
         print(f"| {r['delay']:g} | {r['seed']} | {sw} | {dt0} | {wd} | {eff.get('unexplained_windows')} "
               f"| {f(r['m_rel'])} | {f(r['J_rel'])} | {f(nom.get('m_rel'))} | {f(nom.get('J_rel'))} "
-              f"| {r['step_us'] or 0:.0f} |")
+              f"| {g(r['b'])} | {g(r['c'])} | {r.get('step_us') or 0:.0f} |")
 
 
 def _ekf_step(s: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray, H: np.ndarray, R: np.ndarray,
