@@ -2,7 +2,7 @@
 
     python bench/online_delay.py runs [--delays 0.02,0.05,0.1] [--seeds 1-2] [--keep DIR]
     python bench/online_delay.py cost [--delays 0.02,0.05,0.1] [--reps 20000]
-    python bench/online_delay.py separability RUN_DIR [RUN_DIR ...]
+    python bench/online_delay.py separability [--stage m|J] RUN_DIR [RUN_DIR ...]
 
 ``runs``: in-process lockstep (equal to a Zenoh run bit for bit), friction-online.toml with nothing declared
 (``dynamics.estimate_effects = []``), a clean floor (``plant.friction = {}``) and ``sensor.delay`` set,
@@ -13,12 +13,14 @@ plant and seed with detection off (the nominal twin). ``--keep DIR`` keeps each 
 
 ``cost``: one EKF predict + update with numpy as agents/rigid_filter.py does it (dense A P A^T, gain from
 the innovation covariance), of the filter's dimension (10 with detection) and of the exact delay model that
-carries the last d contact velocities too (2 d more states, d = round(delay / dt)).
+carries the last d contact velocities too (2 d more states, d = 1 .. round(max delay / dt)), and the bank of
+those filters over d that an unknown delay needs.
 
-``separability``: over the m stage of a recorded run, the normalised inner product (cosine) between the
-first-order delay signature (the contact acceleration: v_meas ~ v - tau a) and the signatures the filter
-already fits for the same own-velocity innovations (the 1/m column dt sum F, v_C, omega q^perp, constant),
-and the fraction of the delay signature left after projecting it onto them. docs/online-delay.md.
+``separability [--stage m|J]``: over a stage of a kept run, from its truth, the cosine between the
+first-order delay signature (the contact acceleration a_i: v_meas ~ v - tau a_i) and each column the filter
+fits to the same own-velocity innovations (1/m, omega, q's angle and scale); the part of a_i that the
+filter's v_C walk and those columns leave; the pooled score a delay candidate would reach per window from
+it; and the cosine of that part with what the viscous and rotational candidates leave. docs/online-delay.md.
 """
 
 from __future__ import annotations
@@ -82,7 +84,8 @@ def table(out: list[dict]) -> None:
     nominal = {(r["delay"], r["seed"]): r for r in out if not r["detect"]}
     f = lambda v: "-" if v is None or v != v else f"{100 * v:.2f} %"  # noqa: E731
     g = lambda v: "-" if v != v else f"{v:.3f}"  # noqa: E731
-    print("| delay (s) | seed | switched (tick: effect, z) | first switch from the m stage start (s) | withdrawn | unexplained windows "
+    print("| delay (s) | seed | switched (tick: effect, z) | first switch from the m stage start (s) | withdrawn "
+          "| unexplained windows "
           "| m err | J err | nominal m err | nominal J err | b | c | agent step (us) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in (r for r in out if r["detect"]):
@@ -149,9 +152,10 @@ def cost(a: argparse.Namespace) -> None:
 
 
 def _signatures(run: Path, agent: int, dt: float, phase: int) -> dict[str, np.ndarray]:
-    """The stage ``phase`` (M_EXCITE: the m stage) of ``run``, agent ``agent``, from truth (kept every record tick, interpolated to the tick
-    ``dt``): the delay signature (the true contact acceleration a_i; v_meas = v_i - tau a_i to first order)
-    and the columns the filter fits to the same own-velocity innovations, complex (x + i y)."""
+    """The stage ``phase`` (M_EXCITE: the m stage) of ``run``, agent ``agent``, from truth (kept every record
+    tick, interpolated to the tick ``dt``): the delay signature (the true contact acceleration a_i;
+    v_meas = v_i - tau a_i to first order), the columns the filter fits to the same own-velocity innovations
+    and the other candidates' signatures, complex (x + i y)."""
     r = fmt.read_run(run)
     tr = r.truth
     ph = r.estimates.columns["phase"][:, 0]
@@ -197,7 +201,8 @@ def separability(a: argparse.Namespace) -> None:
         n = int(cfg["n"])
         sigma = a.sigma
         w = int(round(a.window / dt))
-        print(f"\n{run.name}: {a.stage} stage; v_C walk {a.v_walk} m/s/sqrt(s), sigma {sigma} m/s, windows {a.window:g} s")
+        print(f"\n{run.name}: {a.stage} stage; v_C walk {a.v_walk} m/s/sqrt(s), sigma {sigma} m/s, "
+              f"windows {a.window:g} s")
         hdr = None
         zs = []
         for ag in range(n):
