@@ -65,7 +65,7 @@ def one(delay: float, seed: int, detect: bool, keep: str | None) -> dict:
 
 
 def runs(a: argparse.Namespace) -> None:
-    delays = [float(x) for x in a.delays.split(",")]
+    delays = a.delays
     seeds = parse_seeds(a.seeds)
     if a.keep:
         Path(a.keep).mkdir(parents=True, exist_ok=True)
@@ -119,7 +119,7 @@ def _ekf_step(s: np.ndarray, P: np.ndarray, A: np.ndarray, Q: np.ndarray, H: np.
 def cost(a: argparse.Namespace) -> None:
     """Time (least of 7) of one predict + update, the filter's dimension against the exact delay model's."""
     dt = 0.01
-    dmax = max(int(round(float(x) / dt)) for x in a.delays.split(","))
+    dmax = max(int(round(x / dt)) for x in a.delays)
     dims = [("nominal filter (7 + rate bias)", 8), ("with detection (+ beta, gamma)", 10)]
     dims += [(f"exact delay {d * dt:g} s: + last {d} contact velocities", 10 + 2 * d) for d in range(1, dmax + 1)]
     rng = np.random.default_rng(0)  # the test matrices only; the timing does not depend on their values
@@ -250,16 +250,29 @@ def separability(a: argparse.Namespace) -> None:
                   f"min {tau * pooled.min():.2f}, max {tau * pooled.max():.2f} over {len(pooled)} windows")
 
 
+def _floats(text: str) -> list[float]:
+    """A comma list of positive numbers (argparse type: a bad one is one line and exit status 2)."""
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a comma list of numbers, got {text!r}") from None
+    if not all(v > 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected positive numbers, got {text!r}")
+    return vals
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("runs", help="the team on a clean plant with a sensor delay, and the nominal twins")
-    p.add_argument("--delays", default="0.02,0.05,0.1", help="sensor delays (s), comma list (default 0.02,0.05,0.1)")
+    p.add_argument("--delays", default="0.02,0.05,0.1", type=_floats,
+                   help="sensor delays (s), comma list (default 0.02,0.05,0.1)")
     p.add_argument("--seeds", default="1-2", help="seeds, a range A-B or a comma list (default 1-2)")
     p.add_argument("--keep", help="keep each run directory under this directory")
     p.set_defaults(fn=runs)
     p = sub.add_parser("cost", help="time one EKF predict + update: the filter's dimension and the exact delay model's")
-    p.add_argument("--delays", default="0.02,0.05,0.1", help="sensor delays (s), comma list (default 0.02,0.05,0.1)")
+    p.add_argument("--delays", default="0.02,0.05,0.1", type=_floats,
+                   help="sensor delays (s), comma list (default 0.02,0.05,0.1)")
     p.add_argument("--reps", type=int, default=20000, help="steps per timing (default 20000)")
     p.set_defaults(fn=cost)
     p = sub.add_parser("separability", help="the delay signature against the filter's columns over a run's m stage")
@@ -268,10 +281,13 @@ def main() -> None:
     p.add_argument("--v-walk", type=float, default=0.01, help="the filter's v_C walk (kf_v_walk, default 0.01)")
     p.add_argument("--sigma", type=float, default=0.3, help="velocity noise std (noise.sigma_v, default 0.3)")
     p.add_argument("--window", type=float, default=5.0, help="the tests' window (monitor_window_s, default 5)")
-    p.add_argument("--taus", default="0.02,0.05,0.1", type=lambda x: [float(v) for v in x.split(",")],
+    p.add_argument("--taus", default="0.02,0.05,0.1", type=_floats,
                    help="delays (s) to state the pooled score for (default 0.02,0.05,0.1)")
     p.set_defaults(fn=separability)
     a = ap.parse_args()
+    for run in getattr(a, "runs", None) or []:
+        if a.fn is separability and not (Path(run) / "truth.csv").is_file():
+            ap.error(f"{run}: not a run directory with a truth.csv (runs --keep DIR keeps them)")
     a.fn(a)
 
 
