@@ -219,16 +219,25 @@ _DRAWERS: dict[str, Callable[[Axes, _Ctx], None]] = {
 }
 
 
-def _phase_changes(run: RunData) -> list[tuple[float, int]]:
-    """Times at which the agents' median phase changes, for the thin vertical markers."""
+def _team_series(run: RunData, column: str, reduce: Callable[..., np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    """An estimates.csv column held forward per agent and reduced over the agents (``reduce(x, axis=1)``;
+    NaN where no agent has reported yet); None if the run has no such column."""
     est = run.estimates
-    if est is None or not est.has("phase") or len(est.t) == 0:
-        return []
-    phase = metrics.hold_last(est.columns["phase"])
+    if est is None or not est.has(column) or len(est.t) == 0:
+        return None
+    held = metrics.hold_last(est.columns[column])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows before any agent reported
-        median = np.nanmedian(phase, axis=1)
-    t = est.t[np.isfinite(median)]
+        return est.t, reduce(held, axis=1)
+
+
+def _phase_changes(run: RunData) -> list[tuple[float, int]]:
+    """Times at which the agents' median phase changes, for the thin vertical markers."""
+    got = _team_series(run, "phase", np.nanmedian)
+    if got is None:
+        return []
+    t, median = got
+    t = t[np.isfinite(median)]
     median = median[np.isfinite(median)]
     change = np.flatnonzero(median[1:] != median[:-1]) + 1
     out = [(float(t[k]), int(round(median[k]))) for k in change]
@@ -259,16 +268,13 @@ def effect_events(run: RunData) -> list[dict[str, Any]]:
 def unexplained_times(run: RunData) -> list[float]:
     """Times at which the team's count of ``unexplained`` windows grows (the largest ``eff_unexplained``
     over the agents): the ticks the windows were judged."""
-    est = run.estimates
-    if est is None or not est.has("eff_unexplained") or len(est.t) == 0:
+    got = _team_series(run, "eff_unexplained", np.nanmax)
+    if got is None:
         return []
-    count = metrics.hold_last(est.columns["eff_unexplained"])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows before any agent judged
-        team = np.nanmax(count, axis=1)
+    t, team = got
     team = np.where(np.isfinite(team), team, 0.0)
     grew = np.flatnonzero(np.diff(team, prepend=0.0) > 0)
-    return [float(est.t[k]) for k in grew]
+    return [float(t[k]) for k in grew]
 
 
 def _effect_style(kind: str) -> dict[str, Any]:
