@@ -90,6 +90,9 @@ class DynamicPhase:
         self.m_local_sd = self.j_local_sd = math.nan  # the filter's sd of m_local and J_local when offered
         self.b_local = math.nan  # augmented model: own b = beta m and c = gamma J, before the averaging
         self.c_local = math.nan
+        # whether b (c) was offered while its effect was in the model: with online detection the rates are
+        # carried pinned at 0 from the start, and an effect switched on after m (J) froze has no average
+        self.b_offered = self.c_offered = False
         self.released = False
         ticks = lambda s: max(1, int(round(s / dt)))  # noqa: E731
         self.barrier = StageBarrier(agent_id, n, ticks(spec.horizon_s))
@@ -573,6 +576,7 @@ class DynamicPhase:
                 if kf.aug is not None:  # b = beta m, averaged with m's weights
                     self.b_local = kf.beta * m_local
                     au[CH_BN] = w * self.b_local
+                    self.b_offered = self.b_offered or bool(self._on() & 1)
         if kf.ready and take_j:
             w = 1.0 if stage == BACKGROUND else self._clean_share(self.j_start, self.j_ticks)
             j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w, sure)
@@ -583,6 +587,7 @@ class DynamicPhase:
                 if kf.aug is not None:  # c = gamma J, averaged with J's weights
                     self.c_local = kf.gamma * j_local
                     au[CH_CN] = w * self.c_local
+                    self.c_offered = self.c_offered or bool(self._on() & 2)
 
     def _predict(self, tick: int, rot: complex, j_sign: float | None) -> None:
         """Prediction to tick + 1 with the total force and torque (decomposition (12)-(14)); ``j_sign``:
@@ -692,6 +697,11 @@ class DynamicPhase:
             out.update(self.detect.flood.encode())
         return out
 
+    def _on(self) -> int:
+        """The effects in the model (bit 0 viscous friction, bit 1 rotational damping): declared
+        (estimate_effects: the augmented filter carries both) or switched on online."""
+        return 3 if self.detect is None else self.detect.on
+
     def _estimates(self) -> dict[str, float]:
         """The estimate values of the dynamical phase (``ESTIMATE_NAMES`` from "J" on)."""
         x = self.avg.x
@@ -699,8 +709,7 @@ class DynamicPhase:
         nan = math.nan
         m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
         J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
-        # the effects in the model: declared (estimate_effects) or switched on online
-        on = 3 if self.detect is None else self.detect.on
+        on = self._on()
         if self.stage >= M_AVERAGE:
             zc = complex(x[CH_ZX], x[CH_ZY]) * complex(cos(self.psi), sin(self.psi))
             vc = complex(s[0], s[1])
@@ -717,8 +726,8 @@ class DynamicPhase:
             "m_local": self.m_local,
             "late_switches": float(self.late_switches),
             # augmented model (estimate_effects): b with m's weights, c with J's
-            "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 and on & 1 else nan,
-            "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 and on & 2 else nan,
+            "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 and on & 1 and self.b_offered else nan,
+            "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 and on & 2 and self.c_offered else nan,
             "b_local": self.b_local if on & 1 else nan,
             "c_local": self.c_local if on & 2 else nan,
             "filter_restarts": float(self.reseeds),
