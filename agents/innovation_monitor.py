@@ -74,7 +74,6 @@ def window_pvalues(w: np.ndarray, sig: np.ndarray, lags: int) -> list[float]:
     return [persistence_p(w, lags)] + [score_test(w, sig[:, k, :]) for k in range(sig.shape[1])]
 
 
-
 def cholesky2(s00: float, s01: float, s11: float) -> tuple[float, float, float] | None:
     """The lower Cholesky factor (l00, l10, l11) of the 2x2 covariance [[s00, s01], [s01, s11]]; None when
     it is not positive definite (the update is then not tested)."""
@@ -93,6 +92,7 @@ def whiten(chol: tuple[float, float, float], x0: float, x1: float) -> tuple[floa
     l00, l10, l11 = chol
     w0 = x0 / l00
     return w0, (x1 - l10 * w0) / l11
+
 
 class InnovationMonitor:
     """One agent's windows of whitened innovations and signatures (module docstring)."""

@@ -113,10 +113,7 @@ class RigidEKF:
         its current value with the start's prior, as :meth:`release_effects` does for both."""
         if self.aug is None or not self.ready:
             return
-        on = list(self.aug)
-        on[k] = 1.0
-        on[2 + k] = self.walk_eff
-        self.aug = (on[0], on[1], on[2], on[3])
+        self._set_effect(k, 1.0, self.walk_eff)
         self._restart(((4, 1.0), (7, 0.1)) if k == 0 else ((6, 1e-2), (8, 0.1)))
 
     def withdraw_effect(self, k: int) -> None:
@@ -137,12 +134,16 @@ class RigidEKF:
         s[r] = 0.0
         P[r, :] = 0.0
         P[:, r] = 0.0
-        on = list(self.aug)
-        on[k] = 0.0
-        on[2 + k] = 0.0
-        self.aug = (on[0], on[1], on[2], on[3])
+        self._set_effect(k, 0.0, 0.0)
         self.s = s
         self.P = 0.5 * (P + P.T)
+
+    def _set_effect(self, k: int, on: float, walk: float) -> None:
+        """Effect k's entries of ``aug`` (its rate on or pinned, and its random walk)."""
+        aug = list(self.aug)
+        aug[k] = on
+        aug[2 + k] = walk
+        self.aug = (aug[0], aug[1], aug[2], aug[3])
 
     def _restart(self, entries: tuple[tuple[int, float], ...]) -> None:
         """Each (state k, variance) in ``entries``: its correlations dropped, its variance set; the effect

@@ -171,6 +171,11 @@ class SimDaemon:
                 self.transport.publish(self._meas_keys[i], self._meas_out[i])
         self._poke()
 
+    def _first_wrench(self, i: int) -> None:
+        """Agent ``i``'s wrench is taken: if the run has never seen it, this is its arrival (see _set_alive)."""
+        if i not in self._seen and i not in self._expected_alive:
+            self._set_alive(i, True, by_token=False)
+
     def _event(self, event: str, **fields: Any) -> None:
         ev = {"tick": self.tick, "t": self.tick * self.scenario.dt, "event": event, **fields}
         self.events.append(ev)
@@ -193,8 +198,7 @@ class SimDaemon:
             if w.tick > self.tick + 1:
                 self.drops["future"] += 1
                 return
-            if i not in self._seen and i not in self._expected_alive:
-                self._set_alive(i, True, by_token=False)
+            self._first_wrench(i)
             self.latest[i] = (w.fx, w.fy, w.tau)
             self.last_wrench[i] = w.tick
             return
@@ -208,8 +212,7 @@ class SimDaemon:
         if i in self.wrenches:
             self.drops["duplicate"] += 1  # first one wins: a replay cannot overwrite the genuine wrench
             return
-        if i not in self._seen and i not in self._expected_alive:
-            self._set_alive(i, True, by_token=False)
+        self._first_wrench(i)
         self.wrenches[i] = (w.fx, w.fy, w.tau)
         self.last_wrench[i] = w.tick
         self._poke()

@@ -85,7 +85,7 @@ def trust_block(run: fmt.RunData | None) -> dict[str, Any]:
         cols = [f"{name}_trusted", f"{name}_fresh", f"{name}_sd"]
         if not all(est.has(c) for c in cols):
             continue
-        flag, fresh, sd = (_last_finite(est.columns[c]) for c in cols)
+        flag, fresh, sd = (last_finite(est.columns[c])[0] for c in cols)
         judged = np.isfinite(flag)
         if not judged.any():
             continue
@@ -107,8 +107,8 @@ def monitor_block(run: fmt.RunData | None) -> dict[str, Any]:
     est = None if run is None else run.estimates
     if est is None or len(est.t) == 0 or not (est.has("mon_windows") and est.has("mon_alarms")):
         return {}
-    windows = _last_finite(est.columns["mon_windows"])
-    alarms = _last_finite(est.columns["mon_alarms"])
+    windows = last_finite(est.columns["mon_windows"])[0]
+    alarms = last_finite(est.columns["mon_alarms"])[0]
     if not np.isfinite(windows).any():
         return {}
     first = []
@@ -152,8 +152,8 @@ def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
                             "statistic": _finite_or_none(z[r, i]), "agents": []})
                         ev["agents"].append(i)
             prev = cur
-    final = _last_finite(on)
-    unexplained = _last_finite(est.columns["eff_unexplained"]) if est.has("eff_unexplained") else final * math.nan
+    final = last_finite(on)[0]
+    unexplained = last_finite(est.columns["eff_unexplained"])[0] if est.has("eff_unexplained") else final * math.nan
     names = sorted({name for v in final if math.isfinite(v) for k, name in enumerate(EFFECT_BITS) if (int(v) >> k) & 1})
     return {
         "events": sorted(events.values(), key=lambda e: (e["tick"], e["effect"])),
@@ -165,11 +165,6 @@ def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
 
 def _int_or_none(v: float) -> int | None:
     return int(v) if math.isfinite(v) else None
-
-
-def _last_finite(col: np.ndarray) -> np.ndarray:
-    """Each agent's (column's) last finite value, NaN if none."""
-    return last_finite(col)[0]
 
 
 def _finite_or_none(v: float) -> float | None:
