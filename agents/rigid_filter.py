@@ -119,9 +119,9 @@ class RigidEKF:
     def withdraw_effect(self, k: int) -> None:
         """Online detection: pin effect k's rate (0: beta, 1: gamma) at 0 again. The filter's state is
         conditioned on the rate being exactly 0 (the Gaussian conditional: s - P[:, r] s_r / P_rr,
-        P - P[:, r] P[r, :] / P_rr), which for the linear part of the model is the posterior the filter without
-        the effect would have from the switch's restart on: 1/m (or 1/J) keeps the data since the switch and
-        loses what it had learnt, with the rate, of a structure the rate did not explain."""
+        P - P[:, r] P[r, :] / P_rr): 1/m (or 1/J) keeps the data since the switch, corrected to first order by
+        its correlation with the rate; a correction only, not the filter that never had the effect
+        (docs/online-detection.md, "Withdrawal")."""
         if self.aug is None or not self.ready:
             return
         r = 7 + k
