@@ -32,6 +32,11 @@ the team's Wald z = sum r_i / P_i / sqrt(sum 1 / P_i) is that of the inverse-var
 filter just restarted, its rate at the prior, weighs nothing). Below the level's lower quantile the
 coefficient is negative, and the team withdraws the effect through the same flood (the rate pinned at 0
 again in every filter on one tick, the window ``unexplained``, the effect never proposed again).
+Before a switch, the lower tail of a candidate's score says the same: below the level's lower quantile the
+data favour a negative coefficient, which no candidate has, so structure along its signature is something
+else (a periodic force alternates the sign window by window and passes the one-sided test in its positive
+windows). The team rules the candidate out through the same flood and code as a withdrawal: never proposed
+again; the filters, which never released it, are untouched.
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -305,16 +310,23 @@ class OnlineDetection:
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
                 k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held)
+                if k < 0:  # a candidate whose score is significantly negative is ruled out (module docstring)
+                    level, skip = self.alpha / (1 + N_EFF), self.on | self.withdrawn | held
+                    neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
+                    k = N_EFF + min(neg)[1] if neg else -1
                 if k >= 0:
                     self.flood.merge((tick + self.horizon, k, zs[k % N_EFF]))
                 # a withdrawal's window is counted where it is applied: by every agent, whatever its own view
-                self.unexplained += unexplained and k < N_EFF
+                self.unexplained += unexplained and not (k >= N_EFF and (held >> (k - N_EFF)) & 1)
         due = self.flood.due(tick)
         if due is None:
             return -1
         if tick > due[0]:
             self.late += 1
         k = due[1] % N_EFF
+        if due[1] >= N_EFF and not (self.switched >> k) & 1:  # ruled out before any switch: the filters keep it at 0
+            self.withdrawn |= 1 << k
+            return -1
         if due[1] < N_EFF:
             self.on |= 1 << k
             self.switched |= 1 << k
@@ -330,11 +342,11 @@ class OnlineDetection:
 
     def merge(self, prop: tuple[int, int, float]) -> None:
         """A neighbour's flooded proposal (a switch ignored for an effect already on or withdrawn, a withdrawal
-        for one not switched on here: declared, withdrawn, or its switch not yet applied, which precedes it)."""
+        for one declared or already withdrawn; a withdrawal of one not switched on here rules it out)."""
         if prop[0] < 0:
             return
         k = prop[1] % N_EFF
-        if ((self.on | self.withdrawn) if prop[1] < N_EFF else ~self.switched) >> k & 1:
+        if ((self.on | self.withdrawn) if prop[1] < N_EFF else (self.on & ~self.switched) | self.withdrawn) >> k & 1:
             return
         self.flood.merge(prop)
 
