@@ -1,0 +1,87 @@
+"""A candidate whose pooled score is significantly negative is ruled out by the team (agents/effect_decision.py,
+docs/online-detection.md "Ruled out"): on one tick at every agent, through the withdrawals' flood, with no
+change to the filters, and never proposed again."""
+
+from __future__ import annotations
+
+import math
+
+from agents.effect_decision import N_EFF, N_POOL, OnlineDetection
+
+LAGS = 5
+W, H = 100, 20
+
+
+def pool(*scores: float, zp_sum: float = 0.0) -> list[float]:
+    """Team means of the pool channels whose pooled z of candidate k is scores[k] sqrt(n) (n = 2 here):
+    s_k = scores[k], v_k = 1, every agent contributing."""
+    x = [0.0] * N_POOL
+    for k, s in enumerate(scores):
+        x[2 * k], x[2 * k + 1] = s, 1.0
+    x[2 * N_EFF], x[2 * N_EFF + 1] = zp_sum, 1.0
+    return x
+
+
+def run(dets, views, ticks, proposals=()):
+    """Drive the agents over ``ticks`` with views(tick, i) as their team means; returns each one's decisions."""
+    log = [[] for _ in dets]
+    for tick in ticks:
+        for i, d in enumerate(dets):
+            dec = d.begin_tick(tick, [0.0] * N_POOL, views(tick, i), [(0.0, 0.0)] * N_EFF)
+            if dec >= 0:
+                log[i].append((tick, dec))
+        for i, d in enumerate(dets):
+            for j, o in enumerate(dets):
+                if j != i:
+                    d.merge(o.flood.best)
+            for p in proposals:
+                d.merge(p(tick))
+    return log
+
+
+def test_two_agents_rule_a_candidate_out_on_one_tick_and_never_switch_it_on():
+    """One agent sees candidate 0 at z -7.1 (the other at -1.4, not significant): after the flood both rule it
+    out on the same tick without telling their filters (no decision returned), and later a significant
+    positive score of it, or a neighbour proposing it, switches nothing; candidate 1 can still be switched."""
+    dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0) for _ in range(2)]
+    negative = [pool(-5.0, 0.0), pool(-1.0, 0.0)]
+
+    def views(tick, i):
+        if tick < 3 * W:
+            return negative[i]
+        return pool(9.0, 0.0) if tick < 6 * W else pool(9.0, 4.0)
+
+    log = run(dets, views, range(2 * W - 1, 9 * W),
+              [lambda t: (t + H, 0, 9.0) if 4 * W <= t < 5 * W else (-1, -1, 0.0)])
+    # candidate 1 is switched on at the first judging tick its score is significant; candidate 0 never
+    assert log[0] == log[1] == [(7 * W - 1 + H, 1)]
+    for d in dets:
+        assert d.withdrawn == 0b01 and d.on == d.switched == 0b10
+        assert d.entries()["eff_unexplained"] == 0.0  # the persistence channel says no structure
+
+
+def test_the_level_is_the_withdrawals_and_a_switch_in_the_same_window_comes_first():
+    """Ruled out just below the level's lower quantile (alpha / 3 one-sided), not just above it; a significant
+    candidate in the same window is switched on first (one decision per window) and the other ruled out in a
+    later window; the window counts ``unexplained`` where the persistence test is significant."""
+    from statistics import NormalDist
+
+    z_at = NormalDist().inv_cdf(1 - 0.01 / (1 + N_EFF)) / math.sqrt(2)  # a score mean of z_at pools to the level
+    for eps, ruled in ((1e-6, 0b01), (-1e-6, 0)):
+        (d,) = dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0)]
+        log = run(dets, lambda t, i: pool(-z_at - eps, 0.0, zp_sum=5.0), range(2 * W - 1, 2 * W + H))
+        assert d.withdrawn == ruled and log == [[]]
+        assert d.unexplained == 1  # structured, no candidate switched on: unexplained either way
+    (d,) = dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0)]
+    log = run(dets, lambda t, i: pool(-5.0, 4.0), range(2 * W - 1, 6 * W + H))
+    # ruled out on the first window judged once the switch has settled (it starts at 4 W), at 6 W - 1
+    assert log == [[(2 * W - 1 + H, 1)]] and d.withdrawn == 0b01 and d.flood.done == 6 * W - 1 + H
+
+
+def test_a_declared_effect_is_never_ruled_out():
+    """An effect in ``estimate_effects`` is the user's: no negative score rules it out, and a neighbour's
+    withdrawal of it is ignored."""
+    (d,) = dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0, on=0b01)]
+    log = run(dets, lambda t, i: pool(-9.0, 0.0), range(2 * W - 1, 5 * W),
+              [lambda t: (t + H, N_EFF + 0, -9.0)])
+    assert log == [[]] and d.on == 0b01 and d.withdrawn == 0
