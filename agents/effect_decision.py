@@ -36,7 +36,7 @@ Before a switch, the lower tail of a candidate's score says the same: below the 
 data favour a negative coefficient, which no candidate has, so structure along its signature is something
 else (a periodic force alternates the sign window by window and passes the one-sided test in its positive
 windows). The team rules the candidate out through the same flood and code as a withdrawal: never proposed
-again; the filters, which never released it, are untouched.
+again, the window ``unexplained``; the filters, which never released it, are untouched.
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -317,7 +317,7 @@ class OnlineDetection:
                 if k >= 0:
                     self.flood.merge((tick + self.horizon, k, zs[k % N_EFF]))
                 # a withdrawal's window is counted where it is applied: by every agent, whatever its own view
-                self.unexplained += unexplained and not (k >= N_EFF and (held >> (k - N_EFF)) & 1)
+                self.unexplained += unexplained and k < N_EFF
         due = self.flood.due(tick)
         if due is None:
             return -1
@@ -326,6 +326,7 @@ class OnlineDetection:
         k = due[1] % N_EFF
         if due[1] >= N_EFF and not (self.switched >> k) & 1:  # ruled out before any switch: the filters keep it at 0
             self.withdrawn |= 1 << k
+            self.unexplained += 1  # structure along its signature that no candidate explains
             return -1
         if due[1] < N_EFF:
             self.on |= 1 << k

@@ -1,6 +1,6 @@
 """A candidate whose pooled score is significantly negative is ruled out by the team (agents/effect_decision.py,
-docs/online-detection.md "Ruled out"): on one tick at every agent, through the withdrawals' flood, with no
-change to the filters, and never proposed again."""
+docs/online-detection.md, periodic force): on one tick at every agent, through the withdrawals' flood, with
+no change to the filters, the window ``unexplained``, and never proposed again."""
 
 from __future__ import annotations
 
@@ -42,7 +42,8 @@ def run(dets, views, ticks, proposals=()):
 def test_two_agents_rule_a_candidate_out_on_one_tick_and_never_switch_it_on():
     """One agent sees candidate 0 at z -7.1 (the other at -1.4, not significant): after the flood both rule it
     out on the same tick without telling their filters (no decision returned), and later a significant
-    positive score of it, or a neighbour proposing it, switches nothing; candidate 1 can still be switched."""
+    positive score of it, or a neighbour proposing it, switches nothing; candidate 1 can still be switched. Both
+    count the window ``unexplained``."""
     dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0) for _ in range(2)]
     negative = [pool(-5.0, 0.0), pool(-1.0, 0.0)]
 
@@ -57,25 +58,25 @@ def test_two_agents_rule_a_candidate_out_on_one_tick_and_never_switch_it_on():
     assert log[0] == log[1] == [(7 * W - 1 + H, 1)]
     for d in dets:
         assert d.withdrawn == 0b01 and d.on == d.switched == 0b10
-        assert d.entries()["eff_unexplained"] == 0.0  # the persistence channel says no structure
+        assert d.entries()["eff_unexplained"] == 1.0  # the ruled-out window, at both (the persistence z is 0)
 
 
 def test_the_level_is_the_withdrawals_and_a_switch_in_the_same_window_comes_first():
     """Ruled out just below the level's lower quantile (alpha / 3 one-sided), not just above it; a significant
     candidate in the same window is switched on first (one decision per window) and the other ruled out in a
-    later window; the window counts ``unexplained`` where the persistence test is significant."""
+    later window. A ruled-out window counts ``unexplained`` (no persistence here)."""
     from statistics import NormalDist
 
     z_at = NormalDist().inv_cdf(1 - 0.01 / (1 + N_EFF)) / math.sqrt(2)  # a score mean of z_at pools to the level
     for eps, ruled in ((1e-6, 0b01), (-1e-6, 0)):
         (d,) = dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0)]
-        log = run(dets, lambda t, i: pool(-z_at - eps, 0.0, zp_sum=5.0), range(2 * W - 1, 2 * W + H))
-        assert d.withdrawn == ruled and log == [[]]
-        assert d.unexplained == 1  # structured, no candidate switched on: unexplained either way
+        log = run(dets, lambda t, i: pool(-z_at - eps, 0.0), range(2 * W - 1, 2 * W + H))
+        assert d.withdrawn == ruled and log == [[]] and d.unexplained == ruled
     (d,) = dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0)]
     log = run(dets, lambda t, i: pool(-5.0, 4.0), range(2 * W - 1, 6 * W + H))
     # ruled out on the first window judged once the switch has settled (it starts at 4 W), at 6 W - 1
     assert log == [[(2 * W - 1 + H, 1)]] and d.withdrawn == 0b01 and d.flood.done == 6 * W - 1 + H
+    assert d.unexplained == 1
 
 
 def test_a_declared_effect_is_never_ruled_out():
