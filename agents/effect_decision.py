@@ -363,12 +363,12 @@ class OnlineDetection:
             self.unexplained += 1  # the structure it was switched on for is not explained
         self.last_tick, self.last_z = due[0], due[2]
         # offer and judge the rates again on windows that start after the switched (or withdrawn) effect has
-        # settled for a window; new switches from a window later: a switch restarts 1/m (1/J) and the released
-        # rate, and while the filter re-learns them its innovations carry a transient along that effect's
-        # signature, which a correlated candidate's score takes up (docs/online-detection.md: Coulomb plant,
-        # seed 1, viscous z 5.75, 2.31, 1.16 in the three windows after the Coulomb switch)
+        # settled for a window; new switches two windows later: a switch restarts 1/m (1/J) and the released
+        # rate, and while the filter re-learns them its innovations carry a transient that a correlated
+        # candidate's score takes up (docs/online-detection.md: Coulomb plant, viscous z 5.75, 2.31, 1.16
+        # (seed 1) and 3.36, 0.61 (seed 3) in the windows after the Coulomb switch)
         self.settle_from = due[0] + w
-        self.score_from = due[0] + (2 * w if due[1] < N_EFF else w)
+        self.score_from = due[0] + (3 * w if due[1] < N_EFF else w)
         return due[1]
 
     def step_filters(self, tick: int, u: list[float], x: Sequence[float], filters: Sequence[RigidEKF]) -> None:

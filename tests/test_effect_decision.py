@@ -232,8 +232,9 @@ def test_a_switched_rate_is_pooled_by_inverse_variance():
 
 def test_the_team_withdraws_a_switch_on_one_tick_and_never_proposes_it_again():
     """Two agents switch effect 0 on; a settled window later one sees its rate significantly negative, the
-    other a weaker switch of effect 1: after the flood both withdraw effect 0 on the same tick (the larger
-    |z| wins), count the window unexplained, and ignore later proposals of effect 0 and echoes."""
+    other does not (and a significant effect 1, not judged yet: new switches wait a second window after a
+    switch): after the flood both withdraw effect 0 on the same tick, count the window unexplained, and
+    ignore later proposals of effect 0 and echoes."""
     w, h = 100, 20
     dets = [OnlineDetection(2, w, LAGS, 0.01, h, 0) for _ in range(2)]
     switch = _pool([4.0, 0.0, 0.0], [1.0] * 3)  # z_0 = 4 sqrt 2
