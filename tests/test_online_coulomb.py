@@ -72,3 +72,24 @@ def test_closed_loop_names_coulomb_friction_and_not_viscous(tmp_path):
     on = c["eff_on"][-1]
     assert np.all(on == 4.0), on  # bit 2: coulomb_friction, at every agent
     assert len(set(c["eff_tick"][-1])) == 1
+
+
+def test_state_message_with_detection_passes_the_wire_schema():
+    """With online detection a state message's per-neighbour value has 4 + 24 floats (13 augmented-model
+    channels, 11 of the pool) and its shared dict 38 entries: within the codec's limits, carried unchanged."""
+    from agents.dynamic_phase import N_CH_AUG
+    from agents.effect_decision import N_POOL
+    from agents.factory import build_agent
+    from net.messages import StateMsg
+    from net.schema import MAX_NAMES, MAX_PAIR_LEN, decode, encode
+
+    sc = load_scenario(SCENARIOS / "friction-online.toml", ["dynamics.estimate_effects=[]",
+                                                             "dynamics.online_detection=true"])
+    agent = build_agent(sc.agent_view(1))
+    res = None
+    for k in range(3):
+        res = agent.step(k, 0.1, -0.2, [])
+    msg = res.state
+    assert {len(v) for v in msg.pair.values()} == {4 + N_CH_AUG + N_POOL} and 4 + N_CH_AUG + N_POOL <= MAX_PAIR_LEN
+    assert len(msg.shared) <= MAX_NAMES
+    assert decode(encode(msg), StateMsg) == msg
