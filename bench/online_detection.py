@@ -14,7 +14,8 @@ the nominal model (detection off) for comparison.
 ``--set``: more scenario overrides for every run (e.g. ``dynamics.coulomb_speed=0.01``).
 ``--faults``: every link loses 20 % of the states (Bernoulli) and delays them by 10 ticks (100 ms).
 ``both``: the two together (friction-online's own plant); ``coulomb``: Coulomb friction 5 N (the plant's
-smoothing speed 0.01 m/s). Plants out of the online vocabulary: ``slope`` (a constant 5 N force along x), ``both_slope`` (the slope on friction-online's own plant),
+smoothing speed 0.01 m/s). Plants out of the online vocabulary: ``slope`` (a constant 5 N force along x),
+``both_slope`` (the slope on friction-online's own plant),
 ``periodic`` (a world-frame force 6 N sin(2 pi t / 10 s) along the m stage's force direction, 0.5 rad; the right
 answer: nothing on at the end, windows ``unexplained``; its nominal twin runs too).
 """

@@ -308,11 +308,11 @@ class DynamicsSpec(_Strict):
     )
     online_detection: bool = Field(
         False, description="the team decides online which effect is missing (agents/effect_decision.py, "
-                           "docs/online-detection.md): every filter carries beta = b/m, gamma = c/J and kappa = F_c/m "
-                           "pinned at 0, the agents pool the score of each over windows of monitor_window_s by consensus and "
-                           "switch the one significant at monitor_alpha / 4 (one-sided, each orthogonal to the "
-                           "others) on, on an agreed tick; "
-                           "false: only estimate_effects, decided beforehand",
+                           "docs/online-detection.md): every filter carries beta = b/m, gamma = c/J and "
+                           "kappa = F_c/m pinned at 0, the agents pool the score of each over windows of "
+                           "monitor_window_s by consensus and switch on, on an agreed tick, the one significant "
+                           "at monitor_alpha / 4 (one-sided) whose score orthogonal to the others' is the "
+                           "largest; false: only estimate_effects, decided beforehand",
     )
     effect_walk: float = Field(
         3e-3, ge=0, description="Kalman filter: random walk of the estimated effects' rates b/m, c/J "
