@@ -7,8 +7,7 @@ In-process engine (lockstep: equal to a Zenoh run bit for bit), friction-online.
 n = 10, line graph, sigma 0.3, J stage 40 s) with nothing declared (``dynamics.estimate_effects = []``)
 and ``dynamics.online_detection = true``, run to 110 s (done at ~102 s). Plants: viscous friction
 5 N s/m alone, rotational damping 8.69 N m s alone, clean. For each run: the switches and withdrawals
-the team agreed (from the ``eff_*`` columns of estimates.csv, as summary.json ``effects`` takes them; the right
-decision counts what is on at the end), the time from
+the team agreed (summary.json ``effects``; the right decision counts what is on at the end), the time from
 the m stage's start to the first one, m and J relative errors at the end; and the same plant and seed with
 the nominal model (detection off) for comparison.
 ``--set``: more scenario overrides for every run (e.g. ``dynamics.coulomb_speed=0.01``).
@@ -34,7 +33,6 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from coload.rundir import format as fmt  # noqa: E402
-from agents.effect_decision import EFFECTS  # noqa: E402
 from coload.runs.engine import run_inproc  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
 from net.vocabulary import M_EXCITE  # noqa: E402
@@ -60,28 +58,6 @@ TRUE = {"viscous": ["viscous_friction"], "rotational": ["rotational_damping"], "
 NOMINAL = {"periodic"}  # plants out of the vocabulary whose nominal twin also runs (how far off the model is)
 
 
-def effects(c: dict) -> tuple[list[dict], list[str]]:
-    """The switches and withdrawals the agents applied (an ``eff_on`` bit set or cleared: tick, effect, z, the
-    agents), and the effects on at the end at agent 0."""
-    on, tick, z = (c[k] for k in ("eff_on", "eff_tick", "eff_z"))
-    events: dict[tuple[int, str], dict] = {}
-    for i in range(on.shape[1]):
-        prev = 0
-        for r in np.flatnonzero(np.isfinite(on[:, i])):
-            cur = int(on[r, i])
-            for kind, bits in (("effect_switch", cur & ~prev), ("effect_withdrawn", prev & ~cur)):
-                for k in (k for k in range(len(EFFECTS)) if (bits >> k) & 1):
-                    ev = events.setdefault((int(tick[r, i]), EFFECTS[k]), {
-                        "event": kind, "tick": int(tick[r, i]), "effect": EFFECTS[k], "statistic": float(z[r, i]),
-                        "agents": []})
-                    ev["agents"].append(i)
-            prev = cur
-    last = on[np.isfinite(on[:, 0]), 0]
-    final = int(last[-1]) if len(last) else 0
-    return sorted(events.values(), key=lambda e: (e["tick"], e["effect"])), [e for k, e in enumerate(EFFECTS)
-                                                                              if (final >> k) & 1]
-
-
 def one(plant: str, seed: int, detect: bool, faults: bool, extra: tuple[str, ...] = ()) -> dict:
     sc = load_scenario(SCENARIO, [*BASE, *PLANTS[plant], *(FAULTS if faults else []), *extra, f"seed={seed}",
                                   f"dynamics.online_detection={'true' if detect else 'false'}"])
@@ -90,11 +66,11 @@ def one(plant: str, seed: int, detect: bool, faults: bool, extra: tuple[str, ...
         c = fmt.read_run(Path(d) / "run").estimates.columns
     t = np.arange(len(c["phase"])) * sc.record.every_ticks * sc.dt
     m_start = t[np.flatnonzero(c["phase"][:, 0] >= M_EXCITE)[0]]
-    events, on = effects(c) if detect else ([], [])
+    eff = s.get("effects", {})
     return {"plant": plant, "seed": seed, "detect": detect, "m_rel": s["errors"].get("m_rel"),
             "J_rel": s["errors"].get("J_rel"), "b": float(c["b"][-1, 0]), "c": float(c["c"][-1, 0]),
-            "fc": float(c["fc"][-1, 0]), "events": events, "on": on,
-            "unexplained": s.get("effects", {}).get("unexplained_windows"),
+            "fc": float(c["fc"][-1, 0]), "events": eff.get("events", []), "on": eff.get("on", []),
+            "unexplained": eff.get("unexplained_windows"),
             "m_start": float(m_start),
             "dt": sc.dt, "step_us": s.get("agent_step_us")}
 
