@@ -24,7 +24,7 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
-from agents.effect_decision import DETECT_NAMES, EFFECTS, N_EFF, N_POOL, OnlineDetection
+from agents.effect_decision import DETECT_NAMES, EFFECTS, N_POOL, OnlineDetection
 from agents.effect_decision import decode as decode_decision
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
@@ -51,10 +51,10 @@ from net.vocabulary import (
 # + tau_i; z_C in the shared body frame (ZX, ZY); numerator and weight of the averages of m and J
 CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(10)
 N_CH = 10
-# augmented model (DynamicsSpec.estimate_effects): the local b and c numerators; their weights are the m
-# and J weight channels (b is offered exactly when m is, c when J is)
-CH_BN, CH_CN = 10, 11
-N_CH_AUG = 12
+# augmented model (DynamicsSpec.estimate_effects): the local b, c and F_c numerators; their weights are the
+# m and J weight channels (b and F_c are offered exactly when m is, c when J is)
+CH_BN, CH_CN, CH_FN = 10, 11, 12
+N_CH_AUG = 13
 # online detection (DynamicsSpec.online_detection): the pooled window statistics (agents/effect_decision.py)
 CH_POOL = N_CH_AUG
 CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG + N_POOL))  # their names in StateMsg.shared
@@ -90,9 +90,9 @@ class DynamicPhase:
         self.m_local_sd = self.j_local_sd = math.nan  # the filter's sd of m_local and J_local when offered
         self.b_local = math.nan  # augmented model: own b = beta m and c = gamma J, before the averaging
         self.c_local = math.nan
-        # whether b (c) was offered while its effect was in the model: with online detection the rates are
+        # whether b (c, F_c) was offered while its effect was in the model: with online detection the rates are
         # carried pinned at 0 from the start, and an effect switched on after m (J) froze has no average
-        self.b_offered = self.c_offered = False
+        self.b_offered = self.c_offered = self.f_offered = False
         self.released = False
         ticks = lambda s: max(1, int(round(s / dt)))  # noqa: E731
         self.barrier = StageBarrier(agent_id, n, ticks(spec.horizon_s))
@@ -153,7 +153,7 @@ class DynamicPhase:
                         if spec.monitor_window_s > 0.0 else None)
         self.last_f = 0j  # the own force applied over the last prediction (a signature of the monitor)
         # online detection: the team pools its filters' scores and switches a missing effect on
-        declared = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
+        self.declared = declared = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
         self.detect = (OnlineDetection(n, ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha,
                                        ticks(spec.horizon_s), CH_POOL, declared)
                        if spec.online_detection else None)
@@ -319,11 +319,7 @@ class DynamicPhase:
         if self.released:
             kf.release_effects()
         if self.detect is not None:
-            self.detect.ev.restart()
-            self.detect.regime_change()
-            for k in range(N_EFF):  # the effects switched on online
-                if (self.detect.on >> k) & 1 and EFFECTS[k] not in self.spec.estimate_effects:
-                    kf.release_effect(k)
+            self.detect.restart_filter(kf)
         # the trial's running mean starts at the threshold, not at the consistent 2: what is left of the
         # start after the trial (13 % at 4 s over 2 s) then leans towards keeping the old filter
         self.nis_avg = self.lock_thr
@@ -398,16 +394,8 @@ class DynamicPhase:
     ) -> tuple[float, float, float]:
         self._advance_stage(tick, v, omega_hat, phi, zi, trusted, om_init)
         if self.detect is not None:
-            kf = self.kf
-            rates = ([(float(kf.s[7 + k]), float(kf.P[7 + k, 7 + k])) for k in range(N_EFF)]
-                     if kf.ready and kf.aug is not None and tick % self.detect.window == 0 else None)
-            dec = self.detect.begin_tick(tick, self.avg.u, self.avg.x, rates)
-            if dec >= 0:  # the team's agreed decision: the effect's state moves from here on, or is pinned again
-                for kf in (self.kf,) if self.shadow is None else (self.kf, self.shadow):
-                    if dec < N_EFF:
-                        kf.release_effect(dec)
-                    else:
-                        kf.withdraw_effect(dec - N_EFF)
+            self.detect.step_filters(tick, self.avg.u, self.avg.x, (self.kf,) if self.shadow is None else
+                                     (self.kf, self.shadow))
         stage = self.stage
         rot = self._body_frame(tick, phi)
         q, zc, held = self._filter_update(tick, v, u, u_den, omega_hat, zi, rot)
@@ -573,10 +561,12 @@ class DynamicPhase:
                 self.m_local = m_local
                 self.m_local_sd = math.sqrt(kf.mu_var) * m_local * m_local  # delta method: sd(1/mu)
                 self.frozen_m = stage == M_AVERAGE
-                if kf.aug is not None:  # b = beta m, averaged with m's weights
+                if kf.aug is not None:  # b = beta m and F_c = kappa m, averaged with m's weights
                     self.b_local = kf.beta * m_local
                     au[CH_BN] = w * self.b_local
+                    au[CH_FN] = w * kf.kappa * m_local
                     self.b_offered = self.b_offered or bool(self._on() & 1)
+                    self.f_offered = self.f_offered or bool(self._on() & 4)
         if kf.ready and take_j:
             w = 1.0 if stage == BACKGROUND else self._clean_share(self.j_start, self.j_ticks)
             j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w, sure)
@@ -698,9 +688,9 @@ class DynamicPhase:
         return out
 
     def _on(self) -> int:
-        """The effects in the model (bit 0 viscous friction, bit 1 rotational damping): declared
-        (estimate_effects: the augmented filter carries both) or switched on online."""
-        return 3 if self.detect is None else self.detect.on
+        """The effects in the model (bit k: EFFECTS[k]): declared (estimate_effects: the augmented filter
+        carries b and c, reported both) or switched on online."""
+        return 3 | self.declared if self.detect is None else self.detect.on
 
     def _estimates(self) -> dict[str, float]:
         """The estimate values of the dynamical phase (``ESTIMATE_NAMES`` from "J" on)."""
@@ -728,6 +718,7 @@ class DynamicPhase:
             # augmented model (estimate_effects): b with m's weights, c with J's
             "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 and on & 1 and self.b_offered else nan,
             "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 and on & 2 and self.c_offered else nan,
+            "fc": x[CH_FN] / x[CH_MW] if len(x) > CH_FN and x[CH_MW] > 0.0 and on & 4 and self.f_offered else nan,
             "b_local": self.b_local if on & 1 else nan,
             "c_local": self.c_local if on & 2 else nan,
             "filter_restarts": float(self.reseeds),

@@ -2,31 +2,35 @@
 
 Every agent's filter (agents/rigid_filter.py, ``sens``) carries the sensitivity of its own-velocity
 prediction to each candidate effect's rate (beta = b/m: viscous friction; gamma = c/J: rotational
-damping), propagated through the filter's own prediction and gain: what the innovation would look like
-if the effect were there, after the filter's states (1/m, omega, 1/J, ...) had absorbed what they can.
-Per update, :class:`WindowEvidence` takes the whitened innovation w and the whitened sensitivities g_k
-(both from S = L L^T) and sums, over global windows of ``window`` ticks (tick // window, the same at
-every agent):
+damping; kappa = F_c/m: Coulomb friction), propagated through the filter's own prediction and gain: what
+the innovation would look like if the effect were there, after the filter's states (1/m, omega, 1/J, ...)
+had absorbed what they can. Per update, :class:`WindowEvidence` takes the whitened innovation w and the
+whitened sensitivities g_k (both from S = L L^T) and sums, over global windows of ``window`` ticks
+(tick // window, the same at every agent):
 
-- per candidate k the score numerator s_k = sum w.g_k and its variance v_k = sigma^2 sum |g_k|^2
-  (sigma^2 = sum |w|^2 / 2N): the Lagrange-multiplier test of the rate at 0, made orthogonal to the
-  score of the team force's known error (the force error's whitened sensitivity h: s_k - (g_k.h / h.h)
-  h.w, variance sigma^2 (|g_k|^2 - (g_k.h)^2 / h.h); Neyman's C(alpha) score with the force error's
-  gain a nuisance): the consensus force the filter integrates lags the applied one, and that lag,
-  common to every agent, must not read as friction;
+- per candidate k the score numerator s_k = sum w.g_k and the information V_jk = sigma^2 sum g_j.g_k
+  between every two candidates (sigma^2 = sum |w|^2 / 2N): the Lagrange-multiplier test of the rates at
+  0, made orthogonal to the score of the team force's known error (the force error's whitened
+  sensitivity h: s_k - (g_k.h / h.h) h.w, V_jk - sigma^2 (g_j.h)(g_k.h) / h.h; Neyman's C(alpha) score
+  with the force error's gain a nuisance): the consensus force the filter integrates lags the applied
+  one, and that lag, common to every agent, must not read as friction;
 - the persistence z of the window (agents/innovation_monitor.py: positive autocorrelation at lags 1..h).
 
-Pooling without a coordinator: each agent puts its window's (s_k, v_k, z, 1) on flow-updating average
-consensus channels (agents/consensus.py) for the next window; the team statistics are
-z_k = sum_i s_ik / sqrt(sum_i v_ik) and z_p = sum_i z_i / sqrt(count) (:func:`pooled`), N(0, 1) under the
-nominal model for independent agents. At the next window's last tick each agent judges them
-(:func:`judge`): one-sided at the Bonferroni level ``alpha / (1 + candidates)``; the significant
-candidate with the largest z is proposed with a switch tick ``horizon`` later; structure (z_p
-significant) with no significant candidate is ``unexplained``. Proposals are flooded
+Pooling without a coordinator: each agent puts its window's (s_k, V_jk (j <= k), z, 1) on flow-updating
+average consensus channels (agents/consensus.py) for the next window. The team sums S_k and V_jk give each
+candidate's score z_k = S_k / sqrt(V_kk) and its score orthogonal to the other candidates' (C(alpha) again,
+the others' rates the nuisance): zo_k = (S_k - V_kO V_OO^-1 S_O) / sqrt(V_kk - V_kO V_OO^-1 V_Ok), O the
+others. Viscous and Coulomb friction have nearly the same signature when the speed changes little: either
+plant makes both z_k significant, and only the part of each score the other cannot explain tells which.
+With z_p = sum_i z_i / sqrt(count) (:func:`pooled`), each is N(0, 1) under the nominal model for
+independent agents. At the next window's last tick each agent judges them (:func:`judge`): each z_k
+one-sided at the Bonferroni level ``alpha / (1 + candidates)``; of the significant candidates the one with
+the largest zo_k is proposed with a switch tick ``horizon`` later; structure (z_p significant) with no
+significant candidate is ``unexplained``. Proposals are flooded
 (:class:`DecisionFlood`): the earliest switch tick, then the largest |z| wins, so every agent that has
 heard all proposals by the switch tick switches the same effect on the same tick.
 
-Withdrawal: once a switch has settled for a window, the effect's two channels carry each filter's released
+Withdrawal: once a switch has settled for a window, the effect's (S_k, V_kk) channels carry each filter's released
 rate r_i and variance P_i as (r_i / P_i, 1 / P_i) (a snapshot at every window close) instead of its score:
 the team's Wald z = sum r_i / P_i / sqrt(sum 1 / P_i) is that of the inverse-variance weighted mean (a
 filter just restarted, its rate at the prior, weighs nothing). Below the level's lower quantile the
@@ -46,14 +50,21 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from agents.innovation_monitor import cholesky2, whiten
+import numpy as np
 
-EFFECTS = ("viscous_friction", "rotational_damping")  # candidate k: filter state 7 + k (beta, gamma)
-N_EFF = len(EFFECTS)
-# consensus channels per window: (s_k, v_k) per candidate, then the persistence z and the count
-N_POOL = 2 * N_EFF + 2
+from agents.innovation_monitor import cholesky2, whiten
+from agents.rigid_filter import EFFECTS, N_EFF, RigidEKF  # candidate k: filter state 7 + k (beta, gamma, kappa)
+
+# the candidates' pairs (j <= k) in the order of their information channels
+PAIRS = tuple((j, k) for j in range(N_EFF) for k in range(j, N_EFF))
+VCH = {p: N_EFF + i for i, p in enumerate(PAIRS)} | {(k, j): N_EFF + i for i, (j, k) in enumerate(PAIRS)}
+# consensus channels per window: the score s_k per candidate, the information V_jk per pair (VCH), then the
+# persistence z and the count
+N_POOL = N_EFF + len(PAIRS) + 2
+CH_Z = N_POOL - 2
+CH_CNT = N_POOL - 1
 DECISION_KEYS = ("Ds", "De", "Dz")  # StateMsg.shared: switch tick (-1: none), effect index, statistic
-DETECT_NAMES = ("eff_on", "eff_tick", "eff_z", "eff_unexplained", "eff_zp", "eff_zb", "eff_zc")
+DETECT_NAMES = ("eff_on", "eff_tick", "eff_z", "eff_unexplained", "eff_zp", "eff_zb", "eff_zc", "eff_zf")
 
 
 def normal_sf(z: float) -> float:
@@ -61,36 +72,58 @@ def normal_sf(z: float) -> float:
     return 0.5 * math.erfc(z / math.sqrt(2.0))
 
 
-def pooled(means: Sequence[float], n: int, held: int = 0) -> tuple[float, list[float]]:
-    """(z_p, [z_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
-    agent contributed. Means times n are the team sums, so z_k = n mean(s) / sqrt(n mean(v)). For an effect
-    switched on (bit k of ``held``) the pair is its rate's (estimate / variance, 1 / variance): z_k is the
-team's Wald z of the inverse-variance weighted mean.
+def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple[float, list[float], list[float]]:
+    """(z_p, [z_k], [zo_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
+    agent contributed. Means times n are the team sums S_k, V_jk: a candidate's own score z_k = S_k / sqrt(V_kk)
+    and zo_k, its score orthogonal to the other candidates' (module docstring). The candidates are the effects
+    not in ``out`` (bit k: on, declared or withdrawn: not tested), whose z are NaN. For an effect switched on
+    (bit k of ``held``) the (S_k, V_kk) pair is its rate's (estimate / variance, 1 / variance): z_k is the
+    team's Wald z of the inverse-variance weighted mean.
 
     The count's team sum is a whole number of agents; below one half no agent contributed a score window,
     and what the channels hold is what the consensus has not yet forgotten of an earlier window (with delayed
     states a residue of ~0.002 agents is left), not data: NaN. The rates' pairs are offered at every window's
     close, whatever the count."""
     nan = math.nan
-    empty = n * means[2 * N_EFF + 1] < 0.5
-    zs = []
+    empty = n * means[CH_CNT] < 0.5
+    zs = [nan] * N_EFF
+    zo = [nan] * N_EFF
+    cand = [k for k in range(N_EFF) if not ((out | held) >> k) & 1 and means[VCH[k, k]] > 0.0]
     for k in range(N_EFF):
-        s, v = means[2 * k], means[2 * k + 1]
-        zs.append(math.sqrt(n) * s / math.sqrt(v) if v > 0.0 and (not empty or (held >> k) & 1) else nan)
+        s, v = means[k], means[VCH[k, k]]
+        if v > 0.0 and ((held >> k) & 1 or (k in cand and not empty)):
+            zs[k] = math.sqrt(n) * s / math.sqrt(v)
     if empty:
-        return nan, zs
-    zsum, cnt = means[2 * N_EFF], means[2 * N_EFF + 1]
+        return nan, zs, zo
+    if cand:
+        S = np.array([means[k] for k in cand])
+        V = np.array([[means[VCH[j, k]] for k in cand] for j in cand])
+        for i, k in enumerate(cand):
+            o = [j for j in range(len(cand)) if j != i]
+            s, v = S[i], V[i, i]
+            if o:  # the part of k's score that the other candidates' rates explain is theirs
+                c = np.linalg.pinv(V[np.ix_(o, o)]) @ V[o, i]
+                s -= c @ S[o]
+                v -= c @ V[o, i]
+            # collinear with the others (to rounding): no part of its own
+            zo[k] = math.sqrt(n) * float(s) / math.sqrt(float(v)) if v > 1e-9 * V[i, i] else nan
+    zsum, cnt = means[CH_Z], means[CH_CNT]
     zp = math.sqrt(n) * zsum / math.sqrt(cnt) if cnt > 0.0 else nan
-    return zp, zs
+    return zp, zs, zo
 
 
-def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0) -> tuple[int, bool]:
+def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
+          zo: Sequence[float] | None = None) -> tuple[int, bool]:
     """The team's verdict on one window: (decision or -1, unexplained). Decision k < N_EFF: switch candidate
     k on; N_EFF + k: withdraw effect k.
 
     Every test is one-sided (a missing effect has a positive coefficient; the persistence test is one-sided
     too) at alpha / (1 + number of candidates); candidates already on or withdrawn (bit k of ``on``) are not
-    tested for a switch but still count in the level, which stays the same whatever has been switched. For
+    tested for a switch but still count in the level, which stays the same whatever has been switched.
+    Whether an effect is missing is each candidate's own score test (zs); which one, among those significant,
+    the one whose score orthogonal to the others' (``zo``) is the largest: what the data hold of it that no
+    other candidate explains (without ``zo``, the largest zs). Two candidates with nearly the same signature
+    are then both significant, and named by the part that tells them apart. For
     an effect switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below
     the level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect
     is withdrawn (the most negative first), and the structure it was switched on for stays unexplained."""
@@ -105,8 +138,9 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0) 
     for k, z in enumerate(zs):
         if ((on | held) >> k) & 1 or not (z == z):
             continue
-        if normal_sf(z) < level and z > zbest:
-            best, zbest = k, z
+        rank = z if zo is None else zo[k] if zo[k] == zo[k] else -math.inf
+        if normal_sf(z) < level and (best < 0 or rank > zbest):
+            best, zbest = k, rank
     structured = zp == zp and normal_sf(zp) < level
     return best, best < 0 and structured
 
@@ -115,6 +149,7 @@ class WindowEvidence:
     """One agent's sums over the current global window (module docstring)."""
 
     __slots__ = ("lags", "hist", "k", "sw", "sg", "sww", "n", "acc", "den", "sh", "shh", "swh")
+    # sg: sum g_j.g_k per candidate pair (PAIRS order)
 
     def __init__(self, lags: int) -> None:
         self.lags = lags
@@ -124,7 +159,7 @@ class WindowEvidence:
     def clear(self) -> None:
         """A new window."""
         self.sw = [0.0] * N_EFF
-        self.sg = [0.0] * N_EFF
+        self.sg = [0.0] * len(PAIRS)
         self.sww = 0.0
         self.sh = [0.0] * N_EFF  # g_k.h: each candidate's sensitivity against the force error's
         self.shh = 0.0
@@ -144,8 +179,10 @@ class WindowEvidence:
         h0, h1 = h
         for k, (g0, g1) in enumerate(g):
             self.sw[k] += w0 * g0 + w1 * g1
-            self.sg[k] += g0 * g0 + g1 * g1
             self.sh[k] += g0 * h0 + g1 * h1
+        sg = self.sg
+        for i, (j, k) in enumerate(PAIRS):
+            sg[i] += g[j][0] * g[k][0] + g[j][1] * g[k][1]
         self.shh += h0 * h0 + h1 * h1
         self.swh += w0 * h0 + w1 * h1
         self.sww += w0 * w0 + w1 * w1
@@ -167,15 +204,13 @@ class WindowEvidence:
         out = None
         if self.n > 2 * self.lags and self.sww > 0.0:
             sigma2 = self.sww / (2 * self.n)
-            out = []
-            shh = self.shh
-            for k in range(N_EFF):
-                s, gg = self.sw[k], self.sg[k]
-                if shh > 0.0:  # the part of g_k along h is the force error's, not the candidate's
-                    c = self.sh[k] / shh
-                    s -= c * self.swh
-                    gg = max(gg - c * self.sh[k], 0.0)
-                out += [s, sigma2 * gg]
+            shh, sh = self.shh, self.sh
+            # the part of each g_k along h is the force error's, not the candidate's
+            out = [s - sh[k] / shh * self.swh if shh > 0.0 else s for k, s in enumerate(self.sw)]
+            for (j, k), gg in zip(PAIRS, self.sg, strict=True):
+                if shh > 0.0:
+                    gg -= sh[j] * sh[k] / shh
+                out.append(sigma2 * (max(gg, 0.0) if j == k else gg))
             r = sum(a / d for a, d in zip(self.acc, self.den, strict=True) if d > 0.0)
             out += [math.sqrt(self.n) * r / math.sqrt(2 * self.lags), 1.0]
         self.clear()
@@ -234,7 +269,8 @@ class OnlineDetection:
     channels are ``ch0 .. ch0 + N_POOL - 1`` of its FlowAverage."""
 
     __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "switched", "withdrawn",
-                 "last_tick", "last_z", "unexplained", "zp", "zs", "settle_from", "late", "mixed")
+                 "last_tick", "last_z", "unexplained", "zp", "zs", "settle_from", "score_from", "late",
+                 "mixed")
 
     def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0) -> None:
         self.n = n
@@ -252,7 +288,8 @@ class OnlineDetection:
         self.unexplained = 0  # windows judged structured with no candidate significant
         self.zp = math.nan  # the last judged window's pooled statistics (this agent's view)
         self.zs = [math.nan] * N_EFF
-        self.settle_from = 0  # windows starting before this tick are not judged (a switch is settling)
+        self.settle_from = 0  # windows starting before this tick are not offered (a switch is settling)
+        self.score_from = 0  # ... nor judged for a new switch (a switched filter is still re-learning)
         self.late = 0
         self.mixed = False  # the window being filled spans a change of regime (see regime_change)
 
@@ -296,20 +333,21 @@ class OnlineDetection:
             for k in range(N_EFF):
                 if (self.switched >> k) & 1:
                     est, var = rates[k] if rates is not None and tick >= self.settle_from else (0.0, 0.0)
-                    u[c + 2 * k:c + 2 * k + 2] = (est / var, 1.0 / var) if var > 0.0 and est == est else (0.0, 0.0)
+                    ok = var > 0.0 and est == est
+                    u[c + k], u[c + VCH[k, k]] = (est / var, 1.0 / var) if ok else (0.0, 0.0)
         elif r == w - 1 and tick + 1 >= 2 * w:
             c = self.ch0
             held = self.switched
-            scores = (tick + 1 - 2 * w) >= self.settle_from  # the window started after the last switch settled
+            scores = (tick + 1 - 2 * w) >= self.score_from  # the window started after the last switch settled
             if scores or (held and (tick + 1 - w) >= self.settle_from):  # ... or at least its close did
-                zp, zs = pooled(x[c:c + N_POOL], self.n, held)
+                zp, zs, zo = pooled(x[c:c + N_POOL], self.n, held, self.on | self.withdrawn)
                 if scores:
                     self.zp, self.zs = zp, zs
                 else:  # only the switched rates are judged
                     zp = math.nan
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
-                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held)
+                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo)
                 if k < 0:  # a candidate whose score is significantly negative is ruled out (module docstring)
                     level, skip = self.alpha / (1 + N_EFF), self.on | self.withdrawn | held
                     neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
@@ -337,9 +375,37 @@ class OnlineDetection:
             self.withdrawn |= 1 << k
             self.unexplained += 1  # the structure it was switched on for is not explained
         self.last_tick, self.last_z = due[0], due[2]
-        # judge again on windows that start after the switched (or withdrawn) effect has settled for a window
+        # offer and judge the rates again on windows that start after the switched (or withdrawn) effect has
+        # settled for a window; new switches two windows later: a switch restarts 1/m (1/J) and the released
+        # rate, and while the filter re-learns them its innovations carry a transient that a correlated
+        # candidate's score takes up (docs/online-detection.md: Coulomb plant, viscous z 5.75, 2.31, 1.16
+        # (seed 1) and 3.36, 0.61 (seed 3) in the windows after the Coulomb switch)
         self.settle_from = due[0] + w
+        self.score_from = due[0] + (3 * w if due[1] < N_EFF else w)
         return due[1]
+
+    def step_filters(self, tick: int, u: list[float], x: Sequence[float], filters: Sequence[RigidEKF]) -> None:
+        """:meth:`begin_tick` with the first filter's rates; the decision due is applied to every filter given
+        (the agent's, and the one a restart on trial replaced): the effect's rate moves from here on, or is
+        pinned again."""
+        kf = filters[0]
+        rates = ([(float(kf.s[7 + k]), float(kf.P[7 + k, 7 + k])) for k in range(N_EFF)]
+                 if kf.ready and kf.aug is not None and tick % self.window == 0 else None)
+        dec = self.begin_tick(tick, u, x, rates)
+        for f in filters if dec >= 0 else ():
+            if dec < N_EFF:
+                f.release_effect(dec)
+            else:
+                f.withdraw_effect(dec - N_EFF)
+
+    def restart_filter(self, kf: RigidEKF) -> None:
+        """The agent's filter restarted (the lock check): no lag products across it, the window not offered,
+        and the effects the team switched on released in it again."""
+        self.ev.restart()
+        self.regime_change()
+        for k in range(N_EFF):
+            if (self.switched >> k) & 1:
+                kf.release_effect(k)
 
     def merge(self, prop: tuple[int, int, float]) -> None:
         """A neighbour's flooded proposal (a switch ignored for an effect already on or withdrawn, a withdrawal
@@ -355,4 +421,4 @@ class OnlineDetection:
         """The estimate entries (:data:`DETECT_NAMES`)."""
         return {"eff_on": float(self.on), "eff_tick": float(self.last_tick), "eff_z": self.last_z,
                 "eff_unexplained": float(self.unexplained), "eff_zp": self.zp, "eff_zb": self.zs[0],
-                "eff_zc": self.zs[1]}
+                "eff_zc": self.zs[1], "eff_zf": self.zs[2]}

@@ -9,17 +9,33 @@ arguments, no clock, no RNG. Derivation and tuning: docs/dynamics.md.
 
 from __future__ import annotations
 
-from math import cos, sin
+from math import cos, hypot, sin, tanh
 
 import numpy as np
 
 from config.agent_params import DynamicsSpec
 
 _U_BIAS_SD0 = 0.05  # prior std of the eq. (9) rate's error b at a filter start (rad/s): fresh circle fits
+# the augmented model's effects, in the order of their rate states 7, 8, 9 (their names as in ident/model.py)
+EFFECTS = ("viscous_friction", "rotational_damping", "coulomb_friction")
+N_EFF = len(EFFECTS)
+
+
+def coulomb_sat(vx: float, vy: float, vs: float) -> tuple[float, float, float, float, float]:
+    """The smoothed Coulomb direction sat(v) = tanh(|v|/vs) v/|v| and its Jacobian (j00, j01, j11, symmetric):
+    tanh(r/vs)/r (I - u u^T) + sech^2(r/vs)/vs u u^T, u = v/|v|, r = |v|; I/vs at rest (the limit)."""
+    r = hypot(vx, vy)
+    if r < 1e-9 * vs:
+        return vx / vs, vy / vs, 1.0 / vs, 0.0, 1.0 / vs
+    th = tanh(r / vs)
+    a = th / r
+    d = (1.0 - th * th) / vs - a  # the radial slope minus the tangential one
+    ux, uy = vx / r, vy / r
+    return a * vx, a * vy, a + d * ux * ux, d * ux * uy, a + d * uy * uy
 
 
 class RigidEKF:
-    """Extended Kalman filter on s = (v_Cx, v_Cy, q_x, q_y, mu = 1/m, omega, iota = 1/J, [beta, gamma,] b),
+    """Extended Kalman filter on s = (v_Cx, v_Cy, q_x, q_y, mu = 1/m, omega, iota = 1/J, [beta, gamma, kappa,] b),
     world frame; b (always the last state, index ``ib``) is the pooled rate's own error, u = omega + b, a
     random walk of ``spec.u_bias_walk`` (pinned at 0 when that is 0).
 
@@ -30,16 +46,18 @@ class RigidEKF:
     model, removes the lag of the kinematic omega_hat filter (which rotated q and the J-stage forces
     away from the body while omega ramped).
 
-    Augmented model (``spec.estimate_effects``): two more states, beta = b/m (1/s) and gamma = c/J (1/s),
-    with v_C(k+1) = v_C + dt (mu F - beta v_C) and omega(k+1) = omega + dt (iota T - gamma omega), the
-    plant's step with viscous friction -b v_C and rotational damping -c omega (simulator/effects.py: forces
-    of the state at tick k act over k -> k+1). The rates rather than b and c keep the model linear in the
-    parameters given the (well-measured) velocities, whatever the current mu; b = beta/mu, c = gamma/iota.
-    An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
+    Augmented model (``spec.estimate_effects``): three more states, beta = b/m (1/s), gamma = c/J (1/s)
+    and kappa = F_c/m (m/s^2), with v_C(k+1) = v_C + dt (mu F - beta v_C - kappa sat(v_C)) and
+    omega(k+1) = omega + dt (iota T - gamma omega), the plant's step with viscous friction -b v_C, smoothed
+    Coulomb friction -F_c tanh(|v_C|/v_s) v_C/|v_C| and rotational damping -c omega (simulator/effects.py:
+    forces of the state at tick k act over k -> k+1; v_s is ``spec.coulomb_speed``, the filter's, as it
+    cannot know the plant's). The rates rather than b, F_c and c keep the model linear in the parameters
+    given the (well-measured) velocities, whatever the current mu; b = beta/mu, F_c = kappa/mu,
+    c = gamma/iota. An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
     """
 
     __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0", "nis", "innov", "sens", "sens_h",
-                 "walk_eff", "detect")
+                 "walk_eff", "detect", "vs")
 
     def __init__(self, sigma_v: float, spec: DynamicsSpec, background: bool) -> None:
         self.r = max(sigma_v, 1e-3) ** 2
@@ -50,24 +68,24 @@ class RigidEKF:
         walk_iota = spec.iota_walk if background else 0.0
         # per-second process noise intensities; q's angle walk is scaled by |q|^2 at each step
         self.Qd = (spec.kf_v_walk**2, spec.kf_angle_walk**2, walk_mu**2, spec.omega_walk**2, walk_iota**2)
-        # augmented model: prior variances and per-second walk intensities of (beta, gamma); 0 and 0 for
-        # an effect not estimated (its state stays exactly 0)
-        self.aug: tuple[float, float, float, float] | None = None
+        # augmented model: per effect (EFFECTS order) whether its rate is free (1) or pinned (0), then the
+        # per-second walk intensities; 0 and 0 for an effect not estimated (its state stays exactly 0)
+        self.aug: tuple[float, ...] | None = None
         if spec.estimate_effects or spec.online_detection:
-            on_b = 1.0 if "viscous_friction" in spec.estimate_effects else 0.0
-            on_c = 1.0 if "rotational_damping" in spec.estimate_effects else 0.0
+            on = tuple(1.0 if e in spec.estimate_effects else 0.0 for e in EFFECTS)
             w2 = spec.effect_walk**2
-            self.aug = (on_b, on_c, on_b * w2, on_c * w2)
+            self.aug = on + tuple(o * w2 for o in on)
         self.walk_eff = spec.effect_walk**2
-        # online detection (agents/effect_decision.py): d(state prediction)/d(beta, gamma) at the pinned 0,
-        # through the filter's own prediction and gain, and its own-velocity rows H D of the last update
+        self.vs = spec.coulomb_speed
+        # online detection (agents/effect_decision.py): d(state prediction)/d(beta, gamma, kappa) at the
+        # pinned 0, through the filter's own prediction and gain, and its own-velocity rows H D of the last update
         self.sens: np.ndarray | None = None
-        # (H D)[v_x, beta], [v_y, beta], [v_x, gamma], [v_y, gamma], then the force error's [v_x], [v_y]
-        self.sens_h = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        # (H D)[v_x, effect k], [v_y, effect k] for each effect, then the force error's [v_x], [v_y]
+        self.sens_h = (0.0,) * (2 * N_EFF + 2)
         self.detect = spec.online_detection
         # the pooled eq. (9) rate's own slowly varying error b (u = omega + b), the last state; pinned at 0
         # (zero variance, no walk) with u_bias_walk = 0
-        self.ib = 7 if self.aug is None else 9
+        self.ib = 7 if self.aug is None else 7 + N_EFF
         self.qb = spec.u_bias_walk**2
         self.b0 = _U_BIAS_SD0**2 if self.qb > 0.0 else 0.0
         self.s = np.zeros(self.ib + 1)
@@ -78,9 +96,9 @@ class RigidEKF:
         vc = v - omega * 1j * q0
         self.s = np.array([vc.real, vc.imag, q0.real, q0.imag, 0.0, omega, 0.0])
         self.P = np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 1e-2])
-        if self.aug is not None:  # beta, gamma pinned at 0 until release_effects()
-            self.s = np.append(self.s, (0.0, 0.0))
-            P = np.zeros((9, 9))
+        if self.aug is not None:  # the rates pinned at 0 until release_effects()
+            self.s = np.append(self.s, (0.0,) * N_EFF)
+            P = np.zeros((7 + N_EFF, 7 + N_EFF))
             P[:7, :7] = self.P
             self.P = P
         ib = self.ib
@@ -90,11 +108,11 @@ class RigidEKF:
         P[ib, ib] = self.b0
         self.P = P
         if self.detect:
-            self.sens = np.zeros((ib + 1, 3))  # beta, gamma, the gain of the force error (predict)
+            self.sens = np.zeros((ib + 1, N_EFF + 1))  # the rates, the gain of the force error (predict)
         self.ready = True
 
     def release_effects(self) -> None:
-        """Augmented model: let beta and gamma move (from 0, prior std 0.3 1/s) and restart mu and iota from
+        """Augmented model: let the declared rates move (from 0, prior std 0.3) and restart mu and iota from
         their current values with the start's priors (their cross-covariances dropped).
 
         Called when the excitation starts (the m stage, or Algorithm 2's background stage). Free from the
@@ -105,19 +123,19 @@ class RigidEKF:
         """
         if self.aug is None or not self.ready:
             return
-        self._restart(((4, 1.0), (6, 1e-2), (7, 0.1 * self.aug[0]), (8, 0.1 * self.aug[1])))
+        self._restart(((4, 1.0), (6, 1e-2), *((7 + k, 0.1 * self.aug[k]) for k in range(N_EFF))))
 
     def release_effect(self, k: int) -> None:
-        """Online detection: let effect k (0: beta, 1: gamma) move from 0 (prior std 0.3 1/s, walk
-        ``effect_walk``) and restart the parameter it shares the data with (1/m for beta, 1/J for gamma) from
-        its current value with the start's prior, as :meth:`release_effects` does for both."""
+        """Online detection: let effect k (:data:`EFFECTS` order) move from 0 (prior std 0.3 1/s or m/s^2, walk
+        ``effect_walk`` per second) and restart the parameter it shares the data with (1/m for beta and kappa,
+        1/J for gamma) from its current value with the start's prior, as :meth:`release_effects` does."""
         if self.aug is None or not self.ready:
             return
         self._set_effect(k, 1.0, self.walk_eff)
-        self._restart(((4, 1.0), (7, 0.1)) if k == 0 else ((6, 1e-2), (8, 0.1)))
+        self._restart(((6, 1e-2), (8, 0.1)) if k == 1 else ((4, 1.0), (7 + k, 0.1)))
 
     def withdraw_effect(self, k: int) -> None:
-        """Online detection: pin effect k's rate (0: beta, 1: gamma) at 0 again. The filter's state is
+        """Online detection: pin effect k's rate (:data:`EFFECTS` order) at 0 again. The filter's state is
         conditioned on the rate being exactly 0 (the Gaussian conditional: s - P[:, r] s_r / P_rr,
         P - P[:, r] P[r, :] / P_rr): 1/m (or 1/J) keeps the data since the switch, corrected to first order by
         its correlation with the rate; a correction only, not the filter that never had the effect
@@ -142,8 +160,8 @@ class RigidEKF:
         """Effect k's entries of ``aug`` (its rate on or pinned, and its random walk)."""
         aug = list(self.aug)
         aug[k] = on
-        aug[2 + k] = walk
-        self.aug = (aug[0], aug[1], aug[2], aug[3])
+        aug[N_EFF + k] = walk
+        self.aug = tuple(aug)
 
     def _restart(self, entries: tuple[tuple[int, float], ...]) -> None:
         """Each (state k, variance) in ``entries``: its correlations dropped, its variance set; the effect
@@ -272,7 +290,7 @@ class RigidEKF:
         the posterior on data the filter predicts exactly)."""
         hd0 = D[0] - om * D[3] - qy * D[5]
         hd1 = D[1] + om * D[2] + qx * D[5]
-        self.sens_h = (float(hd0[0]), float(hd1[0]), float(hd0[1]), float(hd1[1]), float(hd0[2]), float(hd1[2]))
+        self.sens_h = tuple(float(x) for pair in zip(hd0, hd1) for x in pair)
         HD = np.vstack((hd0, hd1) if hd2 is None else (hd0, hd1, hd2))
         self.sens = D - K @ HD
 
@@ -302,26 +320,34 @@ class RigidEKF:
         A[2, 5] = dt * (-sn * qx - c * qy)
         A[3, 5] = dt * (c * qx - sn * qy)
         A[5, 6] = dt * torque
-        if self.aug is not None:  # augmented model: - dt beta v_C, - dt gamma omega
-            beta, gamma = s[7], s[8]
-            nq[0] -= dt * beta * s[0]
-            nq[1] -= dt * beta * s[1]
+        if self.aug is not None:  # augmented model: - dt beta v_C, - dt kappa sat(v_C), - dt gamma omega
+            beta, gamma, kappa = s[7], s[8], s[9]
+            sx, sy, j00, j01, j11 = coulomb_sat(s[0], s[1], self.vs)
+            nq[0] -= dt * (beta * s[0] + kappa * sx)
+            nq[1] -= dt * (beta * s[1] + kappa * sy)
             nq[5] -= dt * gamma * om
-            A[0, 0] -= dt * beta
-            A[1, 1] -= dt * beta
+            A[0, 0] -= dt * (beta + kappa * j00)
+            A[1, 1] -= dt * (beta + kappa * j11)
+            A[0, 1] -= dt * kappa * j01
+            A[1, 0] -= dt * kappa * j01
             A[0, 7] = -dt * s[0]
             A[1, 7] = -dt * s[1]
             A[5, 5] -= dt * gamma
             A[5, 8] = -dt * om
-            nq = np.append(nq, (beta, gamma))
+            A[0, 9] = -dt * sx
+            A[1, 9] = -dt * sy
+            nq = np.append(nq, (beta, gamma, kappa))
         nq = np.append(nq, s[self.ib])
-        if self.sens is not None:  # d/d beta: -dt v_C on v_C; d/d gamma: -dt omega on omega (at the pinned 0)
+        if self.sens is not None:  # d/d rate at the pinned 0: -dt v_C, -dt omega, -dt sat(v_C)
             D = A @ self.sens
             D[0, 0] -= dt * s[0]
             D[1, 0] -= dt * s[1]
             D[5, 1] -= dt * om
-            D[0, 2] += dt * s[4] * force_err.real
-            D[1, 2] += dt * s[4] * force_err.imag
+            sx, sy, *_ = coulomb_sat(s[0], s[1], self.vs)
+            D[0, 2] -= dt * sx
+            D[1, 2] -= dt * sy
+            D[0, N_EFF] += dt * s[4] * force_err.real
+            D[1, N_EFF] += dt * s[4] * force_err.imag
             self.sens = D
         P = A @ self.P @ A.T
         qv, qa, qm, qo, qi = self.Qd
@@ -334,8 +360,8 @@ class RigidEKF:
         P[5, 5] += qo * dt
         P[6, 6] += qi * dt
         if self.aug is not None:
-            P[7, 7] += self.aug[2] * dt
-            P[8, 8] += self.aug[3] * dt
+            for k in range(N_EFF):
+                P[7 + k, 7 + k] += self.aug[N_EFF + k] * dt
         P[self.ib, self.ib] += self.qb * dt
         self.s = nq
         self.P = P
@@ -377,6 +403,11 @@ class RigidEKF:
     def gamma(self) -> float:
         """c/J (1/s), augmented model only."""
         return float(self.s[8])
+
+    @property
+    def kappa(self) -> float:
+        """F_c/m (m/s^2), augmented model only."""
+        return float(self.s[9])
 
 
 def fit_rotation(v: np.ndarray, f: np.ndarray, dt: float, omega_max: float) -> tuple[float, complex, float]:

@@ -1,7 +1,7 @@
 """Online effect detection: which effect the team switches on, when, and m / J at the end against the nominal run.
 
     python bench/online_detection.py [--seeds 1-5] [--plants viscous,rotational,clean] [--jobs 1] [--no-nominal]
-                                     [--faults]
+                                     [--faults] [--set KEY=VALUE ...]
 
 In-process engine (lockstep: equal to a Zenoh run bit for bit), friction-online.toml (paper-fig4 geometry,
 n = 10, line graph, sigma 0.3, J stage 40 s) with nothing declared (``dynamics.estimate_effects = []``)
@@ -10,9 +10,11 @@ and ``dynamics.online_detection = true``, run to 110 s (done at ~102 s). Plants:
 the team agreed (summary.json ``effects``; the right decision counts what is on at the end), the time from
 the m stage's start to the first one, m and J relative errors at the end; and the same plant and seed with
 the nominal model (detection off) for comparison.
+``--set``: more scenario overrides for every run (e.g. ``dynamics.coulomb_speed=0.01``).
 ``--faults``: every link loses 20 % of the states (Bernoulli) and delays them by 10 ticks (100 ms).
-``both``: the two together (friction-online's own plant). Plants out of the online vocabulary: ``coulomb`` (5 N),
-``slope`` (a constant 5 N force along x), ``both_slope`` (the slope on friction-online's own plant),
+``both``: the two together (friction-online's own plant); ``coulomb``: Coulomb friction 5 N (the plant's
+smoothing speed 0.01 m/s). Plants out of the online vocabulary: ``slope`` (a constant 5 N force along x),
+``both_slope`` (the slope on friction-online's own plant),
 ``periodic`` (a world-frame force 6 N sin(2 pi t / 10 s) along the m stage's force direction, 0.5 rad; the right
 answer: nothing on at the end, windows ``unexplained``; its nominal twin runs too).
 """
@@ -50,14 +52,14 @@ PLANTS = {
 }
 FAULTS = ['link.loss={model="bernoulli", p=0.2}', "link.delay_ticks=10"]
 TRUE = {"viscous": ["viscous_friction"], "rotational": ["rotational_damping"], "clean": [],
-        "both": ["rotational_damping", "viscous_friction"], "coulomb": [], "slope": [],
+        "both": ["rotational_damping", "viscous_friction"], "coulomb": ["coulomb_friction"], "slope": [],
         "both_slope": ["rotational_damping", "viscous_friction"],
         "periodic": []}  # the right switches
 NOMINAL = {"periodic"}  # plants out of the vocabulary whose nominal twin also runs (how far off the model is)
 
 
-def one(plant: str, seed: int, detect: bool, faults: bool) -> dict:
-    sc = load_scenario(SCENARIO, [*BASE, *PLANTS[plant], *(FAULTS if faults else []), f"seed={seed}",
+def one(plant: str, seed: int, detect: bool, faults: bool, extra: tuple[str, ...] = ()) -> dict:
+    sc = load_scenario(SCENARIO, [*BASE, *PLANTS[plant], *(FAULTS if faults else []), *extra, f"seed={seed}",
                                   f"dynamics.online_detection={'true' if detect else 'false'}"])
     with tempfile.TemporaryDirectory() as d:
         s = run_inproc(sc, Path(d) / "run")
@@ -67,7 +69,8 @@ def one(plant: str, seed: int, detect: bool, faults: bool) -> dict:
     eff = s.get("effects", {})
     return {"plant": plant, "seed": seed, "detect": detect, "m_rel": s["errors"].get("m_rel"),
             "J_rel": s["errors"].get("J_rel"), "b": float(c["b"][-1, 0]), "c": float(c["c"][-1, 0]),
-            "events": eff.get("events", []), "on": eff.get("on", []), "unexplained": eff.get("unexplained_windows"),
+            "fc": float(c["fc"][-1, 0]), "events": eff.get("events", []), "on": eff.get("on", []),
+            "unexplained": eff.get("unexplained_windows"),
             "m_start": float(m_start),
             "dt": sc.dt, "step_us": s.get("agent_step_us")}
 
@@ -79,15 +82,17 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1, help="parallel runs (default 1)")
     ap.add_argument("--no-nominal", action="store_true", help="skip the nominal twins (detection off)")
     ap.add_argument("--faults", action="store_true", help="20 %% loss and a 100 ms delay on every link")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a scenario override for every run")
     a = ap.parse_args()
     seeds = parse_seeds(a.seeds)
     plants = a.plants.split(",")
     bad = [p for p in plants if p not in PLANTS]
     if bad:
         ap.error(f"unknown plant {bad[0]!r}: expected one of {', '.join(PLANTS)}")
-    jobs = [(p, s, True, a.faults) for p in plants for s in seeds]
+    extra = tuple(a.set)
+    jobs = [(p, s, True, a.faults, extra) for p in plants for s in seeds]
     if not a.no_nominal:
-        jobs += [(p, s, False, a.faults) for p in plants if TRUE[p] or p in NOMINAL for s in seeds]
+        jobs += [(p, s, False, a.faults, extra) for p in plants if TRUE[p] or p in NOMINAL for s in seeds]
     out = []
     with ProcessPoolExecutor(a.jobs) as ex:
         for r in ex.map(one, *zip(*jobs)):  # each run as it ends (a long bench shows its progress)
@@ -95,8 +100,8 @@ def main() -> None:
             print("run", {k: v for k, v in r.items() if k != "dt"}, flush=True)
     nominal = {(r["plant"], r["seed"]): r for r in out if not r["detect"]}
     print("| plant | seed | switched or withdrawn (tick: effect, z) | from m stage start (s) | unexplained windows "
-          "| m err | J err | nominal m err | nominal J err | b | c |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| m err | J err | nominal m err | nominal J err | b | c | F_c |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for p in plants:
         right = 0
         for r in (r for r in out if r["detect"] and r["plant"] == p):
@@ -108,7 +113,7 @@ def main() -> None:
             nom = nominal.get((p, r["seed"]), {})
             f = lambda v: "-" if v is None or v != v else f"{100 * v:.2f} %"  # noqa: E731
             print(f"| {p} | {r['seed']} | {sw} | {dt0} | {r['unexplained']} | {f(r['m_rel'])} | {f(r['J_rel'])} "
-                  f"| {f(nom.get('m_rel'))} | {f(nom.get('J_rel'))} | {r['b']:.3f} | {r['c']:.3f} |")
+                  f"| {f(nom.get('m_rel'))} | {f(nom.get('J_rel'))} | {r['b']:.3f} | {r['c']:.3f} | {r['fc']:.3f} |")
         n = sum(1 for r in out if r["detect"] and r["plant"] == p)
         print(f"\n{p}: the right decision ({', '.join(TRUE[p]) or 'nothing'}, and nothing else, on at the end) in "
               f"{right} of {n} seeds\n")

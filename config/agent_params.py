@@ -292,22 +292,30 @@ class DynamicsSpec(_Strict):
                                "observable beside z_C (N m)",
     )
     dither_period_s: float = Field(6.0, gt=0, description="background: period of that dither (s)")
-    estimate_effects: tuple[Literal["viscous_friction", "rotational_damping"], ...] = Field(
+    estimate_effects: tuple[Literal["viscous_friction", "rotational_damping", "coulomb_friction"], ...] = Field(
         (),
         description="plant effects the agents estimate online with m and J (names of coload diagnose): "
                     "viscous_friction, b (N s/m) in dv_C = (F - b v_C) dt/m; rotational_damping, c (N m s) in "
-                    "domega = (T - c omega) dt/J; each an extra filter state averaged by consensus like m and "
-                    "J; empty: the nominal model",
+                    "domega = (T - c omega) dt/J; coulomb_friction, F_c (N) in dv_C = (F - F_c tanh(|v_C|/v_s) "
+                    "v_C/|v_C|) dt/m (v_s: coulomb_speed); each an extra filter state averaged by consensus "
+                    "like m and J; empty: the nominal model",
+    )
+    coulomb_speed: float = Field(
+        0.05, gt=0, description="Kalman filter: the smoothing speed v_s of the Coulomb friction model (m/s); the "
+                                "plant's is unknown: a few times the filter's sd of v_C, so that the model's "
+                                "slope F_c/v_s at rest does not swing the prediction on v_C's noise "
+                                "(docs/online-detection.md measures a mismatch)",
     )
     online_detection: bool = Field(
         False, description="the team decides online which effect is missing (agents/effect_decision.py, "
-                           "docs/online-detection.md): every filter carries beta = b/m and gamma = c/J pinned at 0, "
-                           "the agents pool the score of each over windows of monitor_window_s by consensus and "
-                           "switch the one significant at monitor_alpha / 3 (one-sided) on, on an agreed tick; "
-                           "false: only estimate_effects, decided beforehand",
+                           "docs/online-detection.md): every filter carries beta = b/m, gamma = c/J and "
+                           "kappa = F_c/m pinned at 0, the agents pool the score of each over windows of "
+                           "monitor_window_s by consensus and switch on, on an agreed tick, the one significant "
+                           "at monitor_alpha / 4 (one-sided) whose score orthogonal to the others' is the "
+                           "largest; false: only estimate_effects, decided beforehand",
     )
     effect_walk: float = Field(
-        3e-3, ge=0, description="Kalman filter: random walk of the estimated effects' rates b/m and c/J "
-                                "(1/s/sqrt(s)); lets a filter forget a wrong start (1e-3 left one agent's b "
-                                "at 5 % of the truth on one seed in five)",
+        3e-3, ge=0, description="Kalman filter: random walk of the estimated effects' rates b/m, c/J "
+                                "(1/s/sqrt(s)) and F_c/m (m/s^2/sqrt(s)); lets a filter forget a wrong start "
+                                "(1e-3 left one agent's b at 5 % of the truth on one seed in five)",
     )

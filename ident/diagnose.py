@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -51,7 +52,10 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
     report the models' errors on it (``Diagnosis.validation``)."""
     rec = read_recording(path)
     other = read_recording(validate) if validate is not None else None
-    result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
+    with warnings.catch_warnings():
+        # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
+        warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
     if other is not None:
         if progress is not None:
             progress(f"predicting {validate} with the nominal and the augmented model")

@@ -511,6 +511,35 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
     return theta, omega, zb * C, np.ones(T, bool)
 
 
+def _filled(rec: Recording, gap_factor: float) -> Recording:
+    """The recording with each agent's missing measurements interpolated between its own neighbouring
+    samples (not across a gap: an interval over ``gap_factor`` x its own median), for the start only.
+    Agents that log on their own clocks share few or no stamps, and the start's per-stamp kinematics
+    (centroid, rank-one shape) need every agent at a stamp; the fit itself uses the samples as measured."""
+    out = []
+    for arr in (rec.vel, rec.pos):
+        if arr is None or not np.isnan(arr).any():
+            out.append(arr)
+            continue
+        arr = arr.copy()
+        for i in range(rec.n):
+            for c in range(2):
+                y = arr[:, i, c]
+                ok = ~np.isnan(y)
+                if ok.sum() < 2 or ok.all():
+                    continue
+                ti = rec.t[ok]
+                k = np.searchsorted(ti, rec.t[~ok])  # the agent's own samples either side: ti[k - 1], ti[k]
+                inside = (k > 0) & (k < ti.size)
+                kk = np.clip(k, 1, ti.size - 1)
+                span = ti[kk] - ti[kk - 1]
+                fill = inside & (span <= gap_factor * float(np.median(np.diff(ti))))
+                idx = np.flatnonzero(~ok)[fill]
+                y[idx] = np.interp(rec.t[idx], ti, y[ok])
+        out.append(arr)
+    return replace(rec, vel=out[0], pos=out[1])
+
+
 def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """(g0, x0, warnings) for the nominal layout ``pb.base`` with ``effects``: equation error, linear least
     squares on the measured kinematics. From velocities, viscous and Coulomb friction and a force bias
@@ -518,6 +547,7 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
     rotational damping the rate's (the integral of the rate); the other effects start at 0."""
     lay = pb.base.with_effects(effects)
     warns: list[str] = []
+    rec = _filled(rec, pb.gap_factor)
     t = rec.t
     T, n = t.size, rec.n
     S = pb.win.S

@@ -33,7 +33,9 @@ class RecordingError(ValueError):
 class Recording:
     """One recording. ``t`` (T,) increasing stamps (s, the union over agents); per stamp and agent
     ``vel``, ``pos`` (T, n, 2) measured contact velocity/position (NaN = not measured; None = no such
-    columns) and ``wrench`` (T, n, 3) [fx, fy, tau] applied (gaps interpolated, see ``warnings``)."""
+    columns) and ``wrench`` (T, n, 3) [fx, fy, tau] applied (gaps interpolated, see ``warnings``).
+    ``t`` counts from the first stamp, which is ``t0`` on the recording's own clock: a logger's epoch
+    stamps (~1.7e9 s) resolve 0.2 us only, too coarse for the delay's derivative."""
 
     t: np.ndarray
     n: int
@@ -44,6 +46,7 @@ class Recording:
     hold: str = "foh"  # how the applied wrench varies between stamps: cubic, first-order ("foh") or held ("zoh")
     truth: dict[str, float] | None = None
     warnings: list[str] = field(default_factory=list)
+    t0: float = 0.0
 
     @property
     def T(self) -> int:
@@ -65,29 +68,60 @@ def recording_from_arrays(t, wrench, vel=None, pos=None, *, hold: str = "foh", d
     arrs = []
     for name, a in (("vel", vel), ("pos", pos)):
         if a is not None:
-            a = np.asarray(a, float)
+            a = np.array(a, float)  # a copy: an axis measured nowhere is filled in place
             if a.shape != (t.size, n, 2):
                 raise RecordingError(f"{name} must have shape ({t.size}, {n}, 2), got {a.shape}")
             if np.isinf(a).any():
                 raise RecordingError(f"{name} contains inf")
         arrs.append(a)
+    warns = []
+    for k, name in ((0, "velocities (vx,vy)"), (1, "positions (x,y)")):
+        if arrs[k] is not None and np.isnan(arrs[k]).all():
+            arrs[k] = None
+            warns.append(f"no {name} in any row: not used")
     vel, pos = arrs
     if vel is None and pos is None:
         raise RecordingError("no measurements: need vx,vy and/or x,y columns")
     if hold not in HOLDS:
         raise RecordingError(f"input_hold must be one of {HOLDS}, got {hold!r}")
-    warns = []
+    for c, axis in enumerate("xy"):
+        warns += _one_axis(c, axis, w, vel, pos)
     miss = np.isnan(w)
-    if miss.any():
-        warns.append(f"{int(miss.any(axis=2).sum())} agent-stamps without a (complete) wrench: interpolated in time")
-        for i in range(n):
-            for c in range(3):
-                m = miss[:, i, c]
-                if m.all():
-                    w[:, i, c] = 0.0
-                elif m.any():
-                    w[m, i, c] = np.interp(t[m], t[~m], w[~m, i, c])
-    return Recording(t=t, n=n, wrench=w, vel=vel, pos=pos, dt=dt, hold=hold, truth=truth, warnings=warns)
+    none = miss.all(axis=0)  # (n, 3): a column with no value for an agent at all
+    for c, name in enumerate(WRENCH):
+        if none[:, c].any():
+            who = ",".join(str(i) for i in np.flatnonzero(none[:, c]))
+            warns.append(f"column {name}: no value in any row of agent(s) {who}: taken as 0")
+    part = miss & ~none
+    if part.any():
+        warns.append(f"{int(part.any(axis=2).sum())} agent-stamps without a (complete) wrench: interpolated in time")
+    for i in range(n):
+        for c in range(3):
+            m = miss[:, i, c]
+            if m.all():
+                w[:, i, c] = 0.0
+            elif m.any():
+                w[m, i, c] = np.interp(t[m], t[~m], w[~m, i, c])
+    t0 = float(t[0])
+    return Recording(t=t - t0, n=n, wrench=w, vel=vel, pos=pos, dt=dt, hold=hold, truth=truth, warnings=warns, t0=t0)
+
+
+def _one_axis(c: int, axis: str, w: np.ndarray, vel: np.ndarray | None, pos: np.ndarray | None) -> list[str]:
+    """An axis measured in no row (a recording along the other axis, with the column empty or absent)
+    carries no motion to fit: with no force on it either, its component is set to 0 in place (as a rail's
+    logger writes it), so every row keeps the other axis' value and the fit leaves the axis out
+    (ident/fit.py); with a force on it, the recording cannot be fitted. Returns the warning."""
+    have = [a for a in (vel, pos) if a is not None]
+    if any(not np.isnan(a[..., c]).all() for a in have):
+        return []
+    if np.nan_to_num(w[..., c]).any():
+        f = "fx" if c == 0 else "fy"
+        raise RecordingError(f"column {f} applies a force along {axis}, but no row measures the {axis} motion "
+                             f"(v{axis} or {axis}): cannot fit it")
+    for a in have:
+        a[..., c] = 0.0  # a row without the other axis' value stays unused (the fit needs both)
+    w[..., c] = 0.0
+    return [f"axis {axis}: no measurement and no force in any row: a recording along the other axis only"]
 
 
 def _num(cell: str, where: str, name: str) -> float:
@@ -196,15 +230,16 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
     header = [h.strip() for h in rows[0]]
     if header[:2] != ["t", "agent"]:
         raise RecordingError(f"{path}:1: header must start with t,agent (got {','.join(header[:2])})")
-    need = list(WRENCH)
-    has_v, has_p = {"vx", "vy"} <= set(header), {"x", "y"} <= set(header)
+    has_v, has_p = bool({"vx", "vy"} & set(header)), bool({"x", "y"} & set(header))
     if not (has_v or has_p):
         raise RecordingError(f"{path}:1: header lacks measured columns: need vx,vy and/or x,y")
-    missing = [c for c in need if c not in header]
-    if missing:
-        raise RecordingError(f"{path}:1: header lacks column(s) {','.join(missing)}")
-    want = ["t", "agent", *need] + (["vx", "vy"] if has_v else []) + (["x", "y"] if has_p else [])
-    idx = {c: header.index(c) for c in want}
+    if not {"fx", "fy"} & set(header):
+        raise RecordingError(f"{path}:1: header lacks column(s) fx,fy (the applied force)")
+    # a column of a pair, or of the wrench, that the header lacks is an empty column; whether the
+    # recording can do without it is decided on the data (read_recording)
+    want = ["t", "agent", *WRENCH] + (["vx", "vy"] if has_v else []) + (["x", "y"] if has_p else [])
+    absent = [c for c in want if c not in header]
+    idx = {c: header.index(c) for c in want if c not in absent}
     body = [(k + 2, r) for k, r in enumerate(rows[1:]) if r and any(c.strip() for c in r)]
     if not body:
         raise RecordingError(f"{path}: no data rows")
@@ -215,14 +250,33 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
         if len(r) != width:
             raise RecordingError(f"{where}: {len(r)} fields, header has {width}")
         for c in want:
-            v = _num(r[idx[c]], where, c)
+            v = _num(r[idx[c]], where, c) if c in idx else math.nan
             if c in ("t", "agent") and math.isnan(v):
                 raise RecordingError(f"{where}: column '{c}': empty (expected a number)")
             vals[c][j] = v
         a = vals["agent"][j]
         if a != int(a) or not 0 <= a < n:
             raise RecordingError(f"{where}: column 'agent': agent {r[idx['agent']]} out of range 0..{n - 1}")
-    return vals["t"], vals["agent"].astype(int), {c: vals[c] for c in want[2:]}, cut
+    cols = {c: vals[c] for c in want[2:]}
+    for c in WRENCH:
+        if c in absent:
+            cols[c][:] = 0.0
+    cut += _check_absent(path, absent, cols, n)
+    return vals["t"], vals["agent"].astype(int), cols, cut
+
+
+def _check_absent(path: Path, absent: list[str], cols: dict[str, np.ndarray], n: int) -> list[str]:
+    """A wrench column the header lacks is no force only where no data need it: fx (fy) where the x (y)
+    motion is measured nowhere, tau with one agent (whose rotation is not observed). The warnings."""
+    def measured(axis: str) -> bool:
+        return any(c in cols and not np.isnan(cols[c]).all() for c in (f"v{axis}", axis))
+
+    need = [c for c, axis in (("fx", "x"), ("fy", "y")) if c in absent and measured(axis)]
+    if "tau" in absent and n > 1:
+        need.append("tau")
+    if need:
+        raise RecordingError(f"{path}:1: header lacks column(s) {','.join(need)} (the motion they act on is measured)")
+    return [f"{path}: no column {c}: taken as 0" for c in WRENCH if c in absent]
 
 
 def _read_truth(path: Path) -> tuple[dict[str, float] | None, list[str]]:
@@ -251,7 +305,7 @@ def write_recording(path: str | Path, rec: Recording, *, extra: dict | None = No
     lines = [",".join(cols)]
     for k in range(rec.T):
         for i in range(rec.n):
-            vals = [repr(float(rec.t[k])), str(i)]
+            vals = [repr(float(rec.t0 + rec.t[k])), str(i)]
             for a in (rec.vel, rec.pos):
                 if a is not None:
                     vals += ["" if math.isnan(v) else repr(float(v)) for v in a[k, i]]

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from math import comb
 
 import numpy as np
 from scipy import stats
@@ -18,34 +17,39 @@ _TRIM_GAIN = 1 - 2 * stats.norm.ppf(0.5 + _TRIM / 2) * stats.norm.pdf(stats.norm
 
 
 def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
-    """Noise sigma of the columns of ``y`` (T, ...) from its ``order``-th differences along time.
+    """Noise sigma of the columns of ``y`` (T, ...) from its ``order``-th divided differences along time.
 
-    A smooth signal sampled finely has small high-order differences; white noise of variance s^2 gives
-    differences of variance C(2k, k) s^2. The largest 1 % (force steps, outliers) are dropped and the
-    truncation corrected for. Only runs of stamps without gaps (interval within 1.5x the median) and
-    without missing values count. NaN if there is too little data.
+    A smooth signal sampled finely has small high-order divided differences, on any grid of stamps; white
+    noise of variance s^2 gives a divided difference sum_j c_j y_j of variance s^2 sum_j c_j^2, so each is
+    taken over its weights' norm (on a regular grid: the plain differences over sqrt(C(2k, k))). Plain
+    differences of irregular stamps would count the signal's slope times the jitter as noise. Each column
+    is taken on its own samples (agents that log on their own clocks leave the others' stamps empty), in
+    runs without gaps (intervals within 1.5x the column's median); a constant column (an axis the
+    recording does not measure, written as 0) is left out. The largest 1 % (force steps, outliers) are
+    dropped and the truncation corrected for. NaN if there is too little data.
     """
     y = y.reshape(y.shape[0], -1)
-    dts = np.diff(t)
-    regular = np.concatenate(([False], np.abs(dts - np.median(dts)) <= 0.5 * np.median(dts)))
     vals = []
     for j in range(y.shape[1]):
-        d = y[:, j]
-        ok = ~np.isnan(d)
-        for _ in range(order):
-            d = np.diff(d)
-        okk = ok.copy()
-        reg = regular.copy()
-        for _ in range(order):
-            okk = okk[1:] & okk[:-1]
-            reg = reg[1:] & reg[:-1] if reg.size > 1 else reg
-        good = okk & np.concatenate((reg[: okk.size], np.zeros(max(0, okk.size - reg.size), bool)))
-        vals.append(d[good])
+        ok = ~np.isnan(y[:, j])
+        tc, col = t[ok], y[ok, j]
+        if tc.size <= order + 1 or np.ptp(col) == 0.0:
+            continue
+        dts = np.diff(tc)
+        med = np.median(dts)
+        idx = np.arange(tc.size - order)[:, None] + np.arange(order + 1)
+        good = (np.abs(dts - med) <= 0.5 * med)[idx[:, :-1]].all(axis=1)
+        tt = tc[idx[good]]
+        gap = tt[:, :, None] - tt[:, None, :]
+        gap[:, np.arange(order + 1), np.arange(order + 1)] = 1.0
+        c = 1.0 / gap.prod(axis=2)  # Newton's divided-difference weights of each window of order + 1 stamps
+        c /= np.sqrt((c * c).sum(axis=1, keepdims=True))
+        vals.append((col[idx[good]] * c).sum(axis=1))
     d2 = np.concatenate(vals) ** 2 if vals else np.zeros(0)
     if d2.size < 20:
         return math.nan
     d2 = np.sort(d2)[: max(1, int(_TRIM * d2.size))]
-    return math.sqrt(float(d2.mean()) / _TRIM_GAIN / comb(2 * order, order))
+    return math.sqrt(float(d2.mean()) / _TRIM_GAIN)
 
 
 def kinematic_noise(vel: np.ndarray) -> float:

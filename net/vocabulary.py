@@ -42,6 +42,7 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     # augmented model (DynamicsSpec.estimate_effects; NaN without it)
     "b",  # viscous floor friction on v_C after the averaging consensus (N s/m)
     "c",  # rotational damping on omega after the averaging consensus (N m s)
+    "fc",  # Coulomb friction on v_C after the averaging consensus (N; its smoothing speed DynamicsSpec.coulomb_speed)
     "b_local",  # this agent's own b, before the averaging consensus (N s/m)
     "c_local",  # this agent's own c, before the averaging consensus (N m s)
     "filter_restarts",  # restarts of the dynamical phase's filter by its lock check (count; DynamicsSpec.lock_nis)
@@ -63,11 +64,13 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "mon_windows",  # windows tested so far (count)
     "mon_alarms",  # windows with an alarm so far (count)
     # online detection (agents/effect_decision.py, docs/online-detection.md; NaN without it)
-    "eff_on",  # effects in the filters: bit 0 viscous friction, bit 1 rotational damping (declared or switched on)
+    "eff_on",  # effects in the filters: bit 0 viscous friction, bit 1 rotational damping, bit 2 Coulomb friction
+    # (declared or switched on)
     "eff_tick",  # tick of the last switch or withdrawal the team agreed (-1: none)
     "eff_z",  # its pooled statistic (z, one-sided; a withdrawal's is the rate's Wald z, negative)
     "eff_unexplained",  # windows the team judged structured with no candidate significant (count)
     "eff_zp",  # the last judged window's pooled persistence z (this agent's view of the team means)
     "eff_zb",  # ... pooled score z of viscous friction
     "eff_zc",  # ... of rotational damping
+    "eff_zf",  # ... of Coulomb friction
 )

@@ -6,19 +6,19 @@ from __future__ import annotations
 
 import math
 
-from agents.effect_decision import N_EFF, N_POOL, OnlineDetection
+from agents.effect_decision import CH_CNT, CH_Z, N_EFF, N_POOL, VCH, OnlineDetection
 
 LAGS = 5
 W, H = 100, 20
 
 
 def pool(*scores: float, zp_sum: float = 0.0) -> list[float]:
-    """Team means of the pool channels whose pooled z of candidate k is scores[k] sqrt(n) (n = 2 here):
-    s_k = scores[k], v_k = 1, every agent contributing."""
+    """Team means of the pool channels whose pooled z of candidate k is scores[k] sqrt(n) (n = 2 here; 0 for
+    the candidates not given): s_k = scores[k], V_kk = 1, no cross terms, every agent contributing."""
     x = [0.0] * N_POOL
-    for k, s in enumerate(scores):
-        x[2 * k], x[2 * k + 1] = s, 1.0
-    x[2 * N_EFF], x[2 * N_EFF + 1] = zp_sum, 1.0
+    for k in range(N_EFF):
+        x[k], x[VCH[k, k]] = scores[k] if k < len(scores) else 0.0, 1.0
+    x[CH_Z], x[CH_CNT] = zp_sum, 1.0
     return x
 
 
@@ -73,9 +73,10 @@ def test_the_level_is_the_withdrawals_and_a_switch_in_the_same_window_comes_firs
         log = run(dets, lambda t, i: pool(-z_at - eps, 0.0), range(2 * W - 1, 2 * W + H))
         assert d.withdrawn == ruled and log == [[]] and d.unexplained == ruled
     (d,) = dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0)]
-    log = run(dets, lambda t, i: pool(-5.0, 4.0), range(2 * W - 1, 6 * W + H))
-    # ruled out on the first window judged once the switch has settled (it starts at 4 W), at 6 W - 1
-    assert log == [[(2 * W - 1 + H, 1)]] and d.withdrawn == 0b01 and d.flood.done == 6 * W - 1 + H
+    log = run(dets, lambda t, i: pool(-5.0, 4.0), range(2 * W - 1, 8 * W + H))
+    # ruled out on the first window whose scores are judged after the switch (it starts three windows after
+    # the switch tick, at 6 W), at 8 W - 1
+    assert log == [[(2 * W - 1 + H, 1)]] and d.withdrawn == 0b01 and d.flood.done == 8 * W - 1 + H
     assert d.unexplained == 1
 
 

@@ -81,3 +81,106 @@ def test_cli_bad_input_exit_2_and_import_help(tmp_path):
     proc = subprocess.run(coload_cmd("import", "emps", str(tmp_path / "nope.mat"), "--out", str(tmp_path / "o")),
                           capture_output=True, text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 2 and "nope.mat" in proc.stderr and not (tmp_path / "o").exists()
+
+
+# A cart on a rail (one agent pushing along x), written the way a lab's logger would: its own stamps
+# (jittered, a gap), CRLF, a byte-order mark, an extra column, an empty cell now and then, and the y
+# columns empty, absent, or zero. The plant is integrated here with scipy, independently of ident/.
+M_CART, B_CART, NOISE = 12.0, 3.0, 0.002
+
+
+def _cart(T: int = 1500, seed: int = 5):
+    from scipy.integrate import solve_ivp
+
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.uniform(0.006, 0.014, T))
+    t = t[(t < 6.0) | (t > 6.5)] - t[0]
+
+    def force(s):
+        return 20.0 * np.sin(0.9 * s) + 6.0 * np.sin(2.3 * s + 0.4)
+
+    sol = solve_ivp(lambda s, x: [x[1], (force(s) - B_CART * x[1]) / M_CART], (0.0, t[-1]), [0.0, 0.2],
+                    t_eval=t, rtol=1e-10, atol=1e-12)
+    return t, force(t), sol.y[1] + rng.normal(0.0, NOISE, t.size)
+
+
+def _write_cart(tmp: Path, y: str) -> Path:
+    """y: "zero" (vy, fy, tau = 0), "empty" (the columns there, their cells empty), "absent" (no such columns)."""
+    t, f, v = _cart()
+    header = {"absent": "t,agent,note,fx,vx", "empty": "t,agent,note,fx,vx,vy,fy,tau"}.get(y, "t,agent,note,fx,vx,vy,fy,tau")
+    tail = {"absent": "", "empty": ",,,"}.get(y, ",0,0,0")
+    rows = [f"{s:.6f},0,ok,{fk:.6f},{'' if k % 97 == 5 else f'{vk:.6e}'}{tail}" for k, (s, fk, vk) in enumerate(zip(t, f, v))]
+    tmp.mkdir(parents=True, exist_ok=True)
+    (tmp / "run.toml").write_text("n = 1\nedges = []\n")
+    (tmp / "samples.csv").write_bytes(("\ufeff" + "\r\n".join([header, *rows]) + "\r\n").encode())
+    return tmp
+
+
+def test_one_axis_recording_reads_alike_with_its_y_columns_zero_empty_or_absent(tmp_path):
+    """A rail along x: the y columns empty or left out read as the same recording as y written as 0."""
+    ref = read_recording(_write_cart(tmp_path / "zero", "zero"))
+    for form in ("empty", "absent"):
+        rec = read_recording(_write_cart(tmp_path / form, form))
+        np.testing.assert_array_equal(rec.vel, ref.vel)
+        np.testing.assert_array_equal(rec.wrench, ref.wrench)
+        assert any("axis y: no measurement and no force" in w for w in rec.warnings)
+        assert any("tau" in w and "taken as 0" in w for w in rec.warnings)
+
+
+def test_one_axis_recording_without_y_columns_is_diagnosed(tmp_path):
+    """The rail's friction is named and m, b and the noise found (before: every row was dropped for its empty vy)."""
+    from ident.diagnose import DiagnoseOptions, diagnose_dir
+
+    d = diagnose_dir(_write_cart(tmp_path, "absent"),
+                     options=DiagnoseOptions(candidates=("viscous_friction", "coulomb_friction", "force_bias")))
+    named = {e["name"]: e["value"] for e in d.effects}
+    assert list(named) == ["viscous_friction"] and not d.unexplained, d.effects
+    assert d.augmented.m == pytest.approx(M_CART, rel=0.01)
+    assert named["viscous_friction"] == pytest.approx(B_CART, rel=0.02)
+    assert d.noise_floor["velocity"] == pytest.approx(NOISE, rel=0.15)  # jittered stamps: divided differences
+
+
+def test_force_along_an_axis_no_row_measures_is_refused(tmp_path):
+    d = _write_cart(tmp_path, "empty")
+    text = d.joinpath("samples.csv").read_text(encoding="utf-8-sig").replace(",,,\n", ",,1.5,\n")
+    d.joinpath("samples.csv").write_text(text)
+    with pytest.raises(RecordingError, match="column fy applies a force along y, but no row measures the y motion"):
+        read_recording(d)
+
+
+def test_epoch_stamps_count_from_the_first_and_are_written_back(tmp_path):
+    """A logger's Unix stamps: the model's time counts from the first stamp (at 1.7e9 s a double resolves
+    0.24 us, coarser than the delay's finite difference), the recording's own clock is kept."""
+    t0 = 1_700_000_000.25
+    rows = [f"{t0 + 0.01 * k!r},0,{0.1 * k!r},0,1,0,0" for k in range(40)]
+    (tmp_path / "in").mkdir()
+    rec = read_recording(write(tmp_path / "in", rows, toml="n = 1\n"))
+    assert rec.t0 == t0 and rec.t[0] == 0.0 and rec.t[-1] == pytest.approx(0.39, abs=1e-6)
+    back = read_recording(write_recording(tmp_path / "out", rec))
+    assert back.t0 == t0 and np.array_equal(back.t, rec.t)
+
+
+@pytest.mark.slow
+def test_agents_logging_on_their_own_clocks_are_diagnosed(tmp_path):
+    """Three robots, each logging on its own clock (no stamp shared: each row of tests/ctplant.py's 150 Hz
+    recording kept for one agent only, 50 Hz each), rotational damping undeclared: named, with m, J and its
+    value close (the start interpolates each agent between its own samples; ~30 s)."""
+    import csv
+
+    from ctplant import make_recording
+    from ident.diagnose import DiagnoseOptions, diagnose_dir
+
+    truth = make_recording(tmp_path, n=3, rate_hz=150, duration_s=20, sigma_v=0.01, effects=["rotational_damping"],
+                           seed=4, jitter=0.2)
+    rows = list(csv.reader((tmp_path / "samples.csv").open()))
+    with (tmp_path / "samples.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(rows[0])
+        w.writerows(r for r in rows[1:] if round(float(r[0]) * 150) % 3 == int(r[1]))
+    d = diagnose_dir(tmp_path, options=DiagnoseOptions(candidates=("viscous_friction", "rotational_damping", "force_bias")))
+    named = {e["name"]: e["value"] for e in d.effects}
+    assert list(named) == ["rotational_damping"] and not d.unexplained, d.effects
+    assert d.augmented.m == pytest.approx(truth["m"], rel=0.01)
+    assert d.augmented.J == pytest.approx(truth["J"], rel=0.03)
+    assert named["rotational_damping"] == pytest.approx(truth["effects"]["rotational_damping"], rel=0.05)
+    assert d.noise_floor["velocity"] == pytest.approx(0.01, rel=0.1)

@@ -69,3 +69,27 @@ def test_ljung_box_center_from_few_draws_is_corrected_for_its_scatter():
     # binomial(600, 0.05): sd 0.009, so a level within 0.025 of 0.05 is a 2.8 sd band
     assert np.mean(np.array(plain) < 0.05) > 0.08
     assert abs(np.mean(np.array(fixed) < 0.05) - 0.05) < 0.025
+
+
+def test_difference_noise_on_jittered_stamps_and_beside_a_constant_column():
+    """A lab logger's own stamps (+-50 % jitter) under a fast ramp: divided differences keep the slope out of
+    the noise; a column written as 0 (an axis not measured) does not halve the estimate."""
+    rng = np.random.default_rng(4)
+    t = np.cumsum(0.01 * (1 + rng.uniform(-0.5, 0.5, 4000)))
+    smooth = 3.0 * np.sin(1.3 * t) + 2.0 * t
+    for sigma in (0.001, 0.02):
+        y = np.stack((smooth + rng.normal(0, sigma, t.size), np.zeros(t.size)), axis=1)
+        est = difference_noise(t, y, 3)
+        assert abs(est / sigma - 1) < 0.1, (sigma, est)
+
+
+def test_difference_noise_of_agents_on_their_own_clocks():
+    """Three columns, each with a value at every third stamp only (agents that log on their own clocks):
+    each is taken on its own samples (on the union of stamps no run of four is complete)."""
+    rng = np.random.default_rng(6)
+    t = np.cumsum(0.004 * (1 + rng.uniform(-0.3, 0.3, 6000)))
+    y = np.full((t.size, 3), np.nan)
+    for i in range(3):
+        k = np.arange(i, t.size, 3)
+        y[k, i] = np.sin(0.8 * t[k] + i) + rng.normal(0, 0.01, k.size)
+    assert abs(difference_noise(t, y, 3) / 0.01 - 1) < 0.1

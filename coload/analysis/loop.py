@@ -31,7 +31,7 @@ def _online_effects() -> tuple[str, ...]:
 ONLINE_EFFECTS: tuple[str, ...] = _online_effects()
 """Effects of ``coload diagnose``'s vocabulary that the agents can estimate online (``dynamics.estimate_effects``)."""
 
-ESTIMATE_COLUMN: dict[str, str] = {"viscous_friction": "b", "rotational_damping": "c"}
+ESTIMATE_COLUMN: dict[str, str] = {"viscous_friction": "b", "rotational_damping": "c", "coulomb_friction": "fc"}
 """The estimates.csv column that holds each online effect's value after the averaging consensus; an online
 effect without one is reported as "not recorded"."""
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.rigid_filter import EFFECTS  # bit k of eff_on is the filter's effect k
 from coload.analysis import yardstick
 from coload.analysis.metrics import final_errors, last_finite
 from coload.provenance import versions
@@ -124,9 +125,6 @@ def monitor_block(run: fmt.RunData | None) -> dict[str, Any]:
     }
 
 
-EFFECT_BITS = ("viscous_friction", "rotational_damping")  # bit k of eff_on (agents/effect_decision.py EFFECTS)
-
-
 def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
     """The online detection's decisions (``eff_*`` columns, docs/online-detection.md): every switch and every
     withdrawal the team agreed as an event (``effect_switch`` or ``effect_withdrawn``: an ``eff_on`` bit set or
@@ -145,7 +143,7 @@ def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
         for r in np.flatnonzero(np.isfinite(on[:, i])):
             cur = int(on[r, i])
             for kind, bits in (("effect_switch", cur & ~prev), ("effect_withdrawn", prev & ~cur)):
-                for k, name in enumerate(EFFECT_BITS):
+                for k, name in enumerate(EFFECTS):
                     if (bits >> k) & 1:
                         ev = events.setdefault((int(tick[r, i]), name), {
                             "event": kind, "tick": int(tick[r, i]), "effect": name,
@@ -154,7 +152,7 @@ def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
             prev = cur
     final = last_finite(on)[0]
     unexplained = last_finite(est.columns["eff_unexplained"])[0] if est.has("eff_unexplained") else final * math.nan
-    names = sorted({name for v in final if math.isfinite(v) for k, name in enumerate(EFFECT_BITS) if (int(v) >> k) & 1})
+    names = sorted({name for v in final if math.isfinite(v) for k, name in enumerate(EFFECTS) if (int(v) >> k) & 1})
     return {
         "events": sorted(events.values(), key=lambda e: (e["tick"], e["effect"])),
         "on": names,
