@@ -40,7 +40,10 @@ Before a switch, the lower tail of a candidate's score says the same: below the 
 data favour a negative coefficient, which no candidate has, so structure along its signature is something
 else (a periodic force alternates the sign window by window and passes the one-sided test in its positive
 windows). The team rules the candidate out through the same flood and code as a withdrawal: never proposed
-again, the window ``unexplained``; the filters, which never released it, are untouched.
+again, the window ``unexplained``; the filters, which never released it, are untouched. A window that rules
+a candidate out switches nothing on: the candidates are correlated (Coulomb and viscous friction's scores by
+0.83-0.99), and one significantly negative beside another significantly positive is structure that neither
+explains.
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -348,10 +351,9 @@ class OnlineDetection:
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
                 k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo)
-                if k < 0:  # a candidate whose score is significantly negative is ruled out (module docstring)
-                    level, skip = self.alpha / (1 + N_EFF), self.on | self.withdrawn | held
-                    neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
-                    k = N_EFF + min(neg)[1] if neg else -1
+                out = self._contradicted(zs, self.on | self.withdrawn | held)
+                if out >= 0 and k < N_EFF:  # a rule-out comes before a switch in the same window (module docstring)
+                    k = N_EFF + out
                 if k >= 0:
                     self.flood.merge((tick + self.horizon, k, zs[k % N_EFF]))
                 # a withdrawal's window is counted where it is applied: by every agent, whatever its own view
@@ -383,6 +385,13 @@ class OnlineDetection:
         self.settle_from = due[0] + w
         self.score_from = due[0] + (3 * w if due[1] < N_EFF else w)
         return due[1]
+
+    def _contradicted(self, zs: Sequence[float], skip: int) -> int:
+        """The candidate (not in ``skip``) whose pooled score is most significantly negative, at the level of
+        a switch, or -1: the data favour a negative coefficient, which no candidate has."""
+        level = self.alpha / (1 + N_EFF)
+        neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
+        return min(neg)[1] if neg else -1
 
     def step_filters(self, tick: int, u: list[float], x: Sequence[float], filters: Sequence[RigidEKF]) -> None:
         """:meth:`begin_tick` with the first filter's rates; the decision due is applied to every filter given

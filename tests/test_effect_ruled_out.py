@@ -61,10 +61,11 @@ def test_two_agents_rule_a_candidate_out_on_one_tick_and_never_switch_it_on():
         assert d.entries()["eff_unexplained"] == 1.0  # the ruled-out window, at both (the persistence z is 0)
 
 
-def test_the_level_is_the_withdrawals_and_a_switch_in_the_same_window_comes_first():
-    """Ruled out just below the level's lower quantile (alpha / 3 one-sided), not just above it; a significant
-    candidate in the same window is switched on first (one decision per window) and the other ruled out in a
-    later window. A ruled-out window counts ``unexplained`` (no persistence here)."""
+def test_the_level_is_the_withdrawals_and_a_rule_out_comes_before_a_switch_in_the_same_window():
+    """Ruled out just below the level's lower quantile (alpha / 3 one-sided), not just above it; a window
+    that rules one candidate out switches no other on (one decision per window: the structure is not one
+    candidate's), the significant one is switched on from a later window. A ruled-out window counts
+    ``unexplained`` (no persistence here)."""
     from statistics import NormalDist
 
     z_at = NormalDist().inv_cdf(1 - 0.01 / (1 + N_EFF)) / math.sqrt(2)  # a score mean of z_at pools to the level
@@ -74,9 +75,8 @@ def test_the_level_is_the_withdrawals_and_a_switch_in_the_same_window_comes_firs
         assert d.withdrawn == ruled and log == [[]] and d.unexplained == ruled
     (d,) = dets = [OnlineDetection(2, W, LAGS, 0.01, H, 0)]
     log = run(dets, lambda t, i: pool(-5.0, 4.0), range(2 * W - 1, 8 * W + H))
-    # ruled out on the first window whose scores are judged after the switch (it starts three windows after
-    # the switch tick, at 6 W), at 8 W - 1
-    assert log == [[(2 * W - 1 + H, 1)]] and d.withdrawn == 0b01 and d.flood.done == 8 * W - 1 + H
+    # candidate 0 ruled out on the first judged window (2 W - 1), candidate 1 switched on from the next
+    assert log == [[(3 * W - 1 + H, 1)]] and d.withdrawn == 0b01 and d.on == 0b10
     assert d.unexplained == 1
 
 
