@@ -378,10 +378,10 @@ class OnlineDetection:
             self.unexplained += 1  # the structure it was switched on for is not explained
         self.last_tick, self.last_z = due[0], due[2]
         # offer and judge the rates again on windows that start after the switched (or withdrawn) effect has
-        # settled for a window; new switches two windows later: a switch restarts 1/m (1/J) and the released
-        # rate, and while the filter re-learns them its innovations carry a transient that a correlated
-        # candidate's score takes up (docs/online-detection.md: Coulomb plant, viscous z 5.75, 2.31, 1.16
-        # (seed 1) and 3.36, 0.61 (seed 3) in the windows after the Coulomb switch)
+        # settled for a window; judge new switches only on windows that start three windows after a switch: a
+        # switch restarts 1/m (1/J) and the released rate, and while the filter re-learns them its innovations
+        # carry a transient that a correlated candidate's score takes up (docs/online-detection.md, "Decision
+        # and switch")
         self.settle_from = due[0] + w
         self.score_from = due[0] + (3 * w if due[1] < N_EFF else w)
         return due[1]
@@ -398,8 +398,8 @@ class OnlineDetection:
         (the agent's, and the one a restart on trial replaced): the effect's rate moves from here on, or is
         pinned again."""
         kf = filters[0]
-        rates = ([(float(kf.s[7 + k]), float(kf.P[7 + k, 7 + k])) for k in range(N_EFF)]
-                 if kf.ready and kf.aug is not None and tick % self.window == 0 else None)
+        rates = ([kf.rate(k) for k in range(N_EFF)] if kf.ready and kf.aug is not None and tick % self.window == 0
+                 else None)
         dec = self.begin_tick(tick, u, x, rates)
         for f in filters if dec >= 0 else ():
             if dec < N_EFF:

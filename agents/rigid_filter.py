@@ -338,14 +338,11 @@ class RigidEKF:
             A[1, 9] = -dt * sy
             nq = np.append(nq, (beta, gamma, kappa))
         nq = np.append(nq, s[self.ib])
-        if self.sens is not None:  # d/d rate at the pinned 0: -dt v_C, -dt omega, -dt sat(v_C)
+        if self.sens is not None:
+            # d/d rate at the pinned 0: carried through A, plus each rate's own column of A on the states it
+            # drives (-dt v_C, -dt omega, -dt sat(v_C))
             D = A @ self.sens
-            D[0, 0] -= dt * s[0]
-            D[1, 0] -= dt * s[1]
-            D[5, 1] -= dt * om
-            sx, sy, *_ = coulomb_sat(s[0], s[1], self.vs)
-            D[0, 2] -= dt * sx
-            D[1, 2] -= dt * sy
+            D[:7, :N_EFF] += A[:7, 7:7 + N_EFF]
             D[0, N_EFF] += dt * s[4] * force_err.real
             D[1, N_EFF] += dt * s[4] * force_err.imag
             self.sens = D
@@ -403,6 +400,10 @@ class RigidEKF:
     def gamma(self) -> float:
         """c/J (1/s), augmented model only."""
         return float(self.s[8])
+
+    def rate(self, k: int) -> tuple[float, float]:
+        """Effect k's rate (:data:`EFFECTS` order) and its variance, augmented model only."""
+        return float(self.s[7 + k]), float(self.P[7 + k, 7 + k])
 
     @property
     def kappa(self) -> float:

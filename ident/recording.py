@@ -173,7 +173,7 @@ def read_recording(path: str | Path) -> Recording:
     csv_path = path / SAMPLES_CSV
     if not csv_path.exists():
         raise RecordingError(f"{csv_path}: missing (a recording needs {SAMPLES_CSV})")
-    t, agent, cols, cut = _read_samples(csv_path, n)
+    t, agent, cols, read_warns = _read_samples(csv_path, n)
     has_v = "vx" in cols and "vy" in cols
     has_p = "x" in cols and "y" in cols
     stamps, inv = np.unique(t, return_inverse=True)
@@ -198,7 +198,7 @@ def read_recording(path: str | Path) -> Recording:
     vel = grid(("vx", "vy")) if has_v else None
     pos = grid(("x", "y")) if has_p else None
     truth = None
-    warns = list(cut)
+    warns = list(read_warns)
     tpath = path / TRUTH_CSV
     if tpath.exists():
         truth, w = _read_truth(tpath)
@@ -221,9 +221,9 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
         raise RecordingError(str(exc)) from None
     with path.open(newline="", encoding="utf-8-sig") as fh:
         rows = list(csv.reader(fh))
-    cut = []
+    warns = []
     if len(rows) > 1 and _ends_cut(path):  # a recorder killed mid-write: its last line may be cut mid-number
-        cut.append(_cut_warning(path, len(rows), len(rows[-1]), len(rows[0])))
+        warns.append(_cut_warning(path, len(rows), len(rows[-1]), len(rows[0])))
         rows.pop()
     if not rows:
         raise RecordingError(f"{path}:1: empty file (expected a header starting t,agent)")
@@ -261,8 +261,8 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
     for c in WRENCH:
         if c in absent:
             cols[c][:] = 0.0
-    cut += _check_absent(path, absent, cols, n)
-    return vals["t"], vals["agent"].astype(int), cols, cut
+    warns += _check_absent(path, absent, cols, n)
+    return vals["t"], vals["agent"].astype(int), cols, warns
 
 
 def _check_absent(path: Path, absent: list[str], cols: dict[str, np.ndarray], n: int) -> list[str]:
