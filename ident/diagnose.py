@@ -13,6 +13,8 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from ident.model import EFFECTS, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
@@ -32,6 +34,7 @@ CANDIDATES: dict[str, tuple[int, str, str]] = {
 }
 """name -> (number of parameters on a planar load, unit, the signature shown in the cross-correlation)."""
 MIN_STAMPS = 50
+HALF_SAMPLE_TOL = 0.2  # a delay within 2 ci95 or this share of half a sample period of it is the hold's
 
 
 def read_recording(path: str | Path) -> Recording:
@@ -56,6 +59,21 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
         result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
+        held = _half_sample_delay(result, rec)
+        if held is not None:
+            if progress is not None:
+                progress(f"a delay of {held}: refitting with the wrench held between samples")
+            rec.hold, rec.hold_source = "zoh", "inferred: a delay of half a sample period"
+            alt = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
+            if alt.unexplained and not result.unexplained:
+                rec.hold, rec.hold_source = "cubic", "default"
+            else:
+                alt.warnings.insert(0, f"run.toml has no input_hold, and with the wrench taken as smooth the data "
+                                       f"show a delay of {held}: what holding each sample until the next does. "
+                                       "Read as held (input_hold = \"zoh\"); declare input_hold = \"cubic\" in "
+                                       "run.toml if the wrench is smooth and the delay is real")
+                result = alt
+    result.model["hold_source"] = rec.hold_source
     if other is not None:
         if progress is not None:
             progress(f"predicting {validate} with the nominal and the augmented model")
@@ -64,6 +82,28 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         except ValueError as exc:
             raise DiagnoseError(f"{validate}: cannot predict it with this model: {exc}") from None
     return result
+
+
+def sample_period(rec: Recording) -> float:
+    """The median interval between an agent's own measured samples (agents may log on their own clocks)."""
+    meas = rec.vel if rec.vel is not None else rec.pos
+    gaps = [np.diff(rec.t[~np.isnan(meas[:, i]).all(axis=1)]) for i in range(rec.n)]
+    return float(np.median(np.concatenate(gaps)))
+
+
+def _half_sample_delay(result: Diagnosis, rec: Recording) -> str | None:
+    """The named delay as text when it is half a sample period, as holding a smooth-taken wrench looks, on a
+    recording whose run.toml does not say how the wrench varies; None otherwise."""
+    if rec.hold_source != "default" or rec.hold != "cubic":
+        return None
+    d = next((e for e in result.effects if e["name"] == "measurement_delay"), None)
+    if d is None:
+        return None
+    half = 0.5 * sample_period(rec)
+    ci = d.get("ci95") or 0.0
+    if abs(d["value"] - half) > max(2.0 * ci, HALF_SAMPLE_TOL * half):
+        return None
+    return f"{d['value'] * 1e3:.3g} +- {ci * 1e3:.2g} ms (half the sample period is {half * 1e3:.3g} ms)"
 
 
 def stderr_progress(prefix: str = "coload diagnose") -> Callable[[str], None]:

@@ -44,6 +44,7 @@ class Recording:
     pos: np.ndarray | None = None
     dt: float | None = None  # nominal sample period from run.toml (informative only)
     hold: str = "foh"  # how the applied wrench varies between stamps: cubic, first-order ("foh") or held ("zoh")
+    hold_source: str = "declared"  # "declared", "default" (run.toml silent) or why it was inferred
     truth: dict[str, float] | None = None
     warnings: list[str] = field(default_factory=list)
     t0: float = 0.0
@@ -143,6 +144,24 @@ def default_hold(cfg: dict) -> str:
     return "zoh" if isinstance(cfg.get("load"), dict) else "cubic"
 
 
+HELD_SHARE = 0.5  # a wrench repeating its value this often between consecutive own samples is held
+
+
+def held_share(wrench: np.ndarray) -> float:
+    """The share of consecutive samples (each agent's own, per varying wrench column) that repeat the value
+    before them: ~0 for a smooth force sampled, ~1 - f_c/f_s for a controller's output held at a rate
+    f_c below the logging rate f_s. NaN where no column varies."""
+    same = pairs = 0
+    for i in range(wrench.shape[1]):
+        for c in range(wrench.shape[2]):
+            x = wrench[:, i, c]
+            x = x[~np.isnan(x)]
+            if x.size > 2 and np.ptp(x) > 0:
+                same += int((x[1:] == x[:-1]).sum())
+                pairs += x.size - 1
+    return same / pairs if pairs else math.nan
+
+
 def read_config(path: Path) -> dict:
     """run.toml: ``n`` (positive integer) is required; ``dt``, ``edges``, ``input_hold`` optional."""
     if not path.exists():
@@ -203,8 +222,18 @@ def read_recording(path: str | Path) -> Recording:
     if tpath.exists():
         truth, w = _read_truth(tpath)
         warns += w
-    rec = recording_from_arrays(stamps, wrench, vel, pos, hold=cfg.get("input_hold", default_hold(cfg)),
+    hold, source = cfg.get("input_hold"), "declared"
+    if hold is None:
+        hold, source = default_hold(cfg), "default"
+        share = held_share(wrench)
+        if hold == "cubic" and share >= HELD_SHARE:
+            hold, source = "zoh", "inferred: the wrench repeats its value"
+            warns.append(f"run.toml has no input_hold and the wrench repeats its previous value at {share:.0%} "
+                         "of consecutive samples: read as held between samples (input_hold = \"zoh\"); "
+                         "declare input_hold in run.toml to say otherwise")
+    rec = recording_from_arrays(stamps, wrench, vel, pos, hold=hold,
                                 dt=float(cfg["dt"]) if "dt" in cfg else None, truth=truth)  # fmt: skip
+    rec.hold_source = source
     rec.warnings[:0] = warns
     if rec.dt is not None:
         med = float(np.median(np.diff(stamps)))

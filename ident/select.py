@@ -355,6 +355,12 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         # far above the noise floor the score test, linearised at a poor fit, can miss the effect that
         # made the fit poor and misrank the rest: every candidate left is then fitted
         screened = current.sigma2 <= opt.restart_misfit**2
+        if screened and all(scores[c].p >= alpha_k for c in remaining) and \
+                (p_white0 if current is nominal else whiteness(pb, current, opt)) <= opt.alpha_white:
+            # a structured residual that no score test points at: the fit may have absorbed the effect
+            # elsewhere (viscous friction named first, J ten times too large for a rotational damping), where
+            # the linearised test is blind to it; every candidate left is then fitted
+            screened = False
         ranked = sorted((c for c in remaining if scores[c].p < alpha_k or not screened),
                         key=lambda c: (scores[c].logp, -scores[c].lm))  # fmt: skip
         trials: dict[str, tuple[Fit, float]] = {}

@@ -54,7 +54,8 @@ def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
 
 def kinematic_noise(vel: np.ndarray) -> float:
     """Velocity noise sigma from the rigid-body kinematics alone (n >= 3): relative contact velocities
-    of a rigid body are rank 1 (i omega z_i) over (stamp, agent); what is left is noise."""
+    of a rigid body are rank 1 (i omega z_i) over (stamp, agent); what is left is noise (a few glitches
+    aside: the largest 1 % are dropped and the truncation corrected for)."""
     full = ~np.isnan(vel).any(axis=(1, 2))
     n = vel.shape[1]
     if full.sum() < 20 or n < 3:
@@ -63,7 +64,9 @@ def kinematic_noise(vel: np.ndarray) -> float:
     rel = w - w.mean(axis=1, keepdims=True)
     u, sv, vh = np.linalg.svd(rel, full_matrices=False)
     resid = rel - (u[:, :1] * sv[0]) @ vh[:1]
-    return math.sqrt(float(np.mean(np.abs(resid) ** 2) / 2 * n / max(n - 2, 1)))
+    # each component is N(0, s^2 (n - 2) / n); the largest 1 % (sensor glitches) dropped as in difference_noise
+    r2 = np.sort(np.concatenate([resid.real.ravel(), resid.imag.ravel()]) ** 2)[: max(1, int(_TRIM * 2 * resid.size))]
+    return math.sqrt(float(r2.mean()) / _TRIM_GAIN * n / max(n - 2, 1))
 
 
 def block_average(x: np.ndarray, block: int) -> np.ndarray:
