@@ -416,6 +416,18 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         current = fb_
         if remaining and len(accepted) < opt.max_effects:
             scores = {c: score(pb, current, c) for c in remaining}
+    if "coulomb_friction" in accepted and fopt.coulomb_speed is None:
+        pb, current = _coulomb_speed(pb, current, say)
+        cs = pb.coulomb_speed
+        for c in [c for c in accepted if c != "coulomb_friction"]:
+            # with the smoothing fitted, an effect that only stood in for a too-sharp one no longer adds
+            lay = current.lay.with_effects(tuple(e for e in current.lay.effects if e != c))
+            without = lm_fit(pb, lay, _drop(current.g, current.lay, c), current.x)
+            if stats.nested_f(without.rss, current.rss, current.lay.G - lay.G, current.N, current.P)[1] >= opt.alpha:
+                say(f"{c}: adds nothing beside coulomb_friction with its smoothing fitted: dropped")
+                accepted.remove(c)
+                table[c]["dropped"] = "stood in for the Coulomb term's smoothing"
+                current = without
     modes1 = residual_modes(pb, current)
     white = whiteness(pb, current, opt, modes1)
     excess0 = nominal.rss - nominal.N
@@ -482,6 +494,45 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                "max_step": pb.max_step},  # fmt: skip
         fits={"nominal": nominal, "augmented": final}, problem=pb,
     )  # fmt: skip
+
+
+def _drop(g: np.ndarray, lay: Layout, name: str) -> np.ndarray:
+    """The global vector ``g`` of ``lay`` without effect ``name``'s slot."""
+    keep = np.ones(g.size, bool)
+    keep[lay.slot(name)] = False
+    return g[keep]
+
+
+def _coulomb_speed(pb: Problem, fit: Fit, say: Callable[[str], None], refine: int = 6) -> tuple[Problem, Fit]:
+    """The Coulomb term's smoothing speed, fitted: the plant's is unknown (a tanh, a square root, a few cm/s
+    or none), and one too sharp leaves a ramp near rest that viscous friction and a delay make up for.
+    Doubled from the default while the residual falls, then a golden-section search on its logarithm
+    within the last bracket (``refine`` fits)."""
+    fits = {math.log(pb.coulomb_speed): (pb, fit)}
+
+    def at(x: float) -> float:
+        if x not in fits:
+            near = fits[min(fits, key=lambda k: abs(k - x))][1]
+            trial = replace(pb, coulomb_speed=math.exp(x))
+            fits[x] = (trial, lm_fit(trial, fit.lay, near.g, near.x))
+        return fits[x][1].rss
+
+    x, step = math.log(pb.coulomb_speed), math.log(2.0)
+    while at(x + step) < at(x) and x < math.log(pb.coulomb_speed) + 6 * step:
+        x += step
+    lo, hi = x - step, x + step
+    gr = (math.sqrt(5.0) - 1.0) / 2.0
+    c, d = hi - gr * (hi - lo), lo + gr * (hi - lo)
+    for _ in range(refine):
+        if at(c) < at(d):
+            hi, d = d, c
+            c = hi - gr * (hi - lo)
+        else:
+            lo, c = c, d
+            d = lo + gr * (hi - lo)
+    best = min(fits, key=lambda k: fits[k][1].rss)
+    say(f"coulomb_friction: smoothing speed {math.exp(best):.3g} m/s")
+    return fits[best]
 
 
 def predict(diag: Diagnosis, rec: Recording, opt: DiagnoseOptions | None = None) -> dict[str, Any]:
