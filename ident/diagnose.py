@@ -75,6 +75,8 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                 result = alt
     result.model["hold_source"] = rec.hold_source
     if other is not None:
+        if other.hold_source == "default" and other.hold != rec.hold:
+            other.hold, other.hold_source = rec.hold, f"as {path}"  # the same plant's wrench varies alike
         if progress is not None:
             progress(f"predicting {validate} with the nominal and the augmented model")
         try:
