@@ -145,7 +145,8 @@ def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
         prev = prev_out = 0
         for r in np.flatnonzero(np.isfinite(on[:, i])):
             cur, cur_out = int(on[r, i]), int(out[r, i]) if np.isfinite(out[r, i]) else 0
-            # a candidate ruled out before any switch: its eff_out bit set, its eff_on bit never was
+            # a candidate ruled out before any switch: its eff_out bit set while its eff_on bit is clear (a
+            # withdrawal sets the eff_out bit of an effect that was on)
             ruled = cur_out & ~prev_out & ~prev & ~cur
             for kind, bits in (("effect_switch", cur & ~prev), ("effect_withdrawn", prev & ~cur),
                                ("effect_ruled_out", ruled)):
