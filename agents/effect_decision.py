@@ -43,7 +43,12 @@ windows). The team rules the candidate out through the same flood and code as a 
 again, the window ``unexplained``; the filters, which never released it, are untouched. A window that rules
 a candidate out switches nothing on: the candidates are correlated (Coulomb and viscous friction's scores by
 0.83-0.99), and one significantly negative beside another significantly positive is structure that neither
-explains.
+explains. A switch is also checked against the model it makes (:func:`contradicted_by`): with k's rate free,
+another candidate j's score is its score orthogonal to k's, z_j|k; below the lower quantile while j's own
+score z_j is not, k's fitted effect is what makes j's coefficient negative, so the structure along their
+shared signature is not k's: k is ruled out instead (the statistic z_j|k). A j contradicted by its own score
+is structure no switch changes and blocks no candidate. A ruled-out candidate's score is still pooled and
+still checks the later switches of its near-twins.
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -58,6 +63,7 @@ import numpy as np
 from agents.innovation_monitor import cholesky2, whiten
 from agents.rigid_filter import EFFECTS, N_EFF, RigidEKF  # candidate k: filter state 7 + k (beta, gamma, kappa)
 
+ALL = (1 << N_EFF) - 1  # every candidate's bit
 # the candidates' pairs (j <= k) in the order of their information channels
 PAIRS = tuple((j, k) for j in range(N_EFF) for k in range(j, N_EFF))
 VCH = {p: N_EFF + i for i, p in enumerate(PAIRS)} | {(k, j): N_EFF + i for i, (j, k) in enumerate(PAIRS)}
@@ -67,7 +73,7 @@ N_POOL = N_EFF + len(PAIRS) + 2
 CH_Z = N_POOL - 2
 CH_CNT = N_POOL - 1
 DECISION_KEYS = ("Ds", "De", "Dz")  # StateMsg.shared: switch tick (-1: none), effect index, statistic
-DETECT_NAMES = ("eff_on", "eff_tick", "eff_z", "eff_unexplained", "eff_zp", "eff_zb", "eff_zc", "eff_zf")
+DETECT_NAMES = ("eff_on", "eff_out", "eff_tick", "eff_z", "eff_unexplained", "eff_zp", "eff_zb", "eff_zc", "eff_zf")
 
 
 def normal_sf(z: float) -> float:
@@ -113,6 +119,31 @@ def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple
     zsum, cnt = means[CH_Z], means[CH_CNT]
     zp = math.sqrt(n) * zsum / math.sqrt(cnt) if cnt > 0.0 else nan
     return zp, zs, zo
+
+
+def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float) -> tuple[float, int]:
+    """(z, j): the lowest score z_j|k of another effect j (bit j of ``scored``: its pool channels carry a
+    score) orthogonal to candidate k's, the score test of j in the model with k's rate free, among those below
+    the level's lower quantile whose own score z_j is not; (NaN, -1) if none. Such a j says that switching k on
+    makes a model the window that proposes it contradicts, and k's fitted effect is what makes it: k does not
+    explain the structure along their shared signature (module docstring). A j whose own score is below the
+    quantile too is structure no switch changes (it is ruled out on its own) and blocks no candidate."""
+    level = alpha / (1 + N_EFF)
+    worst = (math.nan, -1)
+    vkk = means[VCH[k, k]]
+    if not vkk > 0.0 or n * means[CH_CNT] < 0.5:
+        return worst
+    for j in range(N_EFF):
+        vjj, vjk = means[VCH[j, j]], means[VCH[j, k]]
+        if j == k or not (scored >> j) & 1 or not vjj > 0.0:
+            continue
+        v = vjj - vjk * vjk / vkk
+        if v > 1e-9 * vjj:  # collinear with k (to rounding): no part of its own to test
+            z = math.sqrt(n) * (means[j] - vjk / vkk * means[k]) / math.sqrt(v)
+            own = math.sqrt(n) * means[j] / math.sqrt(vjj)
+            if normal_sf(-z) < level <= normal_sf(-own) and not z >= worst[0]:
+                worst = (z, j)
+    return worst
 
 
 def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
@@ -351,11 +382,16 @@ class OnlineDetection:
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
                 k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo)
+                z = zs[k % N_EFF]
                 out = self._contradicted(zs, self.on | self.withdrawn | held)
                 if out >= 0 and k < N_EFF:  # a rule-out comes before a switch in the same window (module docstring)
-                    k = N_EFF + out
+                    k, z = N_EFF + out, zs[out]
+                elif 0 <= k < N_EFF:  # a switch whose model the same window contradicts rules its candidate out
+                    zc, j = contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on, self.alpha)
+                    if j >= 0:
+                        k, z = N_EFF + k, zc
                 if k >= 0:
-                    self.flood.merge((tick + self.horizon, k, zs[k % N_EFF]))
+                    self.flood.merge((tick + self.horizon, k, z))
                 # a withdrawal's window is counted where it is applied: by every agent, whatever its own view
                 self.unexplained += unexplained and k < N_EFF
         due = self.flood.due(tick)
@@ -367,6 +403,7 @@ class OnlineDetection:
         if due[1] >= N_EFF and not (self.switched >> k) & 1:  # ruled out before any switch: the filters keep it at 0
             self.withdrawn |= 1 << k
             self.unexplained += 1  # structure along its signature that no candidate explains
+            self.last_tick, self.last_z = due[0], due[2]
             return -1
         if due[1] < N_EFF:
             self.on |= 1 << k
@@ -428,6 +465,7 @@ class OnlineDetection:
 
     def entries(self) -> dict[str, float]:
         """The estimate entries (:data:`DETECT_NAMES`)."""
-        return {"eff_on": float(self.on), "eff_tick": float(self.last_tick), "eff_z": self.last_z,
+        return {"eff_on": float(self.on), "eff_out": float(self.withdrawn), "eff_tick": float(self.last_tick),
+                "eff_z": self.last_z,
                 "eff_unexplained": float(self.unexplained), "eff_zp": self.zp, "eff_zb": self.zs[0],
                 "eff_zc": self.zs[1], "eff_zf": self.zs[2]}

@@ -6,10 +6,10 @@
 In-process engine (lockstep: equal to a Zenoh run bit for bit), friction-online.toml (paper-fig4 geometry,
 n = 10, line graph, sigma 0.3, J stage 40 s) with nothing declared (``dynamics.estimate_effects = []``)
 and ``dynamics.online_detection = true``, run to 110 s (done at ~102 s). Plants: viscous friction
-5 N s/m alone, rotational damping 8.69 N m s alone, clean. For each run: the switches and withdrawals
-the team agreed (summary.json ``effects``; the right decision counts what is on at the end), the time from
-the m stage's start to the first one, m and J relative errors at the end; and the same plant and seed with
-the nominal model (detection off) for comparison.
+5 N s/m alone, rotational damping 8.69 N m s alone, clean. For each run: the switches, withdrawals and
+ruled-out candidates the team agreed (summary.json ``effects``; the right decision counts what is on at the
+end), the time from the m stage's start to the first switch, m and J relative errors at the end; and the
+same plant and seed with the nominal model (detection off) for comparison.
 ``--set``: more scenario overrides for every run (e.g. ``dynamics.coulomb_speed=0.01``).
 ``--faults``: every link loses 20 % of the states (Bernoulli) and delays them by 10 ticks (100 ms).
 ``both``: the two together (friction-online's own plant); ``coulomb``: Coulomb friction 5 N (the plant's
@@ -99,17 +99,19 @@ def main() -> None:
             out.append(r)
             print("run", {k: v for k, v in r.items() if k != "dt"}, flush=True)
     nominal = {(r["plant"], r["seed"]): r for r in out if not r["detect"]}
-    print("| plant | seed | switched or withdrawn (tick: effect, z) | from m stage start (s) | unexplained windows "
-          "| m err | J err | nominal m err | nominal J err | b | c | F_c |")
+    print("| plant | seed | switched, withdrawn or ruled out (tick: effect, z) | from m stage start to the first "
+          "switch (s) | unexplained windows | m err | J err | nominal m err | nominal J err | b | c | F_c |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for p in plants:
         right = 0
         for r in (r for r in out if r["detect"] and r["plant"] == p):
             ev = r["events"]
             right += sorted(r["on"]) == TRUE[p]  # on at the end: a switch withdrawn counts for nothing
-            sw = "; ".join(f"{e['tick']}: {e['effect']}{' withdrawn' if e.get('event') == 'effect_withdrawn' else ''}, "
+            kind = {"effect_withdrawn": " withdrawn", "effect_ruled_out": " ruled out"}
+            sw = "; ".join(f"{e['tick']}: {e['effect']}{kind.get(e.get('event'), '')}, "
                            f"{e['statistic']:.2f}" for e in ev) or "none"
-            dt0 = f"{ev[0]['tick'] * r['dt'] - r['m_start']:.1f}" if ev else "-"
+            first = [e for e in ev if e.get("event") == "effect_switch"][:1]
+            dt0 = f"{first[0]['tick'] * r['dt'] - r['m_start']:.1f}" if first else "-"
             nom = nominal.get((p, r["seed"]), {})
             f = lambda v: "-" if v is None or v != v else f"{100 * v:.2f} %"  # noqa: E731
             print(f"| {p} | {r['seed']} | {sw} | {dt0} | {r['unexplained']} | {f(r['m_rel'])} | {f(r['J_rel'])} "

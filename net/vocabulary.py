@@ -66,7 +66,8 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     # online detection (agents/effect_decision.py, docs/online-detection.md; NaN without it)
     "eff_on",  # effects in the filters: bit 0 viscous friction, bit 1 rotational damping, bit 2 Coulomb friction
     # (declared or switched on)
-    "eff_tick",  # tick of the last switch or withdrawal the team agreed (-1: none)
+    "eff_out",  # effects ruled out or withdrawn (bits as eff_on): never proposed again
+    "eff_tick",  # tick of the last switch, withdrawal or ruling-out the team agreed (-1: none)
     "eff_z",  # its pooled statistic (z, one-sided; a withdrawal's is the rate's Wald z, negative)
     "eff_unexplained",  # windows the team judged structured with no candidate significant (count)
     "eff_zp",  # the last judged window's pooled persistence z (this agent's view of the team means)

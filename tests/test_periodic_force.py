@@ -73,16 +73,51 @@ PERIODIC = ["plant.periodic_force={amplitude=6.0, period_s=10.0, direction_deg=2
 @pytest.fixture(scope="module")
 def periodic_run(tmp_path_factory):
     d = tmp_path_factory.mktemp("periodic") / "inproc"
-    return run_inproc(load_scenario(SCENARIOS / "quick.toml", SHORT + PERIODIC + ["seed=1"]), d)
+    return d, run_inproc(load_scenario(SCENARIOS / "quick.toml", SHORT + PERIODIC + ["seed=1"]), d)
 
 
 def test_closed_loop_periodic_force_switches_nothing_on_and_leaves_a_window_unexplained(periodic_run):
-    """An effect outside the vocabulary (~8 s): no candidate is switched on, and the window whose viscous score
-    is significantly negative (seed 1: z -4.6, the m stage's first) rules viscous friction out, ``unexplained``.
-    The persistence test alone stays below its level here: the closed loop's innovations are negatively
-    correlated (a clean plant's persistence z is negative too) and 1/m absorbs the force's fundamental."""
-    eff = periodic_run["effects"]
-    assert eff["events"] == [] and eff["on"] == [] and eff["unexplained_windows"] >= 1
+    """An effect outside the vocabulary (~8 s): no candidate is switched on, and the window whose friction scores
+    are significantly negative (seed 1: viscous z -4.6, Coulomb -4.9, the m stage's first) rules the most
+    negative out, ``unexplained``: an event of the summary (tick, effect, statistic, every agent), as a switch
+    is. The persistence test alone
+    stays below its level here: the closed loop's innovations are negatively correlated (a clean plant's
+    persistence z is negative too) and 1/m absorbs the force's fundamental."""
+    _, summary = periodic_run
+    eff = summary["effects"]
+    assert eff["on"] == [] and eff["unexplained_windows"] >= 1
+    assert {e["event"] for e in eff["events"]} == {"effect_ruled_out"}
+    first = eff["events"][0]
+    assert first["effect"] == "coulomb_friction" and first["agents"] == list(range(5))
+    assert first["statistic"] < -NormalDist().inv_cdf(1 - 0.01 / 4)
+    # the summary's run events carry it beside the partitions, with its time
+    (ev,) = [e for e in summary["events"] if e["event"] == "effect_ruled_out" and e["tick"] == first["tick"]]
+    assert ev["effect"] == "coulomb_friction" and ev["t"] == pytest.approx(first["tick"] * 0.01)
+
+
+def test_a_ruled_out_candidate_is_a_marker_in_the_report(periodic_run):
+    """The report draws the ruling-out as it draws a switch: a dashed black line on every panel at its time,
+    labelled once on the top panel, and a line in the events table."""
+    from coload.analysis import metrics, report
+    from coload.rundir.format import read_run
+
+    d, summary = periodic_run
+    first = summary["effects"]["events"][0]
+    run = read_run(d)
+    fig = report.build_figure(run)
+    try:
+        panels = [ax for ax in fig.axes if ax.get_label() in report._DRAWERS]
+        assert len(panels) >= 6
+        for ax in panels:
+            lines = [a for a in ax.get_children() if a.get_gid() == "effect_ruled_out"]
+            assert [ln.get_xdata()[0] for ln in lines][:1] == pytest.approx([first["tick"] * run.dt])
+            assert lines[0].get_color() == "black" and lines[0].get_linestyle() == "--"
+        labels = [a.get_text() for a in panels[0].get_children() if a.get_gid() == "effect_ruled_out_label"]
+        assert labels[0] == f"coulomb_friction ruled out, z {first['statistic']:.1f}"
+    finally:
+        report.plt.close(fig)
+    table = report.summary_table(run, metrics.final_errors(run, report.WINDOW_S)).splitlines()
+    assert any(line.split()[:3] == ["ruled_out", "coulomb_friction", str(first["tick"])] for line in table)
 
 
 @pytest.mark.slow
@@ -96,7 +131,8 @@ def test_paper_fig4_geometry_periodic_force_ends_with_nothing_on_and_unexplained
         "dynamics.m_excite_s=25", "dynamics.j_excite_s=5", "duration=62", "seed=1"])
     eff = run_inproc(sc, tmp_path / "run")["effects"]
     assert eff["on"] == [] and eff["agree"] and eff["unexplained_windows"] >= 1
-    kinds = [(e["event"], e["effect"]) for e in eff["events"]]
+    kinds = [(e["event"], e["effect"]) for e in eff["events"] if e["event"] != "effect_ruled_out"]
     assert kinds in ([], [("effect_switch", "viscous_friction"), ("effect_withdrawn", "viscous_friction")]), kinds
-    assert all(e["statistic"] < -NormalDist().inv_cdf(1 - 0.01 / 3) for e in eff["events"]
-               if e["event"] == "effect_withdrawn")
+    # a withdrawal and a ruling-out are at the level's lower quantile
+    assert all(e["statistic"] < -NormalDist().inv_cdf(1 - 0.01 / 4) for e in eff["events"]
+               if e["event"] != "effect_switch")

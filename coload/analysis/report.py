@@ -37,10 +37,12 @@ MAX_PLOT_POINTS = 20_000
 _TRUE_STYLE = {"color": "black", "linestyle": "--", "linewidth": 1.6, "zorder": 5}
 _TRUE_STYLE_Y = {"color": "dimgray", "linestyle": ":", "linewidth": 1.8, "zorder": 5}
 _TOTAL_COLOR = "0.2"  # sums over agents: dark grey, distinct from every agent colour
-# online detection's events (summary.json ``effect_*``): a switch solid magenta, a withdrawal dotted black,
-# any other kind dashed magenta; colours no agent line has (tab10), and stage changes stay thin grey dash-dot
+# online detection's events (summary.json ``effect_*``): a switch solid magenta, a withdrawal dotted black, a
+# candidate ruled out dashed black, any other kind dashed magenta; colours no agent line has (tab10), and stage
+# changes stay thin grey dash-dot
 _EFFECT_STYLE = {"switch": {"color": "magenta", "linestyle": "-"},
-                 "withdrawn": {"color": "black", "linestyle": ":"}}
+                 "withdrawn": {"color": "black", "linestyle": ":"},
+                 "ruled_out": {"color": "black", "linestyle": "--"}}
 _EFFECT_OTHER = {"color": "magenta", "linestyle": "--"}
 _UNEXPLAINED_COLOR = "crimson"
 
@@ -291,7 +293,7 @@ def _draw_effects(axes: Sequence[Axes], events: list[dict[str, Any]], unexplaine
     top = axes[0]
     for e in events:
         z = "" if e["statistic"] is None else f", z {e['statistic']:.1f}"
-        what = "on" if e["kind"] == "switch" else e["kind"]
+        what = "on" if e["kind"] == "switch" else e["kind"].replace("_", " ")
         top.annotate(f"{e['effect']} {what}{z}", xy=(e["t"], 0.97), xycoords=("data", "axes fraction"),
                      xytext=(-3, 0), textcoords="offset points", rotation=90, ha="right", va="top", fontsize=7,
                      color=_effect_style(e["kind"])["color"], gid=f"effect_{e['kind']}_label",

@@ -45,7 +45,8 @@ def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any])
         effects = effects_block(run)
         if effects:
             summary["effects"] = effects
-            # every switch the team agreed online is an event of the run, beside the partitions
+            # every switch, withdrawal and ruling-out the team agreed online is an event of the run, beside
+            # the partitions
             events = summary.get("events", []) + [
                 {"tick": e["tick"], "t": e["tick"] * scenario.dt, "event": e["event"], "effect": e["effect"],
                  "statistic": e["statistic"], "agents": e["agents"]} for e in effects["events"] if e["tick"] >= 0]
@@ -128,28 +129,34 @@ def monitor_block(run: fmt.RunData | None) -> dict[str, Any]:
 def effects_block(run: fmt.RunData | None) -> dict[str, Any]:
     """The online detection's decisions (``eff_*`` columns, docs/online-detection.md): every switch and every
     withdrawal the team agreed as an event (``effect_switch`` or ``effect_withdrawn``: an ``eff_on`` bit set or
-    cleared; tick, effect, pooled statistic, the agents that applied it), the effects on at the end, and the
-    windows judged ``unexplained`` (the largest count over the agents). Empty without those columns (a run
-    without online detection)."""
+    cleared) and every candidate it ruled out before any switch (``effect_ruled_out``: an ``eff_out`` bit set
+    while its ``eff_on`` bit is clear); tick, effect, pooled statistic, the agents that applied it; the effects
+    on at the end, and the windows judged ``unexplained`` (the largest count over the agents). Empty without
+    those columns (a run without online detection)."""
     est = None if run is None else run.estimates
     if est is None or len(est.t) == 0 or not all(est.has(c) for c in ("eff_on", "eff_tick", "eff_z")):
         return {}
     on, tick, z = (est.columns[c] for c in ("eff_on", "eff_tick", "eff_z"))
     if not np.isfinite(on).any():
         return {}
+    out = est.columns["eff_out"] if est.has("eff_out") else np.zeros_like(on)
     events: dict[tuple[int, str], dict[str, Any]] = {}
     for i in range(on.shape[1]):
-        prev = 0
+        prev = prev_out = 0
         for r in np.flatnonzero(np.isfinite(on[:, i])):
-            cur = int(on[r, i])
-            for kind, bits in (("effect_switch", cur & ~prev), ("effect_withdrawn", prev & ~cur)):
+            cur, cur_out = int(on[r, i]), int(out[r, i]) if np.isfinite(out[r, i]) else 0
+            # a candidate ruled out before any switch: its eff_out bit set while its eff_on bit is clear (a
+            # withdrawal sets the eff_out bit of an effect that was on)
+            ruled = cur_out & ~prev_out & ~prev & ~cur
+            for kind, bits in (("effect_switch", cur & ~prev), ("effect_withdrawn", prev & ~cur),
+                               ("effect_ruled_out", ruled)):
                 for k, name in enumerate(EFFECTS):
                     if (bits >> k) & 1:
                         ev = events.setdefault((int(tick[r, i]), name), {
                             "event": kind, "tick": int(tick[r, i]), "effect": name,
                             "statistic": _finite_or_none(z[r, i]), "agents": []})
                         ev["agents"].append(i)
-            prev = cur
+            prev, prev_out = cur, cur_out
     final = last_finite(on)[0]
     unexplained = last_finite(est.columns["eff_unexplained"])[0] if est.has("eff_unexplained") else final * math.nan
     names = sorted({name for v in final if math.isfinite(v) for k, name in enumerate(EFFECTS) if (int(v) >> k) & 1})
