@@ -113,7 +113,10 @@ def test_a_coulomb_friction_smoothed_otherwise_is_named_alone_with_its_value(tmp
     default (0.5 % of the RMS speed, ~0.9 mm/s here): with that smoothing kept, F_c reads 8.0 N and viscous
     friction (11.6 N s/m) and a delay (3.8 ms) are named beside it to make up the ramp. With the smoothing
     fitted: Coulomb friction alone, within 3 %."""
-    d = diagnose_dir(_held_plant(tmp_path, log_hz=100.0, control_hz=100.0, seconds=12.0, fc=10.0, vs=0.02))
+    path = _held_plant(tmp_path, log_hz=100.0, control_hz=100.0, seconds=12.0, fc=10.0, vs=0.02)
+    with (path / "run.toml").open("a") as fh:
+        fh.write('input_hold = "zoh"\n')  # the hold is the other tests' subject: one diagnosis here, not two
+    d = diagnose_dir(path)
     assert [e["name"] for e in d.effects] == ["coulomb_friction"]
     assert d.effects[0]["value"] == pytest.approx(10.0, rel=0.03)
     assert 0.005 < d.model["coulomb_speed"] < 0.05
