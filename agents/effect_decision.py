@@ -121,6 +121,12 @@ def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple
     return zp, zs, zo
 
 
+def window_level(alpha: float) -> float:
+    """The one-sided level of every test of a window: ``alpha`` over (1 + the number of candidates), the
+    persistence test and each candidate's, whatever has been switched (module docstring)."""
+    return alpha / (1 + N_EFF)
+
+
 def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float) -> tuple[float, int]:
     """(z, j): the lowest score z_j|k of another effect j (bit j of ``scored``: its pool channels carry a
     score) orthogonal to candidate k's, the score test of j in the model with k's rate free, among those below
@@ -128,7 +134,7 @@ def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: 
     makes a model the window that proposes it contradicts, and k's fitted effect is what makes it: k does not
     explain the structure along their shared signature (module docstring). A j whose own score is below the
     quantile too is structure no switch changes (it is ruled out on its own) and blocks no candidate."""
-    level = alpha / (1 + N_EFF)
+    level = window_level(alpha)
     worst = (math.nan, -1)
     vkk = means[VCH[k, k]]
     if not vkk > 0.0 or n * means[CH_CNT] < 0.5:
@@ -161,7 +167,7 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
     an effect switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below
     the level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect
     is withdrawn (the most negative first), and the structure it was switched on for stays unexplained."""
-    level = alpha / (1 + N_EFF)
+    level = window_level(alpha)
     worst, zworst = -1, math.inf
     for k, z in enumerate(zs):
         if (held >> k) & 1 and z == z and normal_sf(-z) < level and z < zworst:
@@ -426,7 +432,7 @@ class OnlineDetection:
     def _contradicted(self, zs: Sequence[float], skip: int) -> int:
         """The candidate (not in ``skip``) whose pooled score is most significantly negative, at the level of
         a switch, or -1: the data favour a negative coefficient, which no candidate has."""
-        level = self.alpha / (1 + N_EFF)
+        level = window_level(self.alpha)
         neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
         return min(neg)[1] if neg else -1
 

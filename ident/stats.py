@@ -16,6 +16,13 @@ _TRIM = 0.99  # share of the squared differences kept (the rest: force steps, ou
 _TRIM_GAIN = 1 - 2 * stats.norm.ppf(0.5 + _TRIM / 2) * stats.norm.pdf(stats.norm.ppf(0.5 + _TRIM / 2)) / _TRIM
 
 
+def _trimmed_variance(sq: np.ndarray) -> float:
+    """The variance of zero-mean Gaussian values from their squares ``sq``, the largest 1 - _TRIM dropped
+    (force steps, glitches) and the truncation corrected for."""
+    kept = np.sort(sq)[: max(1, int(_TRIM * sq.size))]
+    return float(kept.mean()) / _TRIM_GAIN
+
+
 def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
     """Noise sigma of the columns of ``y`` (T, ...) from its ``order``-th divided differences along time.
 
@@ -48,8 +55,7 @@ def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
     d2 = np.concatenate(vals) ** 2 if vals else np.zeros(0)
     if d2.size < 20:
         return math.nan
-    d2 = np.sort(d2)[: max(1, int(_TRIM * d2.size))]
-    return math.sqrt(float(d2.mean()) / _TRIM_GAIN)
+    return math.sqrt(_trimmed_variance(d2))
 
 
 def kinematic_noise(vel: np.ndarray) -> float:
@@ -64,9 +70,9 @@ def kinematic_noise(vel: np.ndarray) -> float:
     rel = w - w.mean(axis=1, keepdims=True)
     u, sv, vh = np.linalg.svd(rel, full_matrices=False)
     resid = rel - (u[:, :1] * sv[0]) @ vh[:1]
-    # each component is N(0, s^2 (n - 2) / n); the largest 1 % (sensor glitches) dropped as in difference_noise
-    r2 = np.sort(np.concatenate([resid.real.ravel(), resid.imag.ravel()]) ** 2)[: max(1, int(_TRIM * 2 * resid.size))]
-    return math.sqrt(float(r2.mean()) / _TRIM_GAIN * n / max(n - 2, 1))
+    # each component is N(0, s^2 (n - 2) / n)
+    return math.sqrt(_trimmed_variance(np.concatenate([resid.real.ravel(), resid.imag.ravel()]) ** 2)
+                     * n / max(n - 2, 1))
 
 
 def block_average(x: np.ndarray, block: int) -> np.ndarray:
