@@ -4,7 +4,8 @@ The plant here is written for this bench and shares no code with ident/, simulat
 a planar rigid body integrated by scipy (``solve_ivp``, rtol 1e-10), n agents at random contacts pushing
 with sums of sines, the wrench either smooth or held by a controller at its own rate; viscous friction,
 Coulomb friction smoothed as v / sqrt(|v|^2 + v_s^2), rotational damping, a sensor delay, sensor glitches
-(a share of samples off by many sigma); velocities or positions logged; run.toml says n, edges and dt and
+(a share of samples off by many sigma); velocities or positions logged; the wrench in rows of its own at
+another rate; an agent's logger that drops out; run.toml says n, edges and dt and
 nothing about how the wrench varies. Each case is diagnosed through the public CLI and judged against the
 plant's truth (docs/diagnose.md, "Measured: recordings as other loggers write them"):
 
@@ -40,14 +41,18 @@ CASES: dict[str, dict] = {
     "viscous_and_rotational": {"b": 8.0, "c": 30.0},
     "glitches_1pct": {"b": 8.0, "glitches": 0.01},
     "positions_held": {"b": 8.0, "hold_hz": 100.0, "pos": 0.001},
+    "wrench_rows_33hz": {"b": 8.0, "wrench_hz": 33.0},
+    "logger_dropout": {"b": 8.0, "dropout": (2, 5.0, 15.0)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
 
 def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sigma: float = 0.01, seed: int = 1,
            b: float = 0.0, fc: float = 0.0, vs: float = 0.01, c: float = 0.0, delay: float = 0.0,
-           hold_hz: float | None = None, glitches: float = 0.0, pos: float = 0.0) -> dict:  # fmt: skip
-    """Write one recording to ``out``; return the truth."""
+           hold_hz: float | None = None, glitches: float = 0.0, pos: float = 0.0, wrench_hz: float | None = None,
+           dropout: tuple[int, float, float] | None = None) -> dict:  # fmt: skip
+    """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
+    that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then."""
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
     J = m * rng.uniform(0.3, 1.5)
@@ -89,7 +94,13 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                 y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sigma, 2)
                 if glitches and rng.random() < glitches:
                     y += rng.normal(0, 20 * sigma, 2)
-            rows.append(f"{tk:.6f},{i},{y[0]:.9g},{y[1]:.9g},{f[i, 0]:.9g},{f[i, 1]:.9g},0")
+            w = ",," if wrench_hz else f"{f[i, 0]:.9g},{f[i, 1]:.9g},0"
+            rows.append((tk, i, f"{tk:.6f},{i},{y[0]:.9g},{y[1]:.9g},{w}"))
+    for tk in np.arange(0, dur, 1 / wrench_hz) if wrench_hz else ():
+        f = force(tk)
+        rows += [(tk, i, f"{tk:.6f},{i},,,{f[i, 0]:.9g},{f[i, 1]:.9g},0") for i in range(n)]
+    rows.sort(key=lambda r: r[:2])
+    rows = [r for tk, i, r in rows if not (dropout and i == dropout[0] and dropout[1] <= tk < dropout[2])]
     out.mkdir(parents=True, exist_ok=True)
     (out / "samples.csv").write_text(("t,agent,x,y,fx,fy,tau\n" if pos else "t,agent,vx,vy,fx,fy,tau\n")
                                      + "\n".join(rows) + "\n")  # fmt: skip

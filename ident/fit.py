@@ -368,7 +368,7 @@ def fit_robust(pb: Problem, lay: Layout, g0: np.ndarray, x0: np.ndarray, *, max_
     # the head of the recording first (a few windows, where the start's angle is still good), then all
     # of it from the head's parameters, every window's state fitted to them first
     head = np.arange(min(6, pb.win.S))
-    ph = replace(pb, win=_pick(pb.win, head), t0=pb.t0[head], last=pb.last[head], link=pb.link[head[:-1]])
+    ph = subset(pb, head)
     fh = lm_fit(ph, lay, g0, x0[head], max_iter=max_iter)
     x = refit_states(pb, lay, fh.g, x0.copy(), iters=3)
     f3 = lm_fit(pb, lay, fh.g, x, max_iter=max_iter)
@@ -381,6 +381,12 @@ def _pick(w: Windows, idx: np.ndarray) -> Windows:
     return Windows(t=w.t[idx], F=w.F[idx], fx=w.fx[idx], fy=w.fy[idx], tau=w.tau[idx], vel=p(w.vel), vmask=p(w.vmask),
                    pos=p(w.pos), pmask=p(w.pmask), u_t=w.u_t, u=w.u, rotation=w.rotation, axes=w.axes,
                    hold=w.hold)  # fmt: skip
+
+
+def subset(pb: Problem, idx: np.ndarray) -> Problem:
+    """The problem restricted to windows ``idx`` (increasing); a link survives between neighbours only."""
+    link = np.array([pb.link[i] if j == i + 1 else False for i, j in zip(idx[:-1], idx[1:])], bool)
+    return replace(pb, win=_pick(pb.win, idx), t0=pb.t0[idx], last=pb.last[idx], link=link)
 
 
 def refit_states(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, iters: int = 3) -> np.ndarray:
@@ -484,7 +490,19 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
         seg = np.concatenate(([0], np.cumsum(dts > gap_factor * float(np.median(dts)))))
         psi = np.unwrap(np.angle(s2[idx])) / 2
         p = np.real(h * np.exp(-1j * np.interp(t, t[idx], psi)))
+        # psi is known modulo a half turn and its unwrapping cannot cross a gap, so a stretch may continue
+        # on the other branch, where p has the opposite sign: each stretch's sign is the sign of its own
+        # slope of psi against P relative to the longest stretch's
         P = _cumint(t, np.nan_to_num(p), "foh")
+        slope = np.zeros(seg[-1] + 1)
+        for q in range(seg[-1] + 1):
+            sel = seg[idx] == q
+            if sel.sum() >= 3:
+                slope[q] = np.sum((P[idx][sel] - P[idx][sel].mean()) * (psi[sel] - psi[sel].mean()))
+        ref = np.argmax(np.bincount(seg[idx], minlength=seg[-1] + 1))
+        if (np.sign(slope) * np.sign(slope[ref]) < 0).any():
+            p *= np.where(np.sign(slope) * np.sign(slope[ref]) < 0, -1.0, 1.0)[seg]
+            P = _cumint(t, np.nan_to_num(p), "foh")
         A = np.column_stack((P[idx], seg[idx, None] == np.arange(seg[-1] + 1)))
         coef, *_ = np.linalg.lstsq(A, psi, rcond=None)
         k = float(coef[0])

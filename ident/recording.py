@@ -93,6 +93,15 @@ def recording_from_arrays(t, wrench, vel=None, pos=None, *, hold: str = "foh", d
         if none[:, c].any():
             who = ",".join(str(i) for i in np.flatnonzero(none[:, c]))
             warns.append(f"column {name}: no value in any row of agent(s) {who}: taken as 0")
+    unknown, gaps = _wrench_gaps(t, miss & ~none)
+    if unknown.any():
+        keep = ~unknown
+        if keep.sum() < 10:
+            raise RecordingError(f"fewer than 10 stamps with every agent's wrench known ({'; '.join(gaps)})")
+        warns.append(f"the total force is unknown where an agent's wrench is missing for longer than {WRENCH_GAP:g} "
+                     f"of its sample periods ({'; '.join(gaps)}): {int(unknown.sum())} stamps left out")
+        t, w, miss = t[keep], w[keep], miss[keep]
+        vel, pos = (None if a is None else a[keep] for a in (vel, pos))
     part = miss & ~none
     if part.any():
         warns.append(f"{int(part.any(axis=2).sum())} agent-stamps without a (complete) wrench: interpolated in time")
@@ -105,6 +114,36 @@ def recording_from_arrays(t, wrench, vel=None, pos=None, *, hold: str = "foh", d
                 w[m, i, c] = np.interp(t[m], t[~m], w[~m, i, c])
     t0 = float(t[0])
     return Recording(t=t - t0, n=n, wrench=w, vel=vel, pos=pos, dt=dt, hold=hold, truth=truth, warnings=warns, t0=t0)
+
+
+WRENCH_GAP = 5.0  # a wrench missing for more than this many of the agent's own sample periods is unknown
+
+
+def _wrench_gaps(t: np.ndarray, miss: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """The stamps where an agent's wrench is unknown: a run of missing values longer than ``WRENCH_GAP`` of
+    that agent's median interval between known values (a logger that dropped out; a force logged at a lower
+    rate than the velocities leaves shorter runs, which are interpolated). The mask (T,) and one phrase per
+    gap. ``miss`` (T, n, 3) is True where a value is missing in a column the agent logs at all."""
+    unknown = np.zeros(t.size, bool)
+    spans: dict[tuple[int, int], set[int]] = {}
+    for i in range(miss.shape[1]):
+        for c in range(miss.shape[2]):
+            known = np.flatnonzero(~miss[:, i, c])
+            if known.size == t.size:
+                continue
+            med = float(np.median(np.diff(t[known]))) if known.size > 1 else math.inf
+            edges = np.r_[-1, known, t.size]  # a virtual known value just outside each end
+            for a, b in zip(edges[:-1], edges[1:]):
+                if b - a < 2:
+                    continue
+                ta = t[a] if a >= 0 else t[0] - med
+                tb = t[b] if b < t.size else t[-1] + med
+                if not tb - ta <= WRENCH_GAP * med:
+                    unknown[a + 1 : b] = True
+                    spans.setdefault((a + 1, b - 1), set()).add(i)
+    gaps = [f"agent {','.join(map(str, sorted(who)))} from {t[a] - t[0]:.6g} s to {t[b] - t[0]:.6g} s"
+            for (a, b), who in sorted(spans.items())]
+    return unknown, gaps
 
 
 def _one_axis(c: int, axis: str, w: np.ndarray, vel: np.ndarray | None, pos: np.ndarray | None) -> list[str]:
@@ -192,30 +231,37 @@ def read_recording(path: str | Path) -> Recording:
     csv_path = path / SAMPLES_CSV
     if not csv_path.exists():
         raise RecordingError(f"{csv_path}: missing (a recording needs {SAMPLES_CSV})")
-    t, agent, cols, read_warns = _read_samples(csv_path, n)
+    t, agent, cols, lines, read_warns = _read_samples(csv_path, n)
     has_v = "vx" in cols and "vy" in cols
     has_p = "x" in cols and "y" in cols
     stamps, inv = np.unique(t, return_inverse=True)
     T = stamps.size
-    cnt = np.zeros((T, n), int)
-    np.add.at(cnt, (inv, agent), 1)
-    if (cnt > 1).any():
-        k, i = np.argwhere(cnt > 1)[0]
-        line = 2 + int(np.flatnonzero((inv == k) & (agent == i))[1])
-        raise RecordingError(f"{csv_path}:{line}: field 't': agent {i} has two rows at t = {float(stamps[k])!r}")
-    if T < 10:
-        raise RecordingError(f"{csv_path}: {T} distinct stamps, need at least 10")
 
     def grid(names):
+        # Rows of one agent at one stamp are one sample (a logger writing each topic in its own row, the
+        # velocity's and the wrench's with the same stamp): their cells merge, and two values for one cell
+        # that differ are an error.
         out = np.full((T, n, len(names)), np.nan)
         for j, c in enumerate(names):
-            out[inv, agent, j] = cols[c]
+            v = cols[c]
+            ok = ~np.isnan(v)
+            out[inv[ok], agent[ok], j] = v[ok]
+            clash = ok & (out[inv, agent, j] != v)
+            if clash.any():
+                r = int(np.flatnonzero(clash)[0])
+                k, i = inv[r], agent[r]
+                same = np.flatnonzero((inv == k) & (agent == i) & ok)  # in file order
+                a, b = same[0], same[v[same] != v[same[0]]][0]
+                raise RecordingError(f"{csv_path}:{lines[b]}: column '{c}': agent {i} has two rows at "
+                                     f"t = {float(stamps[k])!r} with different values (line {lines[a]}: "
+                                     f"{float(v[a])!r}, here: {float(v[b])!r})")
         return out
 
     wrench = grid(WRENCH)
-    wrench[cnt == 0] = np.nan
     vel = grid(("vx", "vy")) if has_v else None
     pos = grid(("x", "y")) if has_p else None
+    if T < 10:
+        raise RecordingError(f"{csv_path}: {T} distinct stamps, need at least 10")
     truth = None
     warns = list(read_warns)
     tpath = path / TRUTH_CSV
@@ -243,7 +289,8 @@ def read_recording(path: str | Path) -> Recording:
     return rec
 
 
-def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], list[str]]:
+def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray, list[str]]:
+    """The rows' t, agent, the wanted columns (NaN where a cell is empty), their line numbers, warnings."""
     try:
         _check_text(path)  # a compressed or binary file is named as such
     except RunFormatError as exc:
@@ -291,7 +338,7 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
         if c in absent:
             cols[c][:] = 0.0
     warns += _check_absent(path, absent, cols, n)
-    return vals["t"], vals["agent"].astype(int), cols, warns
+    return vals["t"], vals["agent"].astype(int), cols, np.array([line for line, _ in body]), warns
 
 
 def _check_absent(path: Path, absent: list[str], cols: dict[str, np.ndarray], n: int) -> list[str]:

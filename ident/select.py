@@ -30,6 +30,7 @@ from ident.fit import (
     make_problem,
     normal_equations,
     refit_states,
+    subset,
 )
 from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, Windows, expand, simulate
 from ident.recording import Recording
@@ -244,17 +245,6 @@ def _value(x: np.ndarray, lay: Layout, name: str) -> float | list:
             out[c] = float(x[k])
             k += 1
     return out
-
-
-def subset(pb: Problem, idx: np.ndarray) -> Problem:
-    """The problem restricted to windows ``idx``."""
-    w = pb.win
-    pick = lambda a: None if a is None else a[idx]  # noqa: E731
-    win = Windows(t=w.t[idx], F=w.F[idx], fx=w.fx[idx], fy=w.fy[idx], tau=w.tau[idx], vel=pick(w.vel),
-                  vmask=pick(w.vmask), pos=pick(w.pos), pmask=pick(w.pmask), u_t=w.u_t, u=w.u, rotation=w.rotation,
-                  axes=w.axes, hold=w.hold)  # fmt: skip
-    link = np.array([pb.link[i] if j == i + 1 else False for i, j in zip(idx[:-1], idx[1:])], bool)
-    return replace(pb, win=win, t0=pb.t0[idx], last=pb.last[idx], link=link)
 
 
 def _rms(pb: Problem, fit_res: np.ndarray) -> dict[str, float]:

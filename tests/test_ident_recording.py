@@ -40,6 +40,41 @@ def test_agents_on_their_own_stamps_and_missing_wrench_are_interpolated(tmp_path
     assert rec.wrench[10, 0, 0] == pytest.approx(10.0) and any("interpolated" in w for w in rec.warnings)
 
 
+def test_a_row_per_topic_at_one_stamp_is_one_sample(tmp_path):
+    """A logger that writes each topic in rows of its own (a bag's velocity and wrench topics): velocity
+    rows at 100 Hz, wrench rows at 50 Hz with the same stamps and at 20 Hz at stamps of their own. Rows
+    of one agent at one stamp merge into one sample; a wrench between its samples is interpolated
+    (here a ramp, 100 t N: exactly), a velocity at a wrench-only stamp is missing."""
+    rows = []
+    for k in range(41):
+        t = 0.01 * k
+        rows += [f"{t!r},{i},{0.1 * i},0.2,,," for i in range(2)]
+        if k % 2 == 0:
+            rows += [f"{t!r},{i},,,{100 * t!r},0,0" for i in range(2)]
+    only = [0.005 + 0.05 * j for j in range(8)]
+    rows += [f"{t!r},{i},,,{100 * t!r},0,0" for t in only for i in range(2)]
+    rec = read_recording(write(tmp_path, rows))
+    assert rec.T == 49 and np.allclose(rec.wrench[:, :, 0], 100 * rec.t[:, None], atol=1e-9)
+    at_only = np.isin(np.round(rec.t, 9), np.round(only, 9))
+    assert np.isnan(rec.vel[at_only]).all() and not np.isnan(rec.vel[~at_only]).any()
+    assert rec.vel[~at_only, 1, 0] == pytest.approx(0.1)
+
+
+def test_a_wrench_missing_for_long_leaves_its_stamps_out(tmp_path):
+    """Agent 1's logger drops out for 0.3 s (30 of its samples) and for one sample: over the long gap the
+    team's force is unknown, so those stamps leave the recording (the fit cuts its windows there) and a
+    warning names the agent and when; the one missing sample is interpolated."""
+    rows = [f"{0.01 * k!r},{i},0.1,0.2,{1.0 * k},0,0" for k in range(100) for i in range(2)
+            if not (i == 1 and (30 <= k < 60 or k == 80))]  # fmt: skip
+    rec = read_recording(write(tmp_path, rows))
+    assert rec.T == 70 and not np.isnan(rec.wrench).any()
+    assert np.allclose(rec.t[29:31], [0.29, 0.6]) and rec.wrench[50, 1, 0] == pytest.approx(80.0)
+    assert any("agent 1 from 0.3 s to 0.59 s" in w and "30 stamps left out" in w for w in rec.warnings)
+    rows = [r for r in rows if r.split(",")[1] == "0" or float(r.split(",")[0]) < 0.05]  # agent 1 logs 0.05 s
+    with pytest.raises(RecordingError, match="fewer than 10 stamps with every agent's wrench known"):
+        read_recording(write(tmp_path, rows))
+
+
 def test_sample_period_other_than_dt_is_used_and_said(tmp_path):
     rows = [f"{0.05 * k!r},{i},0.1,0.2,1,0,0" for k in range(20) for i in range(2)]
     rec = read_recording(write(tmp_path, rows))
@@ -61,7 +96,8 @@ def test_round_trip(tmp_path):
     ("t,agent,fx,fy,tau", ["0.0,0,0,0,0"], None, r"samples.csv:1: header lacks measured columns"),
     (None, ["0.0,0,0,0,0,0,0", "0.0,1,0,abc,0,0,0"], None, r"samples.csv:3: column 'vy': 'abc' is not a number"),
     (None, ["0.0,0,0,0,0,0,0", "0.0,7,0,0,0,0,0"], None, r"samples.csv:3: column 'agent': agent 7 out of range 0..1"),
-    (None, ["0.0,0,0,0,0,0,0", "0.0,0,1,0,0,0,0"], None, r"samples.csv:3: field 't': agent 0 has two rows"),
+    (None, ["0.0,0,0,0,0,0,0", "", "0.0,0,1,0,0,0,0"], None,
+     r"samples.csv:4: column 'vx': agent 0 has two rows at t = 0.0 with different values \(line 2: 0.0, here: 1.0\)"),
     (None, ["0.0,0,0,0,0,0"], None, r"samples.csv:2: 6 fields, header has 7"),
     (None, ["0.0,0,0,0,0,0,0"], "dt = 0.01\n", r"run.toml: field 'n': expected a positive integer"),
     (None, ["0.0,0,0,0,0,0,0"], 'n = 2\ninput_hold = "spline"\n', r"run.toml: field 'input_hold'"),
