@@ -43,16 +43,21 @@ CASES: dict[str, dict] = {
     "positions_held": {"b": 8.0, "hold_hz": 100.0, "pos": 0.001},
     "wrench_rows_33hz": {"b": 8.0, "wrench_hz": 33.0},
     "logger_dropout": {"b": 8.0, "dropout": (2, 5.0, 15.0)},
+    "payload_added": {"b": 8.0, "change": (11.0, 1.5)},
+    "one_noisy_agent": {"b": 8.0, "sigma": (0.01, 0.01, 0.01, 0.1)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
 
-def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sigma: float = 0.01, seed: int = 1,
+def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sigma: float | tuple = 0.01, seed: int = 1,
            b: float = 0.0, fc: float = 0.0, vs: float = 0.01, c: float = 0.0, delay: float = 0.0,
            hold_hz: float | None = None, glitches: float = 0.0, pos: float = 0.0, wrench_hz: float | None = None,
-           dropout: tuple[int, float, float] | None = None) -> dict:  # fmt: skip
+           dropout: tuple[int, float, float] | None = None, change: tuple[float, float] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
-    that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then."""
+    that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
+    ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
+    ``sigma`` one velocity noise for all agents or one per agent."""
+    sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
     J = m * rng.uniform(0.3, 1.5)
@@ -77,8 +82,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         rw, f = arms(th), force(t)
         torque = float((rw[:, 0] * f[:, 1] - rw[:, 1] * f[:, 0]).sum())
         v = np.array([vx, vy])
-        acc = (f.sum(0) - b * v - fc * v / np.sqrt(v @ v + vs * vs)) / m
-        return [vx, vy, om, acc[0], acc[1], (torque - c * om) / J]
+        k = change[1] if change and t >= change[0] else 1.0
+        acc = (f.sum(0) - b * v - fc * v / np.sqrt(v @ v + vs * vs)) / (k * m)
+        return [vx, vy, om, acc[0], acc[1], (torque - c * om) / (k * J)]
 
     t = np.arange(0, dur, 1 / rate)
     sol = solve_ivp(rhs, (-1.0, dur + 0.1), np.zeros(6), dense_output=True, rtol=1e-10, atol=1e-12,
@@ -91,9 +97,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             if pos:
                 y = np.array([px + rw[i, 0], py + rw[i, 1]]) + rng.normal(0, pos, 2)
             else:
-                y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sigma, 2)
+                y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sig[i], 2)
                 if glitches and rng.random() < glitches:
-                    y += rng.normal(0, 20 * sigma, 2)
+                    y += rng.normal(0, 20 * sig[i], 2)
             w = ",," if wrench_hz else f"{f[i, 0]:.9g},{f[i, 1]:.9g},0"
             rows.append((tk, i, f"{tk:.6f},{i},{y[0]:.9g},{y[1]:.9g},{w}"))
     for tk in np.arange(0, dur, 1 / wrench_hz) if wrench_hz else ():
@@ -107,10 +113,23 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     edges = [[i, (i + 1) % n] for i in range(n)] if n > 1 else []
     (out / "run.toml").write_text(f"n = {n}\nedges = {json.dumps(edges)}\ndt = {1 / rate}\n")
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay}
-    return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}}
+    return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change}
 
 
 def row(name: str, truth: dict, d: dict, wall: float) -> str:
+    ch = d.get("change") or {}
+    if truth["change"]:  # the change must be found and each side must name the truth's effects
+        tc, k = truth["change"]
+        named = {e["name"]: e for e in ch.get("after", {}).get("effects", [])}
+        right = ch.get("found", False) and ch["window"][0] <= tc <= ch["window"][1] and all(
+            {e["name"] for e in ch[s]["effects"]} == set(truth["effects"]) for s in ("before", "after"))
+        sides = "; ".join(f"{s} m {100 * (ch[s]['m'] / (truth['m'] * (k if s == 'after' else 1)) - 1):+.2f} %, J "
+                          f"{100 * (ch[s]['J'] / (truth['J'] * (k if s == 'after' else 1)) - 1):+.2f} %"
+                          for s in ("before", "after")) if ch.get("found") else "no change found"  # fmt: skip
+        return (f"| {name} | {', '.join(truth['effects'])}, m and J x{k:g} at {tc:g} s | {'yes' if right else 'NO'} | "
+                f"change in [{ch['window'][0]:g}, {ch['window'][1]:g}] s; after: "
+                + "; ".join(f"{n} {e['value']:.4g} +- {e['ci95']:.2g}" for n, e in named.items())
+                + f" | {sides} | | | | {d['model']['hold']} ({d['model'].get('hold_source', '-')}) | {wall:.0f} |")
     named = {e["name"]: e for e in d["effects"]}
     right = set(named) == set(truth["effects"]) and not d["unexplained"]
     vals = "; ".join(f"{k} {e['value']:.4g} +- {e['ci95']:.2g}" + (f" (truth {truth['effects'][k]:g})"

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ident.change import diagnose_sides
 from ident.model import EFFECTS, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
@@ -74,6 +75,14 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                        "run.toml if the wrench is smooth and the delay is real")
                 result = alt
     result.model["hold_source"] = rec.hold_source
+    result.change = diagnose_sides(rec, result, options, progress)
+    ch = result.change
+    if ch and ch["found"]:
+        result.unexplained = False
+        result.warnings = [w for w in result.warnings if not w.startswith("unexplained:")]
+        result.warnings.append(f"the residual of one model over the whole recording is structured, and a change of "
+                               f"the load between {ch['window'][0]:.4g} and {ch['window'][1]:.4g} s explains it: "
+                               "each side is white with its own model (see change)")
     if other is not None:
         if other.hold_source == "default" and other.hold != rec.hold:
             other.hold, other.hold_source = rec.hold, f"as {path}"  # the same plant's wrench varies alike

@@ -47,8 +47,8 @@ class Problem:
 
     win: Windows
     base: Layout
-    sigma_v: float  # noise floor of the velocity channel (m/s) or nan
-    sigma_p: float  # of the position channel (m) or nan
+    sigma_v: float | np.ndarray  # noise floor of the velocity channel (m/s) or nan; (n, 1) per agent
+    sigma_p: float | np.ndarray  # of the position channel (m) or nan; (n, 1) per agent
     coulomb_speed: float
     max_step: float
     t0: np.ndarray  # (S,) window start stamps

@@ -74,6 +74,7 @@ class Diagnosis:
     identifiable: dict[str, bool] = field(default_factory=dict)
     model: dict[str, Any] = field(default_factory=dict)
     validation: dict[str, Any] | None = None
+    change: dict[str, Any] | None = None  # ident/change.py: a change of the load, and each side's diagnosis
     fits: dict[str, Any] = field(default_factory=dict, repr=False)
     problem: Any = field(default=None, repr=False)
 
@@ -97,12 +98,25 @@ class Diagnosis:
             "nominal": self.nominal.as_dict(), "augmented": self.augmented.as_dict(), "effects": self.effects,
             "unexplained": self.unexplained, "warnings": self.warnings, "candidates": self.candidates,
             "signatures": self.signatures, "ambiguous": self.ambiguous, "noise_sigma": _f(self.noise_sigma),
-            "noise_floor": {k: _f(v) for k, v in self.noise_floor.items()}, "identifiable": self.identifiable,
+            "noise_floor": _jsonable(self.noise_floor), "identifiable": self.identifiable,
             "model": self.model, "truth": self.truth, "wall_s": self.wall_s, "residual": residual_panels(self),
         }  # fmt: skip
         if self.validation is not None:
             out["validation"] = self.validation
+        out["change"] = _jsonable(self.change)
         return out
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return _f(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
 
 
 def format_diagnosis(r: Diagnosis) -> str:
@@ -123,6 +137,26 @@ def format_diagnosis(r: Diagnosis) -> str:
     else:
         lines.append("effect    none named")
     lines.append(f"unexplained: {str(r.unexplained).lower()}")
+    ch = r.change
+    if ch is not None and ch.get("found"):
+        lines.append(f"change    the load changes between {ch['window'][0]:.4g} and {ch['window'][1]:.4g} s "
+                     f"(F {ch['F']:.3g}, p {ch['p']:.2g}); each side diagnosed as a recording of its own:")
+        for key in ("before", "after"):
+            d = ch[key]
+            if "error" in d:
+                lines.append(f"  {key:6s} {d['from_s']:.4g}-{d['to_s']:.4g} s: {d['error']}")
+                continue
+            J = f"J {d['J']:.4g} +- {d['J_ci95']:.2g}" if math.isfinite(d["J"]) else "J not identifiable"
+            eff = ", ".join(f"{e['name']} {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}" for e in d["effects"])
+            lines.append(f"  {key:6s} {d['from_s']:.4g}-{d['to_s']:.4g} s: m {d['m']:.4g} +- {d['m_ci95']:.2g}, {J}, "
+                         f"effects {eff or '-'}, residual {d['residual_over_floor']:.3g} x floor, whiteness p "
+                         f"{d['whiteness_p']:.3g}{', unexplained' if d['unexplained'] else ''}")  # fmt: skip
+    elif ch is not None and "p" in ch:
+        lines.append(f"change    none that explains the residual (the best split, at {ch['t']:.4g} s: F-test p "
+                     f"{ch['p']:.2g} at level {ch['level']:.2g}, removes {100 * ch['split_share']:.0f} % of the excess"
+                     + (f"; its sides leave {100 * (1 - ch['share']):.0f} %)" if "share" in ch else ")"))
+    elif ch is not None:
+        lines.append(f"change    not searched: {ch.get('why')}")
     if r.validation is not None:
         v = r.validation
         for key in ("nominal", "augmented"):

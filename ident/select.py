@@ -73,6 +73,22 @@ def noise_floor(rec: Recording) -> tuple[float, float]:
     return sv, sp
 
 
+AGENT_SPREAD = 1.5  # agents whose noise floors differ by more than this factor are weighted each by its own
+
+
+def agent_floors(rec: Recording, pooled: float, data: np.ndarray | None) -> np.ndarray | None:
+    """Per-agent noise floors (n, 1) of ``data`` (velocities or positions) when the agents' sensors differ:
+    each agent's own divided-difference noise (the pooled kinematic floor mixes the agents: its rank-one
+    fit takes up part of the noisiest agent's noise); None when they agree within ``AGENT_SPREAD`` (the
+    pooled floor for all) or cannot be told apart."""
+    if data is None or rec.n < 2 or not math.isfinite(pooled):
+        return None
+    own = np.array([stats.difference_noise(rec.t, data[:, i], 3) for i in range(rec.n)])
+    if not np.isfinite(own).all() or own.min() <= 0 or own.max() / own.min() <= AGENT_SPREAD:
+        return None
+    return own[:, None]
+
+
 def _floor(x: float, data: np.ndarray | None) -> float:
     """A usable weight: a zero or NaN floor (quantised, noiseless data) becomes a tiny share of the signal."""
     if data is None:
@@ -256,8 +272,8 @@ def _rms(pb: Problem, fit_res: np.ndarray) -> dict[str, float]:
     for name, y, mask, sig in (("vel", w.vel, w.vmask, pb.sigma_v), ("pos", w.pos, w.pmask, pb.sigma_p)):
         if y is not None:
             size = y[..., 0].size // w.S * 2
-            e = fit_res[:, k : k + size]
-            out[name] = math.sqrt(float((e * e).sum()) / max(int(mask.sum()) * ax, 1)) * sig
+            e = fit_res[:, k : k + size].reshape(w.S, w.L, w.n, 2) * sig
+            out[name] = math.sqrt(float((e * e).sum()) / max(int(mask.sum()) * ax, 1))
             k += size
     return out
 
@@ -274,6 +290,14 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     warns = list(rec.warnings)
     sv, sp = noise_floor(rec)
     sv_w, sp_w = _floor(sv, rec.vel), _floor(sp, rec.pos)
+    per_agent = {}
+    for key, pooled, data, unit in (("velocity", sv_w, rec.vel, "m/s"), ("position", sp_w, rec.pos, "m")):
+        own = agent_floors(rec, pooled, data)
+        if own is not None:
+            per_agent[key] = own[:, 0].tolist()
+            warns.append(f"the agents' {key} noise differs ({own.min():.3g} to {own.max():.3g} {unit}): each agent's "
+                         "samples are weighted by its own noise floor")  # fmt: skip
+            sv_w, sp_w = (own, sp_w) if key == "velocity" else (sv_w, own)
     dtm = float(np.median(np.diff(rec.t)))
     fopt = opt.fit
     wlen = min(fopt.window_s, fopt.window_stamps * dtm)
@@ -478,7 +502,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         nominal=nominal_rep, augmented=aug_rep, effects=effects, unexplained=unexplained, warnings=warns,
         candidates=list(table.values()), signatures=signatures, ambiguous=ambiguous,
         noise_sigma=sv if math.isfinite(sv) else sp, wall_s=clock() - t_start if clock is not None else 0.0,
-        truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp},
+        truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp,
+                                                                   **{f"{k}_per_agent": v for k, v in per_agent.items()}},
         identifiable={"m": True, "J": base.rotation, "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip

@@ -1,0 +1,157 @@
+"""A load that changes during the recording: where, and the model on each side (docs/diagnose.md, "A load
+that changes").
+
+A load that changes part-way (a payload added, a contact moved) leaves the constant-parameter fit with a
+structured residual that no effect of the vocabulary explains. :func:`find_change` locates the most
+likely change at a boundary between two windows from the fit's own linearisation: each window's score of
+the global parameters with the window's own start state profiled out, summed from the first window on
+(a CUSUM); the Lagrange-multiplier statistic of "the parameters differ after window k" is the largest
+where the change is (Andrews' sup-LM). It then fits the model to each side apart and keeps the change
+when the two fits lower the residual more than the added parameters can by chance (an F-test at the
+diagnosis' level, divided by the number of boundaries searched) and remove at least half of the excess
+residual (a structured residual lowers under any split; a change accounts for most of it).
+:func:`diagnose_sides` then diagnoses the recording before and after the two windows that may hold the
+change, each side as a recording of its own, and the change is reported when each side is explained by
+its own model and the sides leave at most what the diagnosis leaves unexplained (``explained``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ident import stats
+from ident.fit import Fit, Lin, Problem, lm_fit, subset
+from ident.recording import Recording, RecordingError, recording_from_arrays
+from ident.report import Diagnosis
+from ident.select import DiagnoseError, DiagnoseOptions, diagnose
+
+TRIM = 0.15  # each side keeps at least this share of the windows (and two whole windows)
+SPLIT_SHARE = 0.5  # share of the excess residual that the split fits must remove before the sides are diagnosed
+
+
+@dataclass
+class Change:
+    """A change kept by :func:`find_change`: at boundary ``k`` (the first window after it)."""
+
+    k: int
+    t: float  # the boundary, s from the recording's first stamp
+    window: tuple[float, float]  # the window before and the one after the boundary: where the change is
+    F: float
+    p: float
+    lm: float
+    before: Fit  # the model fitted to the windows before the boundary
+    after: Fit  # and after it
+
+
+def window_scores(lin: Lin) -> tuple[np.ndarray, np.ndarray]:
+    """Per window s, the score of the global parameters g and its information, with the window's own
+    state profiled out: J = Jg - Jx (Jx^T Jx)^+ Jx^T Jg, score J^T r, information J^T J. (S, G), (S, G, G)."""
+    S, _, G = lin.Jg.shape
+    sc = np.zeros((S, G))
+    info = np.zeros((S, G, G))
+    for s in range(S):
+        Q, Jg = lin.Jx[s], lin.Jg[s]
+        Jp = Jg - Q @ (np.linalg.pinv(Q.T @ Q, hermitian=True) @ (Q.T @ Jg))
+        sc[s] = Jp.T @ lin.r[s]
+        info[s] = Jp.T @ Jp
+    return sc, info
+
+
+def break_statistic(sc: np.ndarray, info: np.ndarray, sigma2: float) -> np.ndarray:
+    """LM statistic of a break before window k, k = 1..S-1 (NaN at k = 0): the partial score sum made
+    orthogonal to the whole one (a Brownian bridge under constant parameters), in its own metric."""
+    S = sc.shape[0]
+    total_i = info.sum(axis=0)
+    inv = np.linalg.pinv(total_i, hermitian=True)
+    cs, ci = np.cumsum(sc, axis=0), np.cumsum(info, axis=0)
+    out = np.full(S, math.nan)
+    for k in range(1, S):
+        c = cs[k - 1] - ci[k - 1] @ inv @ cs[-1]
+        V = ci[k - 1] - ci[k - 1] @ inv @ ci[k - 1]
+        out[k] = float(c @ np.linalg.pinv(V, rcond=1e-10, hermitian=True) @ c) / sigma2
+    return out
+
+
+def find_change(pb: Problem, fit: Fit, alpha: float) -> tuple[Change | None, dict[str, Any]]:
+    """The change at the boundary with the largest break statistic, if the fits of the two sides pass the
+    F-test at ``alpha`` / (boundaries searched) and remove ``SPLIT_SHARE`` of the excess residual. Returns
+    the change (or None) and what was measured (JSON-ready)."""
+    S = pb.win.S
+    lo = max(3, math.ceil(TRIM * S))
+    ks = np.arange(lo, S - lo + 1)
+    info: dict[str, Any] = {"searched": int(ks.size)}
+    if ks.size == 0 or fit.lin is None:
+        info["why"] = f"{S} windows: too few to split"
+        return None, info
+    sc, inf = window_scores(fit.lin)
+    lm = break_statistic(sc, inf, fit.sigma2)
+    k = int(ks[np.nanargmax(lm[ks])])
+    head, tail = np.arange(k), np.arange(k, S)
+    parts = (subset(pb, head), subset(pb, tail))
+    before = lm_fit(parts[0], fit.lay, fit.g, fit.x[head])
+    after = lm_fit(parts[1], fit.lay, fit.g, fit.x[tail])
+    G = fit.lay.G
+    F, p = stats.nested_f(fit.rss, before.rss + after.rss, G, fit.N, fit.P + G)
+    share = (fit.rss - before.rss - after.rss) / max(fit.rss - fit.N, 1e-300)
+    level = alpha / ks.size
+    t0 = pb.t0
+    ends = np.r_[t0[1:], np.inf]
+    info.update({"k": k, "t": float(t0[k]), "lm": float(lm[k]), "F": F, "p": p, "level": level, "split_share": share})
+    if not (p < level and share >= SPLIT_SHARE):
+        return None, info
+    window = (float(t0[k - 1]), float(ends[k]))
+    return Change(k, float(t0[k]), window, F, p, float(lm[k]), before, after), info
+
+
+def _part(rec: Recording, keep: np.ndarray) -> Recording:
+    vel, pos = (None if a is None else a[keep] for a in (rec.vel, rec.pos))
+    out = recording_from_arrays(rec.t[keep] + rec.t0, rec.wrench[keep], vel, pos, hold=rec.hold, dt=rec.dt)
+    out.hold_source = rec.hold_source
+    return out
+
+
+def _side(d: Diagnosis, span: tuple[float, float]) -> dict[str, Any]:
+    a = d.augmented
+    return {"from_s": span[0], "to_s": span[1], "m": a.m, "m_ci95": a.m_ci95, "J": a.J, "J_ci95": a.J_ci95,
+            "effects": d.effects, "unexplained": d.unexplained, "whiteness_p": a.whiteness_p,
+            "residual_over_floor": a.residual_over_floor}  # fmt: skip
+
+
+def diagnose_sides(rec: Recording, result: Diagnosis, options: DiagnoseOptions | None = None,
+                   progress: Any = None) -> dict[str, Any] | None:  # fmt: skip
+    """When ``result`` (the diagnosis of ``rec``) leaves a residual that is not white, look for a change of
+    the load; if one is kept, diagnose the recording before and after the two windows around it. Returns
+    the ``change`` block of the JSON (None when the residual is white or nothing was searched)."""
+    opt = options or DiagnoseOptions()
+    fit = result.fits.get("augmented")
+    if fit is None or result.problem is None or result.augmented.whiteness_p > opt.alpha_white:
+        return None
+    say = progress or (lambda msg: None)
+    say("a structured residual remains: looking for a change of the load")
+    ch, info = find_change(result.problem, fit, opt.alpha)
+    out: dict[str, Any] = {"found": False, **info}
+    if ch is None:
+        return out
+    t = rec.t
+    sides = {}
+    for key, keep, span in (("before", t < ch.window[0], (float(t[0]), ch.window[0])),
+                            ("after", t >= ch.window[1], (ch.window[1], float(t[-1])))):  # fmt: skip
+        say(f"diagnosing the recording {key} the change ({span[0]:.4g} to {span[1]:.4g} s)")
+        try:
+            sides[key] = _side(diagnose(_part(rec, keep), options=opt, progress=progress), span)
+        except (DiagnoseError, RecordingError) as exc:
+            sides[key] = {"from_s": span[0], "to_s": span[1], "error": str(exc)}
+    out.update({"window": list(ch.window), **sides})
+    if all("error" not in d and not d["unexplained"] for d in sides.values()):
+        # the excess over the noise floor the sides leave (weighted by their durations), against the whole's
+        r0 = result.augmented.residual_over_floor
+        w = np.array([d["to_s"] - d["from_s"] for d in sides.values()])
+        left = float(np.sum(w * [max(d["residual_over_floor"] ** 2 - 1, 0.0) for d in sides.values()]) / w.sum())
+        out["share"] = 1 - left / max(r0 * r0 - 1, 1e-300)
+        white = all(d["whiteness_p"] > opt.alpha_white for d in sides.values())
+        out["found"] = white or out["share"] >= opt.explained
+    return out
