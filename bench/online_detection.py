@@ -13,8 +13,8 @@ same plant and seed with the nominal model (detection off) for comparison.
 ``--set``: more scenario overrides for every run (e.g. ``dynamics.coulomb_speed=0.01``).
 ``--faults``: every link loses 20 % of the states (Bernoulli) and delays them by 10 ticks (100 ms).
 ``both``: the two together (friction-online's own plant); ``coulomb``: Coulomb friction 5 N (the plant's
-smoothing speed 0.01 m/s). Plants out of the online vocabulary: ``slope`` (a constant 5 N force along x),
-``both_slope`` (the slope on friction-online's own plant),
+smoothing speed 0.01 m/s); ``slope``: a constant 5 N force along x (``force_bias``); ``both_slope``: the slope
+on friction-online's own plant. Out of the online vocabulary:
 ``periodic`` (a world-frame force 6 N sin(2 pi t / 10 s) along the m stage's force direction, 0.5 rad; the right
 answer: nothing on at the end, windows ``unexplained``; its nominal twin runs too).
 """
@@ -52,8 +52,8 @@ PLANTS = {
 }
 FAULTS = ['link.loss={model="bernoulli", p=0.2}', "link.delay_ticks=10"]
 TRUE = {"viscous": ["viscous_friction"], "rotational": ["rotational_damping"], "clean": [],
-        "both": ["rotational_damping", "viscous_friction"], "coulomb": ["coulomb_friction"], "slope": [],
-        "both_slope": ["rotational_damping", "viscous_friction"],
+        "both": ["rotational_damping", "viscous_friction"], "coulomb": ["coulomb_friction"], "slope": ["force_bias"],
+        "both_slope": ["force_bias", "rotational_damping", "viscous_friction"],
         "periodic": []}  # the right switches
 NOMINAL = {"periodic"}  # plants out of the vocabulary whose nominal twin also runs (how far off the model is)
 
@@ -69,7 +69,8 @@ def one(plant: str, seed: int, detect: bool, faults: bool, extra: tuple[str, ...
     eff = s.get("effects", {})
     return {"plant": plant, "seed": seed, "detect": detect, "m_rel": s["errors"].get("m_rel"),
             "J_rel": s["errors"].get("J_rel"), "b": float(c["b"][-1, 0]), "c": float(c["c"][-1, 0]),
-            "fc": float(c["fc"][-1, 0]), "events": eff.get("events", []), "on": eff.get("on", []),
+            "fc": float(c["fc"][-1, 0]), "fb": (float(c["fb_x"][-1, 0]), float(c["fb_y"][-1, 0])),
+            "events": eff.get("events", []), "on": eff.get("on", []),
             "unexplained": eff.get("unexplained_windows"),
             "m_start": float(m_start),
             "dt": sc.dt, "step_us": s.get("agent_step_us")}
@@ -100,8 +101,8 @@ def main() -> None:
             print("run", {k: v for k, v in r.items() if k != "dt"}, flush=True)
     nominal = {(r["plant"], r["seed"]): r for r in out if not r["detect"]}
     print("| plant | seed | switched, withdrawn or ruled out (tick: effect, z) | from m stage start to the first "
-          "switch (s) | unexplained windows | m err | J err | nominal m err | nominal J err | b | c | F_c |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "switch (s) | unexplained windows | m err | J err | nominal m err | nominal J err | b | c | F_c | f (N) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for p in plants:
         right = 0
         for r in (r for r in out if r["detect"] and r["plant"] == p):
@@ -115,7 +116,8 @@ def main() -> None:
             nom = nominal.get((p, r["seed"]), {})
             f = lambda v: "-" if v is None or v != v else f"{100 * v:.2f} %"  # noqa: E731
             print(f"| {p} | {r['seed']} | {sw} | {dt0} | {r['unexplained']} | {f(r['m_rel'])} | {f(r['J_rel'])} "
-                  f"| {f(nom.get('m_rel'))} | {f(nom.get('J_rel'))} | {r['b']:.3f} | {r['c']:.3f} | {r['fc']:.3f} |")
+                  f"| {f(nom.get('m_rel'))} | {f(nom.get('J_rel'))} | {r['b']:.3f} | {r['c']:.3f} | {r['fc']:.3f} "
+                  f"| ({r['fb'][0]:.3f}, {r['fb'][1]:.3f}) |")
         n = sum(1 for r in out if r["detect"] and r["plant"] == p)
         print(f"\n{p}: the right decision ({', '.join(TRUE[p]) or 'nothing'}, and nothing else, on at the end) in "
               f"{right} of {n} seeds\n")

@@ -292,13 +292,15 @@ class DynamicsSpec(_Strict):
                                "observable beside z_C (N m)",
     )
     dither_period_s: float = Field(6.0, gt=0, description="background: period of that dither (s)")
-    estimate_effects: tuple[Literal["viscous_friction", "rotational_damping", "coulomb_friction"], ...] = Field(
+    estimate_effects: tuple[Literal["viscous_friction", "rotational_damping", "coulomb_friction", "force_bias"],
+                            ...] = Field(
         (),
         description="plant effects the agents estimate online with m and J (names of coload diagnose): "
                     "viscous_friction, b (N s/m) in dv_C = (F - b v_C) dt/m; rotational_damping, c (N m s) in "
                     "domega = (T - c omega) dt/J; coulomb_friction, F_c (N) in dv_C = (F - F_c tanh(|v_C|/v_s) "
-                    "v_C/|v_C|) dt/m (v_s: coulomb_speed); each an extra filter state averaged by consensus "
-                    "like m and J; empty: the nominal model",
+                    "v_C/|v_C|) dt/m (v_s: coulomb_speed); force_bias, a constant force f (N, 2-vector, world "
+                    "frame) in dv_C = (F + f) dt/m; each an extra filter state (two for force_bias) averaged by "
+                    "consensus like m and J; empty: the nominal model",
     )
     coulomb_speed: float = Field(
         0.05, gt=0, description="Kalman filter: the smoothing speed v_s of the Coulomb friction model (m/s); the "
