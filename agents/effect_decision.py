@@ -44,7 +44,9 @@ windows). The team rules the candidate out through the same flood and code as a 
 again, the window ``unexplained``; the filters, which never released it, are untouched. A window that rules
 a candidate out switches nothing on: the candidates are correlated (Coulomb and viscous friction's scores by
 0.83-0.99), and one significantly negative beside another significantly positive is structure that neither
-explains. A switch is also checked against the model it makes (:func:`contradicted_by`): with k's rate free,
+explains; unless the positive one's model explains it: no score orthogonal to its rates is below the quantile
+(a slope pushing along the motion half the time makes friction's own score negative, and none once the slope
+is fitted; two positively correlated frictions never pass this). A switch is also checked against the model it makes (:func:`contradicted_by`): with k's rate free,
 another candidate j's score is its score orthogonal to k's, z_j|k; below the lower quantile while j's own
 score z_j is not, k's fitted effect is what makes j's coefficient negative, so the structure along their
 shared signature is not k's: k is ruled out instead (the statistic z_j|k). A j contradicted by its own score
@@ -180,13 +182,15 @@ def window_level(alpha: float) -> float:
     return alpha / (1 + N_EFF)
 
 
-def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float) -> tuple[float, int]:
+def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float,
+                    every: bool = False) -> tuple[float, int]:
     """(z, j): the lowest score z_j|k of another effect j (bit j of ``scored``: its pool channels carry a
     score) orthogonal to candidate k's, the score test of j in the model with k's rates free, among those below
     the level's lower quantile whose own score z_j is not; (NaN, -1) if none. Such a j says that switching k on
     makes a model the window that proposes it contradicts, and k's fitted effect is what makes it: k does not
     explain the structure along their shared signature (module docstring). A j whose own score is below the
-    quantile too is structure no switch changes (it is ruled out on its own) and blocks no candidate. Only a
+    quantile too is structure no switch changes (it is ruled out on its own) and blocks no candidate; with
+    ``every`` it counts too (the window's rule-out then waits for no switch that does not explain it). Only a
     scalar j has a sign to contradict (a vector's chi2 has none); k may be either."""
     level = window_level(alpha)
     worst = (math.nan, -1)
@@ -207,7 +211,7 @@ def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: 
         if v > 1e-9 * vjj:  # collinear with k (to rounding): no part of its own to test
             z = math.sqrt(n) * (S[p] - float(vjk @ ikk @ S[ks])) / math.sqrt(v)
             own = math.sqrt(n) * S[p] / math.sqrt(vjj)
-            if normal_sf(-z) < level <= normal_sf(-own) and not z >= worst[0]:
+            if normal_sf(-z) < level and (every or level <= normal_sf(-own)) and not z >= worst[0]:
                 worst = (z, j)
     return worst
 
@@ -450,7 +454,10 @@ class OnlineDetection:
                 k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo)
                 z = zs[k % N_EFF]
                 out = self._contradicted(zs, self.on | self.withdrawn | held)
-                if out >= 0 and k < N_EFF:  # a rule-out comes before a switch in the same window (module docstring)
+                # a rule-out comes before a switch in the same window, unless the switch's model explains it: no
+                # score orthogonal to the switched rates below the quantile (module docstring)
+                if out >= 0 and k < N_EFF and (k < 0 or contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on,
+                                                                        self.alpha, True)[1] >= 0):
                     k, z = N_EFF + out, zs[out]
                 elif 0 <= k < N_EFF:  # a switch whose model the same window contradicts rules its candidate out
                     zc, j = contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on, self.alpha)

@@ -109,9 +109,9 @@ def main() -> None:
             ev = r["events"]
             right += sorted(r["on"]) == TRUE[p]  # on at the end: a switch withdrawn counts for nothing
             kind = {"effect_withdrawn": " withdrawn", "effect_ruled_out": " ruled out"}
-            sw = "; ".join(f"{e['tick']}: {e['effect']}{kind.get(e.get('event'), '')}, "
-                           f"{e['statistic']:.2f}" for e in ev) or "none"
-            first = [e for e in ev if e.get("event") == "effect_switch"][:1]
+            stat = lambda e: "declared" if e["statistic"] is None else f"{e['statistic']:.2f}"  # noqa: E731
+            sw = "; ".join(f"{e['tick']}: {e['effect']}{kind.get(e.get('event'), '')}, {stat(e)}" for e in ev) or "none"
+            first = [e for e in ev if e.get("event") == "effect_switch" and e["tick"] >= 0][:1]
             dt0 = f"{first[0]['tick'] * r['dt'] - r['m_start']:.1f}" if first else "-"
             nom = nominal.get((p, r["seed"]), {})
             f = lambda v: "-" if v is None or v != v else f"{100 * v:.2f} %"  # noqa: E731
