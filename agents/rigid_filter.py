@@ -134,12 +134,15 @@ class RigidEKF:
         """Online detection: let effect k's rates (:data:`EFFECTS` order) move from 0 (prior std 0.3 1/s or m/s^2
         each, walk ``effect_walk`` per second) and restart the parameter it shares the data with (1/m for beta,
         kappa and a, 1/J for gamma) from its current value with the start's prior, as :meth:`release_effects`
-        does."""
+        does. A constant force (force_bias) restarts v_C's variance too (the start's prior, correlations
+        dropped): the nominal model has carried the constant acceleration in v_C's random walk, as a lag of
+        v_C's estimate, and a confident v_C would read that lag's decay as 1/m (docs/online-detection.md)."""
         if self.aug is None or not self.ready:
             return
         self._set_effect(k, 1.0, self.walk_eff)
         rates = tuple((7 + p, 0.1) for p in EFFECT_PARAMS[k])
-        self._restart(((6, 1e-2), *rates) if k == 1 else ((4, 1.0), *rates))
+        vc = ((0, 1.0), (1, 1.0)) if len(EFFECT_PARAMS[k]) > 1 else ()
+        self._restart(((6, 1e-2), *rates) if k == 1 else ((4, 1.0), *vc, *rates))
 
     def withdraw_effect(self, k: int) -> None:
         """Online detection: pin effect k's rates (:data:`EFFECTS` order) at 0 again. The filter's state is
