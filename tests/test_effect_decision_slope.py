@@ -53,10 +53,10 @@ def test_chi2_z_is_the_normal_equivalent_of_the_2_dof_tail():
 @pytest.mark.parametrize("rho", [0.0, 0.9])
 def test_the_2_dof_test_rejects_at_its_level_on_white_innovations(rho):
     """Under H0 the slope's chi2 (own, and orthogonal to the scalar candidates; its x signature correlated
-    ``rho`` with viscous friction's) rejects at its level: 800 windows, within four binomial sd at 1 % and 5 %."""
+    ``rho`` with viscous friction's) rejects at its level: 600 windows, within four binomial sd at 1 % and 5 %."""
     rng = np.random.default_rng(31)
     zs = []
-    for _ in range(800):
+    for _ in range(600):
         _, z, o = pooled(_window(rng, 250, (0.0,) * N_PAR, rho), 1)
         zs.append((z[SLOPE], o[SLOPE]))
     zs = np.array(zs)
