@@ -24,7 +24,7 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
-from agents.effect_decision import DETECT_NAMES, EFFECTS, N_POOL, OnlineDetection
+from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, OnlineDetection
 from agents.effect_decision import decode as decode_decision
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
@@ -155,7 +155,8 @@ class DynamicPhase:
         # online detection: the team pools its filters' scores and switches a missing effect on
         self.declared = declared = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
         self.detect = (OnlineDetection(n, ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha,
-                                       ticks(spec.horizon_s), CH_POOL, declared)
+                                       ticks(spec.horizon_s), CH_POOL, declared,
+                                       ALL if spec.online_force_bias else ALL & ~(1 << EFFECTS.index("force_bias")))
                        if spec.online_detection else None)
 
     # ------------------------------------------------------------------ messages

@@ -176,14 +176,14 @@ def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple
     return zp, zs, zo
 
 
-def window_level(alpha: float) -> float:
-    """The one-sided level of every test of a window: ``alpha`` over (1 + the number of candidates), the
-    persistence test and each candidate's, whatever has been switched (module docstring)."""
-    return alpha / (1 + N_EFF)
+def window_level(alpha: float, cands: int = N_EFF) -> float:
+    """The one-sided level of every test of a window: ``alpha`` over (1 + the number of candidates ``cands``),
+    the persistence test and each candidate's, whatever has been switched (module docstring)."""
+    return alpha / (1 + cands)
 
 
 def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float,
-                    every: bool = False) -> tuple[float, int]:
+                    every: bool = False, cands: int = N_EFF) -> tuple[float, int]:
     """(z, j): the lowest score z_j|k of another effect j (bit j of ``scored``: its pool channels carry a
     score) orthogonal to candidate k's, the score test of j in the model with k's rates free, among those below
     the level's lower quantile whose own score z_j is not; (NaN, -1) if none. Such a j says that switching k on
@@ -192,7 +192,7 @@ def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: 
     quantile too is structure no switch changes (it is ruled out on its own) and blocks no candidate; with
     ``every`` it counts too (the window's rule-out then waits for no switch that does not explain it). Only a
     scalar j has a sign to contradict (a vector's chi2 has none); k may be either."""
-    level = window_level(alpha)
+    level = window_level(alpha, cands)
     worst = (math.nan, -1)
     S, V = _gram(means)
     ks = list(EFFECT_PARAMS[k])
@@ -217,7 +217,7 @@ def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: 
 
 
 def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
-          zo: Sequence[float] | None = None) -> tuple[int, bool]:
+          zo: Sequence[float] | None = None, cands: int = N_EFF) -> tuple[int, bool]:
     """The team's verdict on one window: (decision or -1, unexplained). Decision k < N_EFF: switch candidate
     k on; N_EFF + k: withdraw effect k.
 
@@ -230,8 +230,9 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
     are then both significant, and named by the part that tells them apart. For
     an effect switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below
     the level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect
-    is withdrawn (the most negative first), and the structure it was switched on for stays unexplained."""
-    level = window_level(alpha)
+    is withdrawn (the most negative first), and the structure it was switched on for stays unexplained.
+    ``cands``: the number of candidates the level is shared by."""
+    level = window_level(alpha, cands)
     worst, zworst = -1, math.inf
     for k, z in enumerate(zs):
         if (held >> k) & 1 and z == z and normal_sf(-z) < level and z < zworst:
@@ -376,9 +377,14 @@ class OnlineDetection:
 
     __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "switched", "withdrawn",
                  "last_tick", "last_z", "unexplained", "zp", "zs", "settle_from", "score_from", "late",
-                 "mixed")
+                 "mixed", "cand", "ncand")
 
-    def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0) -> None:
+    def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0,
+                 cand: int = ALL) -> None:
+        # the candidates (bit k: EFFECTS[k]); the others' rates are never scored (their sensitivities are
+        # not offered) and the level is shared by these alone
+        self.cand = cand
+        self.ncand = bin(cand).count("1")
         self.n = n
         self.window = window
         self.horizon = horizon
@@ -415,6 +421,10 @@ class OnlineDetection:
         if chol is None or e0 != e0:
             return
         g = [whiten(chol, sens_h[2 * p], sens_h[2 * p + 1]) for p in range(N_PAR)]
+        for k, ps in enumerate(EFFECT_PARAMS):
+            if not (self.cand >> k) & 1:
+                for p in ps:
+                    g[p] = (0.0, 0.0)
         hn = whiten(chol, sens_h[2 * N_PAR], sens_h[2 * N_PAR + 1]) if len(sens_h) > 2 * N_PAR else (0.0, 0.0)
         self.ev.observe(*whiten(chol, e0, e1), g, hn)
 
@@ -451,16 +461,16 @@ class OnlineDetection:
                     zp = math.nan
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
-                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo)
+                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo, self.ncand)
                 z = zs[k % N_EFF]
                 out = self._contradicted(zs, self.on | self.withdrawn | held)
                 # a rule-out comes before a switch in the same window, unless the switch's model explains it: no
                 # score orthogonal to the switched rates below the quantile (module docstring)
                 if out >= 0 and k < N_EFF and (k < 0 or contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on,
-                                                                        self.alpha, True)[1] >= 0):
+                                                                        self.alpha, True, self.ncand)[1] >= 0):
                     k, z = N_EFF + out, zs[out]
                 elif 0 <= k < N_EFF:  # a switch whose model the same window contradicts rules its candidate out
-                    zc, j = contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on, self.alpha)
+                    zc, j = contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on, self.alpha, cands=self.ncand)
                     if j >= 0:
                         k, z = N_EFF + k, zc
                 if k >= 0:
@@ -517,7 +527,7 @@ class OnlineDetection:
         a switch, or -1: the data favour a negative coefficient, which no candidate has. A vector candidate
         (its chi2 has no sign) is never contradicted so."""
         skip |= VECTOR
-        level = window_level(self.alpha)
+        level = window_level(self.alpha, self.ncand)
         neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
         return min(neg)[1] if neg else -1
 

@@ -46,8 +46,8 @@ PLANTS = {
     "clean": ["plant.friction={}"],
     "both": ["plant.friction={viscous=5.0, rotational=8.69}"],
     "coulomb": ["plant.friction={coulomb=5.0}"],
-    "slope": ["plant.friction={}", "plant.external_force=[5.0, 0.0]"],
-    "both_slope": ["plant.external_force=[5.0, 0.0]"],
+    "slope": ["plant.friction={}", "plant.external_force=[5.0, 0.0]", "dynamics.online_force_bias=true"],
+    "both_slope": ["plant.external_force=[5.0, 0.0]", "dynamics.online_force_bias=true"],
     "periodic": ["plant.friction={}", "plant.periodic_force={amplitude=6.0, period_s=10.0, direction_deg=28.6479}"],
 }
 FAULTS = ['link.loss={model="bernoulli", p=0.2}', "link.delay_ticks=10"]

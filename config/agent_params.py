@@ -316,6 +316,11 @@ class DynamicsSpec(_Strict):
                            "at monitor_alpha / 4 (one-sided) whose score orthogonal to the others' is the "
                            "largest; false: only estimate_effects, decided beforehand",
     )
+    online_force_bias: bool = Field(
+        False, description="online detection: a constant external force (force_bias, a slope) is a candidate too "
+                           "(level monitor_alpha / 5); off by default: on a Coulomb friction plant the slope's "
+                           "signature takes the friction's place (docs/online-detection.md)",
+    )
     effect_walk: float = Field(
         3e-3, ge=0, description="Kalman filter: random walk of the estimated effects' rates b/m, c/J "
                                 "(1/s/sqrt(s)) and F_c/m (m/s^2/sqrt(s)); lets a filter forget a wrong start "

@@ -21,6 +21,7 @@ def test_closed_loop_names_the_slope_and_only_it(tmp_path):
     nothing else; the averaged f within 15 % of the force. The m stage is 20 s: the switch comes 6 s into it,
     and a switch restarts 1/m (with quick's 10 s stage it comes 4 s before the stage's end and m is far off)."""
     sc = load_scenario(SCENARIOS / "quick.toml", SHORT + ["plant.external_force=[3.0, 4.0]", "seed=1",
+                                                          "dynamics.online_force_bias=true",
                                                           "dynamics.m_excite_s=20", "duration=40"])
     s = run_inproc(sc, tmp_path / "run")
     eff = s["effects"]
