@@ -24,7 +24,7 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
-from agents.effect_decision import DETECT_NAMES, EFFECTS, N_POOL, OnlineDetection
+from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, OnlineDetection
 from agents.effect_decision import decode as decode_decision
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
@@ -51,10 +51,10 @@ from net.vocabulary import (
 # + tau_i; z_C in the shared body frame (ZX, ZY); numerator and weight of the averages of m and J
 CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(10)
 N_CH = 10
-# augmented model (DynamicsSpec.estimate_effects): the local b, c and F_c numerators; their weights are the
-# m and J weight channels (b and F_c are offered exactly when m is, c when J is)
-CH_BN, CH_CN, CH_FN = 10, 11, 12
-N_CH_AUG = 13
+# augmented model (DynamicsSpec.estimate_effects): the local b, c, F_c and f (x, y) numerators; their weights
+# are the m and J weight channels (b, F_c and f are offered exactly when m is, c when J is)
+CH_BN, CH_CN, CH_FN, CH_FBX, CH_FBY = 10, 11, 12, 13, 14
+N_CH_AUG = 15
 # online detection (DynamicsSpec.online_detection): the pooled window statistics (agents/effect_decision.py)
 CH_POOL = N_CH_AUG
 CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG + N_POOL))  # their names in StateMsg.shared
@@ -92,7 +92,7 @@ class DynamicPhase:
         self.c_local = math.nan
         # whether b (c, F_c) was offered while its effect was in the model: with online detection the rates are
         # carried pinned at 0 from the start, and an effect switched on after m (J) froze has no average
-        self.b_offered = self.c_offered = self.f_offered = False
+        self.b_offered = self.c_offered = self.f_offered = self.fb_offered = False
         self.released = False
         ticks = lambda s: max(1, int(round(s / dt)))  # noqa: E731
         self.barrier = StageBarrier(agent_id, n, ticks(spec.horizon_s))
@@ -155,7 +155,8 @@ class DynamicPhase:
         # online detection: the team pools its filters' scores and switches a missing effect on
         self.declared = declared = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
         self.detect = (OnlineDetection(n, ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha,
-                                       ticks(spec.horizon_s), CH_POOL, declared)
+                                       ticks(spec.horizon_s), CH_POOL, declared,
+                                       ALL if spec.online_force_bias else ALL & ~(1 << EFFECTS.index("force_bias")))
                        if spec.online_detection else None)
 
     # ------------------------------------------------------------------ messages
@@ -561,12 +562,15 @@ class DynamicPhase:
                 self.m_local = m_local
                 self.m_local_sd = math.sqrt(kf.mu_var) * m_local * m_local  # delta method: sd(1/mu)
                 self.frozen_m = stage == M_AVERAGE
-                if kf.aug is not None:  # b = beta m and F_c = kappa m, averaged with m's weights
+                if kf.aug is not None:  # b = beta m, F_c = kappa m and f = a m, averaged with m's weights
                     self.b_local = kf.beta * m_local
                     au[CH_BN] = w * self.b_local
                     au[CH_FN] = w * kf.kappa * m_local
+                    fb = w * kf.accel * m_local
+                    au[CH_FBX], au[CH_FBY] = fb.real, fb.imag
                     self.b_offered = self.b_offered or bool(self._on() & 1)
                     self.f_offered = self.f_offered or bool(self._on() & 4)
+                    self.fb_offered = self.fb_offered or bool(self._on() & 8)
         if kf.ready and take_j:
             w = 1.0 if stage == BACKGROUND else self._clean_share(self.j_start, self.j_ticks)
             j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w, sure)
@@ -719,6 +723,8 @@ class DynamicPhase:
             "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 and on & 1 and self.b_offered else nan,
             "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 and on & 2 and self.c_offered else nan,
             "fc": x[CH_FN] / x[CH_MW] if len(x) > CH_FN and x[CH_MW] > 0.0 and on & 4 and self.f_offered else nan,
+            "fb_x": x[CH_FBX] / x[CH_MW] if len(x) > CH_FBX and x[CH_MW] > 0.0 and on & 8 and self.fb_offered else nan,
+            "fb_y": x[CH_FBY] / x[CH_MW] if len(x) > CH_FBY and x[CH_MW] > 0.0 and on & 8 and self.fb_offered else nan,
             "b_local": self.b_local if on & 1 else nan,
             "c_local": self.c_local if on & 2 else nan,
             "filter_restarts": float(self.reseeds),

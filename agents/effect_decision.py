@@ -2,7 +2,8 @@
 
 Every agent's filter (agents/rigid_filter.py, ``sens``) carries the sensitivity of its own-velocity
 prediction to each candidate effect's rate (beta = b/m: viscous friction; gamma = c/J: rotational
-damping; kappa = F_c/m: Coulomb friction), propagated through the filter's own prediction and gain: what
+damping; kappa = F_c/m: Coulomb friction; a = f/m along x and y: a constant external force, force_bias,
+the one vector candidate), propagated through the filter's own prediction and gain: what
 the innovation would look like if the effect were there, after the filter's states (1/m, omega, 1/J, ...)
 had absorbed what they can. Per update, :class:`WindowEvidence` takes the whitened innovation w and the
 whitened sensitivities g_k (both from S = L L^T) and sums, over global windows of ``window`` ticks
@@ -43,12 +44,20 @@ windows). The team rules the candidate out through the same flood and code as a 
 again, the window ``unexplained``; the filters, which never released it, are untouched. A window that rules
 a candidate out switches nothing on: the candidates are correlated (Coulomb and viscous friction's scores by
 0.83-0.99), and one significantly negative beside another significantly positive is structure that neither
-explains. A switch is also checked against the model it makes (:func:`contradicted_by`): with k's rate free,
+explains; unless the positive one's model explains it: no score orthogonal to its rates is below the quantile
+(a slope pushing along the motion half the time makes friction's own score negative, and none once the slope
+is fitted; two positively correlated frictions never pass this). A switch is also checked against the model it makes (:func:`contradicted_by`): with k's rate free,
 another candidate j's score is its score orthogonal to k's, z_j|k; below the lower quantile while j's own
 score z_j is not, k's fitted effect is what makes j's coefficient negative, so the structure along their
 shared signature is not k's: k is ruled out instead (the statistic z_j|k). A j contradicted by its own score
 is structure no switch changes and blocks no candidate. A ruled-out candidate's score is still pooled and
 still checks the later switches of its near-twins.
+
+The vector candidate (force_bias) has no sign: its score is the chi2 with 2 dof of its two rates' scores
+and their 2 x 2 information (orthogonal to the others' rates as above), judged at the same level through its
+normal-equivalent z (:func:`chi2_z`); it is never ruled out by its own score (there is no negative to
+contradict) nor contradicts another's switch, but a scalar candidate's score orthogonal to it can rule it
+out; its withdrawal is the same rule on its rates' Wald chi2 (below the level's lower quantile).
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -57,23 +66,28 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from statistics import NormalDist
 
 import numpy as np
 
 from agents.innovation_monitor import cholesky2, whiten
-from agents.rigid_filter import EFFECTS, N_EFF, RigidEKF  # candidate k: filter state 7 + k (beta, gamma, kappa)
+# candidate k: its rates EFFECT_PARAMS[k], filter states 7 + p (beta, gamma, kappa, a_x, a_y)
+from agents.rigid_filter import EFFECT_PARAMS, EFFECTS, N_EFF, N_PAR, RigidEKF
 
 ALL = (1 << N_EFF) - 1  # every candidate's bit
-# the candidates' pairs (j <= k) in the order of their information channels
-PAIRS = tuple((j, k) for j in range(N_EFF) for k in range(j, N_EFF))
-VCH = {p: N_EFF + i for i, p in enumerate(PAIRS)} | {(k, j): N_EFF + i for i, (j, k) in enumerate(PAIRS)}
-# consensus channels per window: the score s_k per candidate, the information V_jk per pair (VCH), then the
+VECTOR = sum(1 << k for k, ps in enumerate(EFFECT_PARAMS) if len(ps) > 1)  # candidates without a sign (force_bias)
+# the rates' pairs (p <= q) in the order of their information channels
+PAIRS = tuple((j, k) for j in range(N_PAR) for k in range(j, N_PAR))
+VCH = {p: N_PAR + i for i, p in enumerate(PAIRS)} | {(k, j): N_PAR + i for i, (j, k) in enumerate(PAIRS)}
+# consensus channels per window: the score s_p per rate, the information V_pq per pair (VCH), then the
 # persistence z and the count
-N_POOL = N_EFF + len(PAIRS) + 2
+N_POOL = N_PAR + len(PAIRS) + 2
 CH_Z = N_POOL - 2
 CH_CNT = N_POOL - 1
 DECISION_KEYS = ("Ds", "De", "Dz")  # StateMsg.shared: switch tick (-1: none), effect index, statistic
-DETECT_NAMES = ("eff_on", "eff_out", "eff_tick", "eff_z", "eff_unexplained", "eff_zp", "eff_zb", "eff_zc", "eff_zf")
+DETECT_NAMES = ("eff_on", "eff_out", "eff_tick", "eff_z", "eff_unexplained", "eff_zp", "eff_zb", "eff_zc", "eff_zf",
+                "eff_zs")
+_NORMAL = NormalDist()
 
 
 def normal_sf(z: float) -> float:
@@ -81,13 +95,54 @@ def normal_sf(z: float) -> float:
     return 0.5 * math.erfc(z / math.sqrt(2.0))
 
 
+def chi2_z(x: float, dof: int) -> float:
+    """The normal-equivalent z of a chi2 statistic ``x`` with ``dof`` degrees of freedom (1 or 2): the z with
+    P(Z > z) = P(X > x), so that a vector candidate's test and the scalar one-sided ones share one level and
+    one order. With 2 dof P(X > x) = exp(-x / 2); far in the tail z solves z^2 + 2 log(z sqrt(2 pi)) = x (the
+    normal tail's asymptote, exact to ~1/z^2 in log p), where exp(-x / 2) underflows."""
+    if not x > 0.0:
+        return -math.inf if x == 0.0 else math.nan
+    if dof == 1:
+        return math.sqrt(x)  # the two-sided score's magnitude (unused: scalar candidates keep their sign)
+    if x < 1400.0:
+        p = math.exp(-0.5 * x)
+        return -_NORMAL.inv_cdf(p) if p < 0.5 else _NORMAL.inv_cdf(-math.expm1(-0.5 * x))
+    z = math.sqrt(x)
+    for _ in range(4):
+        z = math.sqrt(x - 2.0 * math.log(z * math.sqrt(2.0 * math.pi)))
+    return z
+
+
+def _score_z(s: np.ndarray, v: np.ndarray, n: int, ref: float) -> float:
+    """The team's score statistic of one candidate from the team means ``s`` (its rates' scores) and ``v``
+    (their information): signed z = sqrt(n) s / sqrt(v) for a scalar rate, the chi2 n s^T v^-1 s's
+    normal-equivalent z (:func:`chi2_z`) for a vector; NaN where ``v`` is singular to ``ref`` (the rates'
+    own information before any projection: collinear with the others, no part of its own)."""
+    if len(s) == 1:
+        vv = float(v[0, 0])
+        return math.sqrt(n) * float(s[0]) / math.sqrt(vv) if vv > 1e-9 * ref else math.nan
+    ev = np.linalg.eigvalsh(v)
+    if not ev[0] > 1e-9 * ref:
+        return math.nan
+    return chi2_z(n * float(s @ np.linalg.solve(v, s)), len(s))
+
+
+def _gram(means: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """The team means of the rates' scores (N_PAR) and their information matrix (N_PAR x N_PAR)."""
+    S = np.array(means[:N_PAR], dtype=float)
+    V = np.array([[means[VCH[p, q]] for q in range(N_PAR)] for p in range(N_PAR)], dtype=float)
+    return S, V
+
+
 def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple[float, list[float], list[float]]:
     """(z_p, [z_k], [zo_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
-    agent contributed. Means times n are the team sums S_k, V_jk: a candidate's own score z_k = S_k / sqrt(V_kk)
-    and zo_k, its score orthogonal to the other candidates' (module docstring). The candidates are the effects
-    not in ``out`` (bit k: on, declared or withdrawn: not tested), whose z are NaN. For an effect switched on
-    (bit k of ``held``) the (S_k, V_kk) pair is its rate's (estimate / variance, 1 / variance): z_k is the
-    team's Wald z of the inverse-variance weighted mean.
+    agent contributed. Means times n are the team sums S_p, V_pq: a candidate's own score z_k = S_k / sqrt(V_kk)
+    and zo_k, its score orthogonal to the other candidates' (module docstring); for the vector candidate
+    (force_bias: its rates a_x, a_y) the chi2 S_k^T V_kk^-1 S_k with 2 dof as its normal-equivalent z
+    (:func:`chi2_z`), orthogonal the same way. The candidates are the effects not in ``out`` (bit k: on,
+    declared or withdrawn: not tested), whose z are NaN. For an effect switched on (bit k of ``held``) its
+    rates' channels carry (P^-1 r, P^-1) (r the released rates, P their covariance): z_k is the team's Wald z
+    of the inverse-variance weighted mean (a vector's: the Wald chi2's normal-equivalent z).
 
     The count's team sum is a whole number of agents; below one half no agent contributed a score window,
     and what the channels hold is what the consensus has not yet forgotten of an earlier window (with delayed
@@ -97,63 +152,72 @@ def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple
     empty = n * means[CH_CNT] < 0.5
     zs = [nan] * N_EFF
     zo = [nan] * N_EFF
-    cand = [k for k in range(N_EFF) if not ((out | held) >> k) & 1 and means[VCH[k, k]] > 0.0]
+    S, V = _gram(means)
+    cand = [k for k in range(N_EFF)
+            if not ((out | held) >> k) & 1 and all(V[p, p] > 0.0 for p in EFFECT_PARAMS[k])]
     for k in range(N_EFF):
-        s, v = means[k], means[VCH[k, k]]
-        if v > 0.0 and ((held >> k) & 1 or (k in cand and not empty)):
-            zs[k] = math.sqrt(n) * s / math.sqrt(v)
+        ps = list(EFFECT_PARAMS[k])
+        if all(V[p, p] > 0.0 for p in ps) and ((held >> k) & 1 or (k in cand and not empty)):
+            zs[k] = _score_z(S[ps], V[np.ix_(ps, ps)], n, 0.0)
     if empty:
         return nan, zs, zo
-    if cand:
-        S = np.array([means[k] for k in cand])
-        V = np.array([[means[VCH[j, k]] for k in cand] for j in cand])
-        for i, k in enumerate(cand):
-            o = [j for j in range(len(cand)) if j != i]
-            s, v = S[i], V[i, i]
-            if o:  # the part of k's score that the other candidates' rates explain is theirs
-                c = np.linalg.pinv(V[np.ix_(o, o)]) @ V[o, i]
-                s -= c @ S[o]
-                v -= c @ V[o, i]
-            # collinear with the others (to rounding): no part of its own
-            zo[k] = math.sqrt(n) * float(s) / math.sqrt(float(v)) if v > 1e-9 * V[i, i] else nan
+    for k in cand:
+        ps = list(EFFECT_PARAMS[k])
+        o = [p for j in cand if j != k for p in EFFECT_PARAMS[j]]
+        s, v = S[ps], V[np.ix_(ps, ps)]
+        if o:  # the part of k's score that the other candidates' rates explain is theirs
+            c = np.linalg.pinv(V[np.ix_(o, o)]) @ V[np.ix_(o, ps)]
+            s = s - c.T @ S[o]
+            v = v - V[np.ix_(ps, o)] @ c
+        # collinear with the others (to rounding): no part of its own
+        zo[k] = _score_z(s, v, n, float(np.max(np.diag(V)[ps])))
     zsum, cnt = means[CH_Z], means[CH_CNT]
     zp = math.sqrt(n) * zsum / math.sqrt(cnt) if cnt > 0.0 else nan
     return zp, zs, zo
 
 
-def window_level(alpha: float) -> float:
-    """The one-sided level of every test of a window: ``alpha`` over (1 + the number of candidates), the
-    persistence test and each candidate's, whatever has been switched (module docstring)."""
-    return alpha / (1 + N_EFF)
+def window_level(alpha: float, cands: int = N_EFF) -> float:
+    """The one-sided level of every test of a window: ``alpha`` over (1 + the number of candidates ``cands``),
+    the persistence test and each candidate's, whatever has been switched (module docstring)."""
+    return alpha / (1 + cands)
 
 
-def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float) -> tuple[float, int]:
+def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float,
+                    every: bool = False, cands: int = N_EFF) -> tuple[float, int]:
     """(z, j): the lowest score z_j|k of another effect j (bit j of ``scored``: its pool channels carry a
-    score) orthogonal to candidate k's, the score test of j in the model with k's rate free, among those below
+    score) orthogonal to candidate k's, the score test of j in the model with k's rates free, among those below
     the level's lower quantile whose own score z_j is not; (NaN, -1) if none. Such a j says that switching k on
     makes a model the window that proposes it contradicts, and k's fitted effect is what makes it: k does not
     explain the structure along their shared signature (module docstring). A j whose own score is below the
-    quantile too is structure no switch changes (it is ruled out on its own) and blocks no candidate."""
-    level = window_level(alpha)
+    quantile too is structure no switch changes (it is ruled out on its own) and blocks no candidate; with
+    ``every`` it counts too (the window's rule-out then waits for no switch that does not explain it). Only a
+    scalar j has a sign to contradict (a vector's chi2 has none); k may be either."""
+    level = window_level(alpha, cands)
     worst = (math.nan, -1)
-    vkk = means[VCH[k, k]]
-    if not vkk > 0.0 or n * means[CH_CNT] < 0.5:
+    S, V = _gram(means)
+    ks = list(EFFECT_PARAMS[k])
+    vkk = V[np.ix_(ks, ks)]
+    if not all(V[p, p] > 0.0 for p in ks) or n * means[CH_CNT] < 0.5:
         return worst
+    ikk = np.linalg.pinv(vkk)
     for j in range(N_EFF):
-        vjj, vjk = means[VCH[j, j]], means[VCH[j, k]]
-        if j == k or not (scored >> j) & 1 or not vjj > 0.0:
+        if j == k or not (scored >> j) & 1 or (VECTOR >> j) & 1:
             continue
-        v = vjj - vjk * vjk / vkk
+        p = EFFECT_PARAMS[j][0]
+        vjj, vjk = V[p, p], V[p, ks]
+        if not vjj > 0.0:
+            continue
+        v = vjj - float(vjk @ ikk @ vjk)
         if v > 1e-9 * vjj:  # collinear with k (to rounding): no part of its own to test
-            z = math.sqrt(n) * (means[j] - vjk / vkk * means[k]) / math.sqrt(v)
-            own = math.sqrt(n) * means[j] / math.sqrt(vjj)
-            if normal_sf(-z) < level <= normal_sf(-own) and not z >= worst[0]:
+            z = math.sqrt(n) * (S[p] - float(vjk @ ikk @ S[ks])) / math.sqrt(v)
+            own = math.sqrt(n) * S[p] / math.sqrt(vjj)
+            if normal_sf(-z) < level and (every or level <= normal_sf(-own)) and not z >= worst[0]:
                 worst = (z, j)
     return worst
 
 
 def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
-          zo: Sequence[float] | None = None) -> tuple[int, bool]:
+          zo: Sequence[float] | None = None, cands: int = N_EFF) -> tuple[int, bool]:
     """The team's verdict on one window: (decision or -1, unexplained). Decision k < N_EFF: switch candidate
     k on; N_EFF + k: withdraw effect k.
 
@@ -166,8 +230,9 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
     are then both significant, and named by the part that tells them apart. For
     an effect switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below
     the level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect
-    is withdrawn (the most negative first), and the structure it was switched on for stays unexplained."""
-    level = window_level(alpha)
+    is withdrawn (the most negative first), and the structure it was switched on for stays unexplained.
+    ``cands``: the number of candidates the level is shared by."""
+    level = window_level(alpha, cands)
     worst, zworst = -1, math.inf
     for k, z in enumerate(zs):
         if (held >> k) & 1 and z == z and normal_sf(-z) < level and z < zworst:
@@ -198,10 +263,10 @@ class WindowEvidence:
 
     def clear(self) -> None:
         """A new window."""
-        self.sw = [0.0] * N_EFF
+        self.sw = [0.0] * N_PAR
         self.sg = [0.0] * len(PAIRS)
         self.sww = 0.0
-        self.sh = [0.0] * N_EFF  # g_k.h: each candidate's sensitivity against the force error's
+        self.sh = [0.0] * N_PAR  # g_p.h: each rate's sensitivity against the force error's
         self.shh = 0.0
         self.swh = 0.0
         self.n = 0
@@ -214,9 +279,11 @@ class WindowEvidence:
 
     def observe(self, w0: float, w1: float, g: Sequence[tuple[float, float]],
                 h: tuple[float, float] = (0.0, 0.0)) -> None:
-        """One update's whitened innovation (w0, w1), each candidate's whitened sensitivity and the force
-        error's ``h`` (the nuisance)."""
+        """One update's whitened innovation (w0, w1), each rate's whitened sensitivity (:data:`N_PAR`; rates
+        not given have none) and the force error's ``h`` (the nuisance)."""
         h0, h1 = h
+        if len(g) < N_PAR:
+            g = [*g, *((0.0, 0.0),) * (N_PAR - len(g))]
         for k, (g0, g1) in enumerate(g):
             self.sw[k] += w0 * g0 + w1 * g1
             self.sh[k] += g0 * h0 + g1 * h1
@@ -310,9 +377,14 @@ class OnlineDetection:
 
     __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "switched", "withdrawn",
                  "last_tick", "last_z", "unexplained", "zp", "zs", "settle_from", "score_from", "late",
-                 "mixed")
+                 "mixed", "cand", "ncand")
 
-    def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0) -> None:
+    def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0,
+                 cand: int = ALL) -> None:
+        # the candidates (bit k: EFFECTS[k]); the others' rates are never scored (their sensitivities are
+        # not offered) and the level is shared by these alone
+        self.cand = cand
+        self.ncand = bin(cand).count("1")
         self.n = n
         self.window = window
         self.horizon = horizon
@@ -348,8 +420,12 @@ class OnlineDetection:
         chol = cholesky2(s00, s01, s11)
         if chol is None or e0 != e0:
             return
-        g = [whiten(chol, sens_h[2 * k], sens_h[2 * k + 1]) for k in range(N_EFF)]
-        hn = whiten(chol, sens_h[2 * N_EFF], sens_h[2 * N_EFF + 1]) if len(sens_h) > 2 * N_EFF else (0.0, 0.0)
+        g = [whiten(chol, sens_h[2 * p], sens_h[2 * p + 1]) for p in range(N_PAR)]
+        for k, ps in enumerate(EFFECT_PARAMS):
+            if not (self.cand >> k) & 1:
+                for p in ps:
+                    g[p] = (0.0, 0.0)
+        hn = whiten(chol, sens_h[2 * N_PAR], sens_h[2 * N_PAR + 1]) if len(sens_h) > 2 * N_PAR else (0.0, 0.0)
         self.ev.observe(*whiten(chol, e0, e1), g, hn)
 
     def begin_tick(self, tick: int, u: list[float], x: Sequence[float],
@@ -372,9 +448,7 @@ class OnlineDetection:
             # (not a window's sum: a regime change inside the window does not void it)
             for k in range(N_EFF):
                 if (self.switched >> k) & 1:
-                    est, var = rates[k] if rates is not None and tick >= self.settle_from else (0.0, 0.0)
-                    ok = var > 0.0 and est == est
-                    u[c + k], u[c + VCH[k, k]] = (est / var, 1.0 / var) if ok else (0.0, 0.0)
+                    self._offer_rate(u, k, rates[k] if rates is not None and tick >= self.settle_from else None)
         elif r == w - 1 and tick + 1 >= 2 * w:
             c = self.ch0
             held = self.switched
@@ -387,13 +461,16 @@ class OnlineDetection:
                     zp = math.nan
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
-                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo)
+                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo, self.ncand)
                 z = zs[k % N_EFF]
                 out = self._contradicted(zs, self.on | self.withdrawn | held)
-                if out >= 0 and k < N_EFF:  # a rule-out comes before a switch in the same window (module docstring)
+                # a rule-out comes before a switch in the same window, unless the switch's model explains it: no
+                # score orthogonal to the switched rates below the quantile (module docstring)
+                if out >= 0 and k < N_EFF and (k < 0 or contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on,
+                                                                        self.alpha, True, self.ncand)[1] >= 0):
                     k, z = N_EFF + out, zs[out]
                 elif 0 <= k < N_EFF:  # a switch whose model the same window contradicts rules its candidate out
-                    zc, j = contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on, self.alpha)
+                    zc, j = contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on, self.alpha, cands=self.ncand)
                     if j >= 0:
                         k, z = N_EFF + k, zc
                 if k >= 0:
@@ -429,10 +506,28 @@ class OnlineDetection:
         self.score_from = due[0] + (3 * w if due[1] < N_EFF else w)
         return due[1]
 
+    def _offer_rate(self, u: list[float], k: int, rate: tuple | None) -> None:
+        """A switched effect's rates r and their covariance P (the filter's, a snapshot) on its rates' pool
+        channels as (P^-1 r, P^-1); zeros (it weighs nothing) when there is none or P is not positive definite."""
+        ps = EFFECT_PARAMS[k]
+        c = self.ch0
+        info, wr = np.zeros((len(ps), len(ps))), np.zeros(len(ps))
+        if rate is not None:
+            r, P = np.atleast_1d(np.asarray(rate[0], float)), np.atleast_2d(np.asarray(rate[1], float))
+            if np.all(np.isfinite(r)) and np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0.0):
+                info = 1.0 / P if len(ps) == 1 else np.linalg.inv(P)
+                wr = r / P[0] if len(ps) == 1 else info @ r
+        for i, p in enumerate(ps):
+            u[c + p] = float(wr[i])
+            for j, q in enumerate(ps):
+                u[c + VCH[p, q]] = float(info[i, j])
+
     def _contradicted(self, zs: Sequence[float], skip: int) -> int:
         """The candidate (not in ``skip``) whose pooled score is most significantly negative, at the level of
-        a switch, or -1: the data favour a negative coefficient, which no candidate has."""
-        level = window_level(self.alpha)
+        a switch, or -1: the data favour a negative coefficient, which no candidate has. A vector candidate
+        (its chi2 has no sign) is never contradicted so."""
+        skip |= VECTOR
+        level = window_level(self.alpha, self.ncand)
         neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
         return min(neg)[1] if neg else -1
 
@@ -474,4 +569,4 @@ class OnlineDetection:
         return {"eff_on": float(self.on), "eff_out": float(self.withdrawn), "eff_tick": float(self.last_tick),
                 "eff_z": self.last_z,
                 "eff_unexplained": float(self.unexplained), "eff_zp": self.zp, "eff_zb": self.zs[0],
-                "eff_zc": self.zs[1], "eff_zf": self.zs[2]}
+                "eff_zc": self.zs[1], "eff_zf": self.zs[2], "eff_zs": self.zs[3]}

@@ -1,6 +1,6 @@
 """The rigid-body filter of the dynamical phase and the restart fit of its lock check.
 
-:class:`RigidEKF`: an extended Kalman filter on (v_C, q_i, 1/m, omega, 1/J, [b/m, c/J,] u-bias) from
+:class:`RigidEKF`: an extended Kalman filter on (v_C, q_i, 1/m, omega, 1/J, [b/m, c/J, F_c/m, f/m,] u-bias) from
 the agent's own contact velocity and the pooled eq. (9) rate, with the team's total force and torque
 (from the consensus) as inputs. :func:`fit_rotation`: a global fit of the own contact velocities over
 a window, the restart point of a filter that locked onto a wrong (q_i, omega). Pure: inputs as
@@ -16,9 +16,12 @@ import numpy as np
 from config.agent_params import DynamicsSpec
 
 _U_BIAS_SD0 = 0.05  # prior std of the eq. (9) rate's error b at a filter start (rad/s): fresh circle fits
-# the augmented model's effects, in the order of their rate states 7, 8, 9 (their names as in ident/model.py)
-EFFECTS = ("viscous_friction", "rotational_damping", "coulomb_friction")
+# the augmented model's effects (their names as in ident/model.py) and their rate states: 7 beta, 8 gamma,
+# 9 kappa, 10 and 11 the constant acceleration a = f/m along x and y (force_bias, a 2-vector)
+EFFECTS = ("viscous_friction", "rotational_damping", "coulomb_friction", "force_bias")
 N_EFF = len(EFFECTS)
+EFFECT_PARAMS = ((0,), (1,), (2,), (3, 4))  # each effect's rates (state 7 + p)
+N_PAR = 5
 
 
 def coulomb_sat(vx: float, vy: float, vs: float) -> tuple[float, float, float, float, float]:
@@ -35,7 +38,8 @@ def coulomb_sat(vx: float, vy: float, vs: float) -> tuple[float, float, float, f
 
 
 class RigidEKF:
-    """Extended Kalman filter on s = (v_Cx, v_Cy, q_x, q_y, mu = 1/m, omega, iota = 1/J, [beta, gamma, kappa,] b),
+    """Extended Kalman filter on s = (v_Cx, v_Cy, q_x, q_y, mu = 1/m, omega, iota = 1/J, [beta, gamma, kappa, a_x,
+    a_y,] b),
     world frame; b (always the last state, index ``ib``) is the pooled rate's own error, u = omega + b, a
     random walk of ``spec.u_bias_walk`` (pinned at 0 when that is 0).
 
@@ -46,14 +50,15 @@ class RigidEKF:
     model, removes the lag of the kinematic omega_hat filter (which rotated q and the J-stage forces
     away from the body while omega ramped).
 
-    Augmented model (``spec.estimate_effects``): three more states, beta = b/m (1/s), gamma = c/J (1/s)
-    and kappa = F_c/m (m/s^2), with v_C(k+1) = v_C + dt (mu F - beta v_C - kappa sat(v_C)) and
-    omega(k+1) = omega + dt (iota T - gamma omega), the plant's step with viscous friction -b v_C, smoothed
-    Coulomb friction -F_c tanh(|v_C|/v_s) v_C/|v_C| and rotational damping -c omega (simulator/effects.py:
+    Augmented model (``spec.estimate_effects``): five more states, beta = b/m (1/s), gamma = c/J (1/s),
+    kappa = F_c/m (m/s^2) and a = f/m (m/s^2, world frame, two states), with v_C(k+1) = v_C + dt (mu F -
+    beta v_C - kappa sat(v_C) + a) and omega(k+1) = omega + dt (iota T - gamma omega), the plant's step with
+    viscous friction -b v_C, smoothed Coulomb friction -F_c tanh(|v_C|/v_s) v_C/|v_C|, a constant external
+    force f (a slope) and rotational damping -c omega (simulator/effects.py:
     forces of the state at tick k act over k -> k+1; v_s is ``spec.coulomb_speed``, the filter's, as it
     cannot know the plant's). The rates rather than b, F_c and c keep the model linear in the parameters
     given the (well-measured) velocities, whatever the current mu; b = beta/mu, F_c = kappa/mu,
-    c = gamma/iota. An effect not estimated keeps its state at exactly 0 (zero variance, no walk).
+    c = gamma/iota, f = a/mu. An effect not estimated keeps its states at exactly 0 (zero variance, no walk).
     """
 
     __slots__ = ("s", "P", "Qd", "r", "ready", "_I", "aug", "ib", "qb", "b0", "nis", "innov", "sens", "sens_h",
@@ -68,24 +73,24 @@ class RigidEKF:
         walk_iota = spec.iota_walk if background else 0.0
         # per-second process noise intensities; q's angle walk is scaled by |q|^2 at each step
         self.Qd = (spec.kf_v_walk**2, spec.kf_angle_walk**2, walk_mu**2, spec.omega_walk**2, walk_iota**2)
-        # augmented model: per effect (EFFECTS order) whether its rate is free (1) or pinned (0), then the
-        # per-second walk intensities; 0 and 0 for an effect not estimated (its state stays exactly 0)
+        # augmented model: per rate state (7 + p) whether it is free (1) or pinned (0), then the per-second
+        # walk intensities; 0 and 0 for an effect not estimated (its states stay exactly 0)
         self.aug: tuple[float, ...] | None = None
         if spec.estimate_effects or spec.online_detection:
-            on = tuple(1.0 if e in spec.estimate_effects else 0.0 for e in EFFECTS)
+            on = tuple(1.0 if e in spec.estimate_effects else 0.0 for e, ps in zip(EFFECTS, EFFECT_PARAMS) for _ in ps)
             w2 = spec.effect_walk**2
             self.aug = on + tuple(o * w2 for o in on)
         self.walk_eff = spec.effect_walk**2
         self.vs = spec.coulomb_speed
-        # online detection (agents/effect_decision.py): d(state prediction)/d(beta, gamma, kappa) at the
-        # pinned 0, through the filter's own prediction and gain, and its own-velocity rows H D of the last update
+        # online detection (agents/effect_decision.py): d(state prediction)/d(beta, gamma, kappa, a_x, a_y) at
+        # the pinned 0, through the filter's own prediction and gain, and its own-velocity rows H D of the last update
         self.sens: np.ndarray | None = None
-        # (H D)[v_x, effect k], [v_y, effect k] for each effect, then the force error's [v_x], [v_y]
-        self.sens_h = (0.0,) * (2 * N_EFF + 2)
+        # (H D)[v_x, rate p], [v_y, rate p] for each rate, then the force error's [v_x], [v_y]
+        self.sens_h = (0.0,) * (2 * N_PAR + 2)
         self.detect = spec.online_detection
         # the pooled eq. (9) rate's own slowly varying error b (u = omega + b), the last state; pinned at 0
         # (zero variance, no walk) with u_bias_walk = 0
-        self.ib = 7 if self.aug is None else 7 + N_EFF
+        self.ib = 7 if self.aug is None else 7 + N_PAR
         self.qb = spec.u_bias_walk**2
         self.b0 = _U_BIAS_SD0**2 if self.qb > 0.0 else 0.0
         self.s = np.zeros(self.ib + 1)
@@ -97,8 +102,8 @@ class RigidEKF:
         self.s = np.array([vc.real, vc.imag, q0.real, q0.imag, 0.0, omega, 0.0])
         self.P = np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 0.1, 1e-2])
         if self.aug is not None:  # the rates pinned at 0 until release_effects()
-            self.s = np.append(self.s, (0.0,) * N_EFF)
-            P = np.zeros((7 + N_EFF, 7 + N_EFF))
+            self.s = np.append(self.s, (0.0,) * N_PAR)
+            P = np.zeros((7 + N_PAR, 7 + N_PAR))
             P[:7, :7] = self.P
             self.P = P
         ib = self.ib
@@ -108,7 +113,7 @@ class RigidEKF:
         P[ib, ib] = self.b0
         self.P = P
         if self.detect:
-            self.sens = np.zeros((ib + 1, N_EFF + 1))  # the rates, the gain of the force error (predict)
+            self.sens = np.zeros((ib + 1, N_PAR + 1))  # the rates, the gain of the force error (predict)
         self.ready = True
 
     def release_effects(self) -> None:
@@ -123,32 +128,37 @@ class RigidEKF:
         """
         if self.aug is None or not self.ready:
             return
-        self._restart(((4, 1.0), (6, 1e-2), *((7 + k, 0.1 * self.aug[k]) for k in range(N_EFF))))
+        self._restart(((4, 1.0), (6, 1e-2), *((7 + p, 0.1 * self.aug[p]) for p in range(N_PAR))))
 
     def release_effect(self, k: int) -> None:
-        """Online detection: let effect k (:data:`EFFECTS` order) move from 0 (prior std 0.3 1/s or m/s^2, walk
-        ``effect_walk`` per second) and restart the parameter it shares the data with (1/m for beta and kappa,
-        1/J for gamma) from its current value with the start's prior, as :meth:`release_effects` does."""
+        """Online detection: let effect k's rates (:data:`EFFECTS` order) move from 0 (prior std 0.3 1/s or m/s^2
+        each, walk ``effect_walk`` per second) and restart the parameter it shares the data with (1/m for beta,
+        kappa and a, 1/J for gamma) from its current value with the start's prior, as :meth:`release_effects`
+        does. A constant force (force_bias) restarts v_C's variance too (the start's prior, correlations
+        dropped): the nominal model has carried the constant acceleration in v_C's random walk, as a lag of
+        v_C's estimate, and a confident v_C would read that lag's decay as 1/m (docs/online-detection.md)."""
         if self.aug is None or not self.ready:
             return
         self._set_effect(k, 1.0, self.walk_eff)
-        self._restart(((6, 1e-2), (8, 0.1)) if k == 1 else ((4, 1.0), (7 + k, 0.1)))
+        rates = tuple((7 + p, 0.1) for p in EFFECT_PARAMS[k])
+        vc = ((0, 1.0), (1, 1.0)) if len(EFFECT_PARAMS[k]) > 1 else ()
+        self._restart(((6, 1e-2), *rates) if k == 1 else ((4, 1.0), *vc, *rates))
 
     def withdraw_effect(self, k: int) -> None:
-        """Online detection: pin effect k's rate (:data:`EFFECTS` order) at 0 again. The filter's state is
-        conditioned on the rate being exactly 0 (the Gaussian conditional: s - P[:, r] s_r / P_rr,
-        P - P[:, r] P[r, :] / P_rr): 1/m (or 1/J) keeps the data since the switch, corrected to first order by
-        its correlation with the rate; a correction only, not the filter that never had the effect
+        """Online detection: pin effect k's rates (:data:`EFFECTS` order) at 0 again. The filter's state is
+        conditioned on the rates being exactly 0 (the Gaussian conditional: s - P[:, r] P_rr^-1 s_r,
+        P - P[:, r] P_rr^-1 P[r, :]): 1/m (or 1/J) keeps the data since the switch, corrected to first order by
+        its correlation with the rates; a correction only, not the filter that never had the effect
         (docs/online-detection.md, "Withdrawal")."""
         if self.aug is None or not self.ready:
             return
-        r = 7 + k
+        r = [7 + p for p in EFFECT_PARAMS[k]]
         s, P = self.s.copy(), self.P.copy()
-        prr = P[r, r]
-        if prr > 0.0:
-            c = P[:, r] / prr
-            s = s - c * s[r]
-            P = P - np.outer(c, P[r, :])
+        prr = P[np.ix_(r, r)]
+        if np.all(np.diag(prr) > 0.0):
+            c = np.linalg.solve(prr, P[r, :]).T  # P[:, r] P_rr^-1
+            s = s - c @ s[r]
+            P = P - c @ P[r, :]
         s[r] = 0.0
         P[r, :] = 0.0
         P[:, r] = 0.0
@@ -157,10 +167,11 @@ class RigidEKF:
         self.P = 0.5 * (P + P.T)
 
     def _set_effect(self, k: int, on: float, walk: float) -> None:
-        """Effect k's entries of ``aug`` (its rate on or pinned, and its random walk)."""
+        """Effect k's entries of ``aug`` (its rates on or pinned, and their random walk)."""
         aug = list(self.aug)
-        aug[k] = on
-        aug[N_EFF + k] = walk
+        for p in EFFECT_PARAMS[k]:
+            aug[p] = on
+            aug[N_PAR + p] = walk
         self.aug = tuple(aug)
 
     def _restart(self, entries: tuple[tuple[int, float], ...]) -> None:
@@ -320,11 +331,11 @@ class RigidEKF:
         A[2, 5] = dt * (-sn * qx - c * qy)
         A[3, 5] = dt * (c * qx - sn * qy)
         A[5, 6] = dt * torque
-        if self.aug is not None:  # augmented model: - dt beta v_C, - dt kappa sat(v_C), - dt gamma omega
-            beta, gamma, kappa = s[7], s[8], s[9]
+        if self.aug is not None:  # augmented model: - dt beta v_C, - dt kappa sat(v_C), + dt a, - dt gamma omega
+            beta, gamma, kappa, ax, ay = s[7], s[8], s[9], s[10], s[11]
             sx, sy, j00, j01, j11 = coulomb_sat(s[0], s[1], self.vs)
-            nq[0] -= dt * (beta * s[0] + kappa * sx)
-            nq[1] -= dt * (beta * s[1] + kappa * sy)
+            nq[0] -= dt * (beta * s[0] + kappa * sx - ax)
+            nq[1] -= dt * (beta * s[1] + kappa * sy - ay)
             nq[5] -= dt * gamma * om
             A[0, 0] -= dt * (beta + kappa * j00)
             A[1, 1] -= dt * (beta + kappa * j11)
@@ -336,15 +347,17 @@ class RigidEKF:
             A[5, 8] = -dt * om
             A[0, 9] = -dt * sx
             A[1, 9] = -dt * sy
-            nq = np.append(nq, (beta, gamma, kappa))
+            A[0, 10] = dt
+            A[1, 11] = dt
+            nq = np.append(nq, (beta, gamma, kappa, ax, ay))
         nq = np.append(nq, s[self.ib])
         if self.sens is not None:
             # d/d rate at the pinned 0: carried through A, plus each rate's own column of A on the states it
-            # drives (-dt v_C, -dt omega, -dt sat(v_C))
+            # drives (-dt v_C, -dt omega, -dt sat(v_C), dt along x and along y)
             D = A @ self.sens
-            D[:7, :N_EFF] += A[:7, 7:7 + N_EFF]
-            D[0, N_EFF] += dt * s[4] * force_err.real
-            D[1, N_EFF] += dt * s[4] * force_err.imag
+            D[:7, :N_PAR] += A[:7, 7:7 + N_PAR]
+            D[0, N_PAR] += dt * s[4] * force_err.real
+            D[1, N_PAR] += dt * s[4] * force_err.imag
             self.sens = D
         P = A @ self.P @ A.T
         qv, qa, qm, qo, qi = self.Qd
@@ -357,8 +370,8 @@ class RigidEKF:
         P[5, 5] += qo * dt
         P[6, 6] += qi * dt
         if self.aug is not None:
-            for k in range(N_EFF):
-                P[7 + k, 7 + k] += self.aug[N_EFF + k] * dt
+            for p in range(N_PAR):
+                P[7 + p, 7 + p] += self.aug[N_PAR + p] * dt
         P[self.ib, self.ib] += self.qb * dt
         self.s = nq
         self.P = P
@@ -401,14 +414,23 @@ class RigidEKF:
         """c/J (1/s), augmented model only."""
         return float(self.s[8])
 
-    def rate(self, k: int) -> tuple[float, float]:
-        """Effect k's rate (:data:`EFFECTS` order) and its variance, augmented model only."""
-        return float(self.s[7 + k]), float(self.P[7 + k, 7 + k])
+    def rate(self, k: int) -> tuple[float, float] | tuple[np.ndarray, np.ndarray]:
+        """Effect k's rate (:data:`EFFECTS` order) and its variance, augmented model only; for a vector effect
+        (force_bias) the rates' vector and their covariance."""
+        r = [7 + p for p in EFFECT_PARAMS[k]]
+        if len(r) == 1:
+            return float(self.s[r[0]]), float(self.P[r[0], r[0]])
+        return self.s[r].copy(), self.P[np.ix_(r, r)].copy()
 
     @property
     def kappa(self) -> float:
         """F_c/m (m/s^2), augmented model only."""
         return float(self.s[9])
+
+    @property
+    def accel(self) -> complex:
+        """a = f/m (m/s^2, world frame), augmented model only."""
+        return complex(self.s[10], self.s[11])
 
 
 def fit_rotation(v: np.ndarray, f: np.ndarray, dt: float, omega_max: float) -> tuple[float, complex, float]:

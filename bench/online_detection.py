@@ -13,8 +13,8 @@ same plant and seed with the nominal model (detection off) for comparison.
 ``--set``: more scenario overrides for every run (e.g. ``dynamics.coulomb_speed=0.01``).
 ``--faults``: every link loses 20 % of the states (Bernoulli) and delays them by 10 ticks (100 ms).
 ``both``: the two together (friction-online's own plant); ``coulomb``: Coulomb friction 5 N (the plant's
-smoothing speed 0.01 m/s). Plants out of the online vocabulary: ``slope`` (a constant 5 N force along x),
-``both_slope`` (the slope on friction-online's own plant),
+smoothing speed 0.01 m/s); ``slope``: a constant 5 N force along x (``force_bias``); ``both_slope``: the slope
+on friction-online's own plant. Out of the online vocabulary:
 ``periodic`` (a world-frame force 6 N sin(2 pi t / 10 s) along the m stage's force direction, 0.5 rad; the right
 answer: nothing on at the end, windows ``unexplained``; its nominal twin runs too).
 """
@@ -46,14 +46,14 @@ PLANTS = {
     "clean": ["plant.friction={}"],
     "both": ["plant.friction={viscous=5.0, rotational=8.69}"],
     "coulomb": ["plant.friction={coulomb=5.0}"],
-    "slope": ["plant.friction={}", "plant.external_force=[5.0, 0.0]"],
-    "both_slope": ["plant.external_force=[5.0, 0.0]"],
+    "slope": ["plant.friction={}", "plant.external_force=[5.0, 0.0]", "dynamics.online_force_bias=true"],
+    "both_slope": ["plant.external_force=[5.0, 0.0]", "dynamics.online_force_bias=true"],
     "periodic": ["plant.friction={}", "plant.periodic_force={amplitude=6.0, period_s=10.0, direction_deg=28.6479}"],
 }
 FAULTS = ['link.loss={model="bernoulli", p=0.2}', "link.delay_ticks=10"]
 TRUE = {"viscous": ["viscous_friction"], "rotational": ["rotational_damping"], "clean": [],
-        "both": ["rotational_damping", "viscous_friction"], "coulomb": ["coulomb_friction"], "slope": [],
-        "both_slope": ["rotational_damping", "viscous_friction"],
+        "both": ["rotational_damping", "viscous_friction"], "coulomb": ["coulomb_friction"], "slope": ["force_bias"],
+        "both_slope": ["force_bias", "rotational_damping", "viscous_friction"],
         "periodic": []}  # the right switches
 NOMINAL = {"periodic"}  # plants out of the vocabulary whose nominal twin also runs (how far off the model is)
 
@@ -69,7 +69,8 @@ def one(plant: str, seed: int, detect: bool, faults: bool, extra: tuple[str, ...
     eff = s.get("effects", {})
     return {"plant": plant, "seed": seed, "detect": detect, "m_rel": s["errors"].get("m_rel"),
             "J_rel": s["errors"].get("J_rel"), "b": float(c["b"][-1, 0]), "c": float(c["c"][-1, 0]),
-            "fc": float(c["fc"][-1, 0]), "events": eff.get("events", []), "on": eff.get("on", []),
+            "fc": float(c["fc"][-1, 0]), "fb": (float(c["fb_x"][-1, 0]), float(c["fb_y"][-1, 0])),
+            "events": eff.get("events", []), "on": eff.get("on", []),
             "unexplained": eff.get("unexplained_windows"),
             "m_start": float(m_start),
             "dt": sc.dt, "step_us": s.get("agent_step_us")}
@@ -100,22 +101,23 @@ def main() -> None:
             print("run", {k: v for k, v in r.items() if k != "dt"}, flush=True)
     nominal = {(r["plant"], r["seed"]): r for r in out if not r["detect"]}
     print("| plant | seed | switched, withdrawn or ruled out (tick: effect, z) | from m stage start to the first "
-          "switch (s) | unexplained windows | m err | J err | nominal m err | nominal J err | b | c | F_c |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "switch (s) | unexplained windows | m err | J err | nominal m err | nominal J err | b | c | F_c | f (N) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for p in plants:
         right = 0
         for r in (r for r in out if r["detect"] and r["plant"] == p):
             ev = r["events"]
             right += sorted(r["on"]) == TRUE[p]  # on at the end: a switch withdrawn counts for nothing
             kind = {"effect_withdrawn": " withdrawn", "effect_ruled_out": " ruled out"}
-            sw = "; ".join(f"{e['tick']}: {e['effect']}{kind.get(e.get('event'), '')}, "
-                           f"{e['statistic']:.2f}" for e in ev) or "none"
-            first = [e for e in ev if e.get("event") == "effect_switch"][:1]
+            stat = lambda e: "declared" if e["statistic"] is None else f"{e['statistic']:.2f}"  # noqa: E731
+            sw = "; ".join(f"{e['tick']}: {e['effect']}{kind.get(e.get('event'), '')}, {stat(e)}" for e in ev) or "none"
+            first = [e for e in ev if e.get("event") == "effect_switch" and e["tick"] >= 0][:1]
             dt0 = f"{first[0]['tick'] * r['dt'] - r['m_start']:.1f}" if first else "-"
             nom = nominal.get((p, r["seed"]), {})
             f = lambda v: "-" if v is None or v != v else f"{100 * v:.2f} %"  # noqa: E731
             print(f"| {p} | {r['seed']} | {sw} | {dt0} | {r['unexplained']} | {f(r['m_rel'])} | {f(r['J_rel'])} "
-                  f"| {f(nom.get('m_rel'))} | {f(nom.get('J_rel'))} | {r['b']:.3f} | {r['c']:.3f} | {r['fc']:.3f} |")
+                  f"| {f(nom.get('m_rel'))} | {f(nom.get('J_rel'))} | {r['b']:.3f} | {r['c']:.3f} | {r['fc']:.3f} "
+                  f"| ({r['fb'][0]:.3f}, {r['fb'][1]:.3f}) |")
         n = sum(1 for r in out if r["detect"] and r["plant"] == p)
         print(f"\n{p}: the right decision ({', '.join(TRUE[p]) or 'nothing'}, and nothing else, on at the end) in "
               f"{right} of {n} seeds\n")

@@ -292,13 +292,15 @@ class DynamicsSpec(_Strict):
                                "observable beside z_C (N m)",
     )
     dither_period_s: float = Field(6.0, gt=0, description="background: period of that dither (s)")
-    estimate_effects: tuple[Literal["viscous_friction", "rotational_damping", "coulomb_friction"], ...] = Field(
+    estimate_effects: tuple[Literal["viscous_friction", "rotational_damping", "coulomb_friction", "force_bias"],
+                            ...] = Field(
         (),
         description="plant effects the agents estimate online with m and J (names of coload diagnose): "
                     "viscous_friction, b (N s/m) in dv_C = (F - b v_C) dt/m; rotational_damping, c (N m s) in "
                     "domega = (T - c omega) dt/J; coulomb_friction, F_c (N) in dv_C = (F - F_c tanh(|v_C|/v_s) "
-                    "v_C/|v_C|) dt/m (v_s: coulomb_speed); each an extra filter state averaged by consensus "
-                    "like m and J; empty: the nominal model",
+                    "v_C/|v_C|) dt/m (v_s: coulomb_speed); force_bias, a constant force f (N, 2-vector, world "
+                    "frame) in dv_C = (F + f) dt/m; each an extra filter state (two for force_bias) averaged by "
+                    "consensus like m and J; empty: the nominal model",
     )
     coulomb_speed: float = Field(
         0.05, gt=0, description="Kalman filter: the smoothing speed v_s of the Coulomb friction model (m/s); the "
@@ -313,6 +315,11 @@ class DynamicsSpec(_Strict):
                            "monitor_window_s by consensus and switch on, on an agreed tick, the one significant "
                            "at monitor_alpha / 4 (one-sided) whose score orthogonal to the others' is the "
                            "largest; false: only estimate_effects, decided beforehand",
+    )
+    online_force_bias: bool = Field(
+        False, description="online detection: a constant external force (force_bias, a slope) is a candidate too "
+                           "(level monitor_alpha / 5); off by default: on a Coulomb friction plant the slope's "
+                           "signature takes the friction's place (docs/online-detection.md)",
     )
     effect_walk: float = Field(
         3e-3, ge=0, description="Kalman filter: random walk of the estimated effects' rates b/m, c/J "

@@ -45,9 +45,9 @@ MAX_NAMES: Final = 64
 MAX_NAME_LEN: Final = 64
 MAX_PAIRS: Final = 1024
 """Most entries in a by-neighbour dict (``StateMsg.pair``, ``Estimate.pairs``)."""
-MAX_PAIR_LEN: Final = 28
-"""Most floats in one ``StateMsg.pair`` value (the dynamical phase with online detection sends 4 + 24: 13 channels
-of the augmented model and 11 of the detection's pool)."""
+MAX_PAIR_LEN: Final = 41
+"""Most floats in one ``StateMsg.pair`` value (the dynamical phase with online detection sends 4 + 37: 15 channels
+of the augmented model and 22 of the detection's pool)."""
 MAX_COUNT: Final = 2**63 - 1
 """Largest counter in an ``AgentReport``."""
 MAX_TEAM: Final = 1000

@@ -43,6 +43,8 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "b",  # viscous floor friction on v_C after the averaging consensus (N s/m)
     "c",  # rotational damping on omega after the averaging consensus (N m s)
     "fc",  # Coulomb friction on v_C after the averaging consensus (N; its smoothing speed DynamicsSpec.coulomb_speed)
+    "fb_x",  # constant external force (force_bias, a slope) on the CoM after the averaging consensus, world frame (N)
+    "fb_y",
     "b_local",  # this agent's own b, before the averaging consensus (N s/m)
     "c_local",  # this agent's own c, before the averaging consensus (N m s)
     "filter_restarts",  # restarts of the dynamical phase's filter by its lock check (count; DynamicsSpec.lock_nis)
@@ -64,8 +66,8 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "mon_windows",  # windows tested so far (count)
     "mon_alarms",  # windows with an alarm so far (count)
     # online detection (agents/effect_decision.py, docs/online-detection.md; NaN without it)
-    "eff_on",  # effects in the filters: bit 0 viscous friction, bit 1 rotational damping, bit 2 Coulomb friction
-    # (declared or switched on)
+    "eff_on",  # effects in the filters: bit 0 viscous friction, bit 1 rotational damping, bit 2 Coulomb friction,
+    # bit 3 a constant external force (force_bias) (declared or switched on)
     "eff_out",  # effects ruled out or withdrawn (bits as eff_on): never proposed again
     "eff_tick",  # tick of the last switch, withdrawal or ruling-out the team agreed (-1: none)
     "eff_z",  # its pooled statistic (z, one-sided; a withdrawal's is the rate's Wald z, negative)
@@ -74,4 +76,5 @@ ESTIMATE_NAMES: tuple[str, ...] = (
     "eff_zb",  # ... pooled score z of viscous friction
     "eff_zc",  # ... of rotational damping
     "eff_zf",  # ... of Coulomb friction
+    "eff_zs",  # ... of the constant external force: its chi2 (2 dof) as the normal-equivalent z
 )

@@ -20,6 +20,7 @@ from agents.effect_decision import (
     DETECT_NAMES,
     EFFECTS,
     N_EFF,
+    N_PAR,
     N_POOL,
     VCH,
     DecisionFlood,
@@ -41,14 +42,14 @@ LEVEL = 0.01 / (1 + N_EFF)  # the default Bonferroni level of each one-sided tes
 
 
 def _theta(**kw):
-    return tuple(kw.get(e, 0.0) for e in ("visc", "rot", "coul"))
+    return tuple(kw.get(e, 0.0) for e in ("visc", "rot", "coul", "slope_x", "slope_y"))
 
 
 def _pool(s, v, z=0.0, cnt=1.0, cross=None):
-    """Pool channels (team means) from per-candidate scores ``s`` and informations ``v`` (the pairs' cross
+    """Pool channels (team means) from per-rate scores ``s`` and informations ``v`` (the pairs' cross
     information ``cross`` {(j, k): value}, 0 where not given), the persistence z and the count."""
     out = [0.0] * N_POOL
-    for k in range(N_EFF):
+    for k in range(len(s)):
         out[k], out[VCH[k, k]] = s[k], v[k]
     for (j, k), c in (cross or {}).items():
         out[VCH[j, k]] = c
@@ -56,11 +57,11 @@ def _pool(s, v, z=0.0, cnt=1.0, cross=None):
     return out
 
 
-def _window(rng, n, theta=(0.0, 0.0, 0.0), ar=0.0, rho=0.0):
+def _window(rng, n, theta=(0.0,) * N_PAR, ar=0.0, rho=0.0):
     """One window's evidence: w = sum_k theta_k g_k + e, e AR(1) with coefficient ``ar`` (white at 0), and
     signatures g_k smooth random signals drawn before (independent of e); Coulomb's is correlated ``rho``
     with viscous friction's (the two act on v_C, alike where the speed changes little)."""
-    g = np.cumsum(rng.normal(size=(N_EFF, n, 2)), axis=1) / 10.0
+    g = np.cumsum(rng.normal(size=(N_PAR, n, 2)), axis=1) / 10.0
     g[COUL] = rho * g[VISC] + math.sqrt(1.0 - rho * rho) * g[COUL]
     e = rng.normal(size=(n, 2))
     for k in range(1, n):
@@ -68,7 +69,7 @@ def _window(rng, n, theta=(0.0, 0.0, 0.0), ar=0.0, rho=0.0):
     w = e + np.tensordot(np.asarray(theta), g, axes=1)
     ev = WindowEvidence(LAGS)
     for k in range(n):
-        ev.observe(w[k, 0], w[k, 1], [(g[c, k, 0], g[c, k, 1]) for c in range(N_EFF)])
+        ev.observe(w[k, 0], w[k, 1], [(g[c, k, 0], g[c, k, 1]) for c in range(N_PAR)])
     return ev.close()
 
 
@@ -123,7 +124,7 @@ def test_correlated_candidates_are_told_apart_by_their_cross_information(truth, 
     raw_other = orth_other = named = wrong = 0
     for _ in range(60):
         seed = int(rng.integers(1 << 30))
-        theta = tuple(0.3 if k == truth else 0.0 for k in range(N_EFF))
+        theta = tuple(0.3 if k == truth else 0.0 for k in range(N_PAR))
         stats = [_window(np.random.default_rng(seed + i), 200, theta=theta, rho=0.95) for i in range(10)]
         zp, zs, zo = _z(stats, 10)
         raw_other += zs[other] > z_at
@@ -145,12 +146,12 @@ def test_structure_no_candidate_explains_is_unexplained():
 def _window_with_force_error(rng, n, theta, delta, with_h):
     """One window with a residual of the force model's error delta h as well as theta_0 g_0: h, the force
     error's sensitivity, shares half its shape with viscous friction's g_0 (both act on v_C)."""
-    g = np.cumsum(rng.normal(size=(N_EFF, n, 2)), axis=1) / 10.0
+    g = np.cumsum(rng.normal(size=(N_PAR, n, 2)), axis=1) / 10.0
     h = 0.5 * g[0] + np.cumsum(rng.normal(size=(n, 2)), axis=0) / 10.0
     w = rng.normal(size=(n, 2)) + theta * g[0] + delta * h
     ev = WindowEvidence(LAGS)
     for k in range(n):
-        ev.observe(w[k, 0], w[k, 1], [(g[c, k, 0], g[c, k, 1]) for c in range(N_EFF)],
+        ev.observe(w[k, 0], w[k, 1], [(g[c, k, 0], g[c, k, 1]) for c in range(N_PAR)],
                    (h[k, 0], h[k, 1]) if with_h else (0.0, 0.0))
     return ev.close()
 
@@ -170,8 +171,8 @@ def test_a_force_error_common_to_the_team_is_not_named_friction():
         false_raw += _verdict(raw, 10)[0] == 0
         false_orth += _verdict(orth, 10)[0] == 0
         named += _verdict(both, 10)[0] == 0
-    # level 0.01 / 4 per window: 60 windows expect 0.15 false switches; 3 is beyond four binomial sd
-    assert false_raw >= 40 and false_orth <= 2 and named >= 30, (false_raw, false_orth, named)
+    # level 0.01 / 5 per window: 60 windows expect 0.12 false switches; 3 is beyond four binomial sd
+    assert false_raw >= 40 and false_orth <= 2 and named >= 20, (false_raw, false_orth, named)
 
 
 def test_a_window_nobody_offered_is_not_judged_on_the_consensus_residue():
@@ -304,7 +305,7 @@ def test_the_flooded_proposal_does_not_depend_on_the_order_of_arrival(props, rnd
     assert decode(a.encode()) == a.best
 
 
-@pytest.mark.parametrize("k", [0, 1, 2])
+@pytest.mark.parametrize("k", range(N_PAR))
 def test_filter_sensitivity_is_the_derivative_of_its_estimate_in_the_rate(k):
     """The filter's D equals d(posterior state)/d(rate) by finite differences: a twin filter with the rate
     pinned at eps instead of 0, on measurements that the first filter predicts exactly (so that the gain's

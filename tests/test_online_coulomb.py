@@ -75,8 +75,8 @@ def test_closed_loop_names_coulomb_friction_and_not_viscous(tmp_path):
 
 
 def test_state_message_with_detection_passes_the_wire_schema():
-    """With online detection a state message's per-neighbour value has 4 + 24 floats (13 augmented-model
-    channels, 11 of the pool) and its shared dict 38 entries: within the codec's limits, carried unchanged."""
+    """With online detection a state message's per-neighbour value has 4 + 37 floats (15 augmented-model
+    channels, 22 of the pool) and its shared dict 51 entries: within the codec's limits, carried unchanged."""
     from agents.dynamic_phase import N_CH_AUG
     from agents.effect_decision import N_POOL
     from agents.factory import build_agent

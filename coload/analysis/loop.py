@@ -31,9 +31,10 @@ def _online_effects() -> tuple[str, ...]:
 ONLINE_EFFECTS: tuple[str, ...] = _online_effects()
 """Effects of ``coload diagnose``'s vocabulary that the agents can estimate online (``dynamics.estimate_effects``)."""
 
-ESTIMATE_COLUMN: dict[str, str] = {"viscous_friction": "b", "rotational_damping": "c", "coulomb_friction": "fc"}
-"""The estimates.csv column that holds each online effect's value after the averaging consensus; an online
-effect without one is reported as "not recorded"."""
+ESTIMATE_COLUMN: dict[str, str] = {"viscous_friction": "b", "rotational_damping": "c", "coulomb_friction": "fc",
+                                   "force_bias": "fb"}
+"""The estimates.csv column that holds each online effect's value after the averaging consensus (a vector
+effect's: the columns COLUMN_x, COLUMN_y); an online effect without one is reported as "not recorded"."""
 
 MONITOR_TESTS = 5  # the innovation monitor's p-values per window: an alarm is any below alpha / 5
 P_FLOOR = 1e-20  # the figure's lowest p-value
@@ -102,6 +103,24 @@ def _team(run: RunData, col: str) -> float | None:
     return _f(np.mean(last[np.isfinite(last)])) if np.isfinite(last).any() else None
 
 
+def _vec_side(run: RunData, col: str, truth: Sequence[float] | None) -> tuple[list[float] | None, float | None]:
+    """A vector effect's team value (the mean over agents of each component's last value) and the RMS over
+    agents of |x_i - truth| / |truth|; None where not recorded."""
+    est = run.estimates
+    cols = (f"{col}_x", f"{col}_y")
+    if est is None or not all(est.has(c) for c in cols):
+        return None, None
+    last = np.column_stack([last_finite(est.columns[c])[0] for c in cols])
+    ok = np.isfinite(last).all(axis=1)
+    if not ok.any():
+        return None, None
+    value = [float(v) for v in np.mean(last[ok], axis=0)]
+    t = np.asarray(truth, float) if truth is not None else None
+    if t is None or t.shape != (2,) or not np.hypot(*t) > 0 or not ok.all():
+        return value, None
+    return value, _f(np.sqrt(np.mean(np.sum((last - t) ** 2, axis=1)) / np.sum(t * t)))
+
+
 def _rel_rms(run: RunData, col: str, truth: float) -> float | None:
     """RMS over agents of the final (x_i - truth) / truth (summary.json's ``b_rel``, ``c_rel`` form)."""
     est = run.estimates
@@ -150,11 +169,12 @@ def run_side(run: RunData, summary: dict[str, Any], truth: dict[str, Any], effec
     for name in effects:
         col = ESTIMATE_COLUMN.get(name)
         true = truth.get(name)
-        value = _team(run, col) if col else None
-        out["effects"][name] = {
-            "column": col, "value": value,
-            "rel_err": _rel_rms(run, col, true) if col and isinstance(true, (int, float)) else None,
-        }  # fmt: skip
+        if col and isinstance(true, list):  # a vector effect (force_bias): fb_x, fb_y
+            value, rel = _vec_side(run, col, true)
+        else:
+            value = _team(run, col) if col else None
+            rel = _rel_rms(run, col, true) if col and isinstance(true, (int, float)) else None
+        out["effects"][name] = {"column": col, "value": value, "rel_err": rel}
     return out
 
 

@@ -383,6 +383,18 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
             out[f"{col}_err"] = _rms_all(final - true_v)
             if true_v > 0.0:
                 out[f"{col}_rel"] = _rms_all((final - true_v) / true_v)
+    # a constant external force (force_bias): fb against the plant's external_force (world frame, N)
+    if est.has("fb_x", "fb_y") and np.isfinite(est.columns["fb_x"]).any():
+        ext = run.config.get("plant", {}).get("external_force", [0.0, 0.0]) if isinstance(run.config.get("plant"),
+                                                                                          dict) else [0.0, 0.0]
+        true_f = np.array([float(v) for v in ext]) if len(ext) == 2 else np.zeros(2)
+        final = np.stack([last_finite(est.columns[c])[0] for c in ("fb_x", "fb_y")], axis=1)
+        out["fb_true"] = [float(v) for v in true_f]
+        out["fb_final"] = [[_num(v) for v in row] for row in final]
+        err = np.sqrt(np.sum((final - true_f) ** 2, axis=1))
+        out["fb_err"] = _rms_all(err)
+        if np.hypot(*true_f) > 0.0:
+            out["fb_rel"] = _rms_all(err / np.hypot(*true_f))
     if est.has("zc_x", "zc_y") and "zc_x" in tcol and "zc_y" in tcol:
         true_zc = np.stack([tcol["zc_x"][ti], tcol["zc_y"][ti]], axis=1)[:, None, :]
         err, _ = last_finite(np.sqrt(_sq(_vec(est.columns, "zc_x", "zc_y") - true_zc)))
