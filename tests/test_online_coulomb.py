@@ -90,6 +90,6 @@ def test_state_message_with_detection_passes_the_wire_schema():
     for k in range(3):
         res = agent.step(k, 0.1, -0.2, [])
     msg = res.state
-    assert {len(v) for v in msg.pair.values()} == {4 + N_CH_AUG + N_POOL} and 4 + N_CH_AUG + N_POOL <= MAX_PAIR_LEN
-    assert len(msg.shared) <= MAX_NAMES
+    assert {len(v) for v in msg.pair.values()} == {4 + N_CH_AUG + N_POOL} and 4 + N_CH_AUG + N_POOL == MAX_PAIR_LEN == 41
+    assert len(msg.shared) == 51 <= MAX_NAMES
     assert decode(encode(msg), StateMsg) == msg

@@ -33,25 +33,6 @@ def test_closed_loop_names_the_slope_and_only_it(tmp_path):
     assert np.all(np.hypot(f[:, 0] - 3.0, f[:, 1] - 4.0) < 0.15 * 5.0), f
 
 
-def test_state_message_with_the_slope_passes_the_wire_schema():
-    """With online detection a state message's per-neighbour value has 4 + 37 floats (15 augmented-model
-    channels, 22 of the pool) and its shared dict 51 entries, within the codec's limits (41, 64)."""
-    from agents.factory import build_agent
-    from net.messages import StateMsg
-    from net.schema import MAX_NAMES, MAX_PAIR_LEN, decode, encode
-
-    sc = load_scenario(SCENARIOS / "friction-online.toml", ["dynamics.estimate_effects=[]",
-                                                             "dynamics.online_detection=true"])
-    agent = build_agent(sc.agent_view(1))
-    res = None
-    for k in range(3):
-        res = agent.step(k, 0.1, -0.2, [])
-    msg = res.state
-    assert {len(v) for v in msg.pair.values()} == {41} and MAX_PAIR_LEN == 41
-    assert len(msg.shared) == 51 <= MAX_NAMES
-    assert decode(encode(msg), StateMsg) == msg
-
-
 def test_force_bias_is_a_declarable_effect(tmp_path):
     """``dynamics.estimate_effects = ["force_bias"]`` (the offline loop's re-run names it so) loads, and the
     filter carries the slope's rates free from the m stage on."""
