@@ -196,7 +196,7 @@ def test_epoch_stamps_count_from_the_first_and_are_written_back(tmp_path):
     assert back.t0 == t0 and np.array_equal(back.t, rec.t)
 
 
-@pytest.mark.slow
+@pytest.mark.long  # ~50 s: out of CI's budget; the reader's part runs in CI (test_agents_on_their_own_stamps_*)
 def test_agents_logging_on_their_own_clocks_are_diagnosed(tmp_path):
     """Three robots, each logging on its own clock (no stamp shared: each row of tests/ctplant.py's 150 Hz
     recording kept for one agent only, 50 Hz each), rotational damping undeclared: named, with m, J and its
