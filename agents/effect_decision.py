@@ -95,15 +95,13 @@ def normal_sf(z: float) -> float:
     return 0.5 * math.erfc(z / math.sqrt(2.0))
 
 
-def chi2_z(x: float, dof: int) -> float:
-    """The normal-equivalent z of a chi2 statistic ``x`` with ``dof`` degrees of freedom (1 or 2): the z with
-    P(Z > z) = P(X > x), so that a vector candidate's test and the scalar one-sided ones share one level and
-    one order. With 2 dof P(X > x) = exp(-x / 2); far in the tail z solves z^2 + 2 log(z sqrt(2 pi)) = x (the
-    normal tail's asymptote, exact to ~1/z^2 in log p), where exp(-x / 2) underflows."""
+def chi2_z(x: float) -> float:
+    """The normal-equivalent z of a chi2 statistic ``x`` with 2 degrees of freedom (a planar vector
+    candidate's): the z with P(Z > z) = P(X > x) = exp(-x / 2), so that the vector candidate's test and the
+    scalar one-sided ones share one level and one order; far in the tail z solves z^2 + 2 log(z sqrt(2 pi))
+    = x (the normal tail's asymptote, exact to ~1/z^2 in log p), where exp(-x / 2) underflows."""
     if not x > 0.0:
         return -math.inf if x == 0.0 else math.nan
-    if dof == 1:
-        return math.sqrt(x)  # the two-sided score's magnitude (unused: scalar candidates keep their sign)
     if x < 1400.0:
         p = math.exp(-0.5 * x)
         return -_NORMAL.inv_cdf(p) if p < 0.5 else _NORMAL.inv_cdf(-math.expm1(-0.5 * x))
@@ -124,7 +122,7 @@ def _score_z(s: np.ndarray, v: np.ndarray, n: int, ref: float) -> float:
     ev = np.linalg.eigvalsh(v)
     if not ev[0] > 1e-9 * ref:
         return math.nan
-    return chi2_z(n * float(s @ np.linalg.solve(v, s)), len(s))
+    return chi2_z(n * float(s @ np.linalg.solve(v, s)))  # the vector candidates are planar: 2 rates
 
 
 def _gram(means: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:

@@ -18,7 +18,6 @@ its own model and the sides leave at most what the diagnosis leaves unexplained 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -31,20 +30,6 @@ from ident.select import DiagnoseError, DiagnoseOptions, diagnose
 
 TRIM = 0.15  # each side keeps at least this share of the windows (and two whole windows)
 SPLIT_SHARE = 0.5  # share of the excess residual that the split fits must remove before the sides are diagnosed
-
-
-@dataclass
-class Change:
-    """A change kept by :func:`find_change`: at boundary ``k`` (the first window after it)."""
-
-    k: int
-    t: float  # the boundary, s from the recording's first stamp
-    window: tuple[float, float]  # the window before and the one after the boundary: where the change is
-    F: float
-    p: float
-    lm: float
-    before: Fit  # the model fitted to the windows before the boundary
-    after: Fit  # and after it
 
 
 def window_scores(lin: Lin) -> tuple[np.ndarray, np.ndarray]:
@@ -76,35 +61,32 @@ def break_statistic(sc: np.ndarray, info: np.ndarray, sigma2: float) -> np.ndarr
     return out
 
 
-def find_change(pb: Problem, fit: Fit, alpha: float) -> tuple[Change | None, dict[str, Any]]:
-    """The change at the boundary with the largest break statistic, if the fits of the two sides pass the
-    F-test at ``alpha`` / (boundaries searched) and remove ``SPLIT_SHARE`` of the excess residual. Returns
-    the change (or None) and what was measured (JSON-ready)."""
+def find_change(pb: Problem, fit: Fit, alpha: float) -> dict[str, Any]:
+    """The boundary with the largest break statistic and what was measured there (JSON-ready); ``window``
+    (the window before and the one after the boundary, s from the first stamp: where the change is) only
+    when the fits of the two sides pass the F-test at ``alpha`` / (boundaries searched) and remove
+    ``SPLIT_SHARE`` of the excess residual."""
     S = pb.win.S
     lo = max(3, math.ceil(TRIM * S))
     ks = np.arange(lo, S - lo + 1)
     info: dict[str, Any] = {"searched": int(ks.size)}
     if ks.size == 0 or fit.lin is None:
         info["why"] = f"{S} windows: too few to split"
-        return None, info
+        return info
     sc, inf = window_scores(fit.lin)
     lm = break_statistic(sc, inf, fit.sigma2)
     k = int(ks[np.nanargmax(lm[ks])])
     head, tail = np.arange(k), np.arange(k, S)
-    parts = (subset(pb, head), subset(pb, tail))
-    before = lm_fit(parts[0], fit.lay, fit.g, fit.x[head])
-    after = lm_fit(parts[1], fit.lay, fit.g, fit.x[tail])
-    G = fit.lay.G
-    F, p = stats.nested_f(fit.rss, before.rss + after.rss, G, fit.N, fit.P + G)
+    before = lm_fit(subset(pb, head), fit.lay, fit.g, fit.x[head])
+    after = lm_fit(subset(pb, tail), fit.lay, fit.g, fit.x[tail])
+    F, p = stats.nested_f(fit.rss, before.rss + after.rss, fit.lay.G, fit.N, fit.P + fit.lay.G)
     share = (fit.rss - before.rss - after.rss) / max(fit.rss - fit.N, 1e-300)
     level = alpha / ks.size
     t0 = pb.t0
-    ends = np.r_[t0[1:], np.inf]
     info.update({"k": k, "t": float(t0[k]), "lm": float(lm[k]), "F": F, "p": p, "level": level, "split_share": share})
-    if not (p < level and share >= SPLIT_SHARE):
-        return None, info
-    window = (float(t0[k - 1]), float(ends[k]))
-    return Change(k, float(t0[k]), window, F, p, float(lm[k]), before, after), info
+    if p < level and share >= SPLIT_SHARE:
+        info["window"] = [float(t0[k - 1]), float(t0[k + 1])]  # k + 1 < S: at least `lo` windows follow k
+    return info
 
 
 def _part(rec: Recording, keep: np.ndarray) -> Recording:
@@ -132,20 +114,18 @@ def diagnose_sides(rec: Recording, result: Diagnosis, options: DiagnoseOptions |
         return None
     say = progress or (lambda msg: None)
     say("a structured residual remains: looking for a change of the load")
-    ch, info = find_change(result.problem, fit, opt.alpha)
-    out: dict[str, Any] = {"found": False, **info}
-    if ch is None:
+    out: dict[str, Any] = {"found": False, **find_change(result.problem, fit, opt.alpha)}
+    if "window" not in out:
         return out
-    t = rec.t
+    t, (a, b) = rec.t, out["window"]
     sides = {}
-    for key, keep, span in (("before", t < ch.window[0], (float(t[0]), ch.window[0])),
-                            ("after", t >= ch.window[1], (ch.window[1], float(t[-1])))):  # fmt: skip
+    for key, keep, span in (("before", t < a, (float(t[0]), a)), ("after", t >= b, (b, float(t[-1])))):
         say(f"diagnosing the recording {key} the change ({span[0]:.4g} to {span[1]:.4g} s)")
         try:
             sides[key] = _side(diagnose(_part(rec, keep), options=opt, progress=progress), span)
         except (DiagnoseError, RecordingError) as exc:
             sides[key] = {"from_s": span[0], "to_s": span[1], "error": str(exc)}
-    out.update({"window": list(ch.window), **sides})
+    out.update(sides)
     if all("error" not in d and not d["unexplained"] for d in sides.values()):
         # the excess over the noise floor the sides leave (weighted by their durations), against the whole's
         r0 = result.augmented.residual_over_floor

@@ -82,7 +82,7 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         result.warnings = [w for w in result.warnings if not w.startswith("unexplained:")]
         result.warnings.append(f"the residual of one model over the whole recording is structured, and a change of "
                                f"the load between {ch['window'][0]:.4g} and {ch['window'][1]:.4g} s explains it: "
-                               "each side is white with its own model (see change)")
+                               "each side is explained by its own model (see change)")
     if other is not None:
         if other.hold_source == "default" and other.hold != rec.hold:
             other.hold, other.hold_source = rec.hold, f"as {path}"  # the same plant's wrench varies alike

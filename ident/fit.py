@@ -500,8 +500,9 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
             if sel.sum() >= 3:
                 slope[q] = np.sum((P[idx][sel] - P[idx][sel].mean()) * (psi[sel] - psi[sel].mean()))
         ref = np.argmax(np.bincount(seg[idx], minlength=seg[-1] + 1))
-        if (np.sign(slope) * np.sign(slope[ref]) < 0).any():
-            p *= np.where(np.sign(slope) * np.sign(slope[ref]) < 0, -1.0, 1.0)[seg]
+        flip = np.sign(slope) * np.sign(slope[ref]) < 0
+        if flip.any():
+            p *= np.where(flip, -1.0, 1.0)[seg]
             P = _cumint(t, np.nan_to_num(p), "foh")
         A = np.column_stack((P[idx], seg[idx, None] == np.arange(seg[-1] + 1)))
         coef, *_ = np.linalg.lstsq(A, psi, rcond=None)

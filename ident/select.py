@@ -32,7 +32,7 @@ from ident.fit import (
     refit_states,
     subset,
 )
-from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, Windows, expand, simulate
+from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, expand, simulate
 from ident.recording import Recording
 from ident.report import Diagnosis, ModelReport
 
@@ -76,12 +76,12 @@ def noise_floor(rec: Recording) -> tuple[float, float]:
 AGENT_SPREAD = 1.5  # agents whose noise floors differ by more than this factor are weighted each by its own
 
 
-def agent_floors(rec: Recording, pooled: float, data: np.ndarray | None) -> np.ndarray | None:
+def agent_floors(rec: Recording, data: np.ndarray | None) -> np.ndarray | None:
     """Per-agent noise floors (n, 1) of ``data`` (velocities or positions) when the agents' sensors differ:
     each agent's own divided-difference noise (the pooled kinematic floor mixes the agents: its rank-one
     fit takes up part of the noisiest agent's noise); None when they agree within ``AGENT_SPREAD`` (the
     pooled floor for all) or cannot be told apart."""
-    if data is None or rec.n < 2 or not math.isfinite(pooled):
+    if data is None or rec.n < 2:
         return None
     own = np.array([stats.difference_noise(rec.t, data[:, i], 3) for i in range(rec.n)])
     if not np.isfinite(own).all() or own.min() <= 0 or own.max() / own.min() <= AGENT_SPREAD:
@@ -291,8 +291,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     sv, sp = noise_floor(rec)
     sv_w, sp_w = _floor(sv, rec.vel), _floor(sp, rec.pos)
     per_agent = {}
-    for key, pooled, data, unit in (("velocity", sv_w, rec.vel, "m/s"), ("position", sp_w, rec.pos, "m")):
-        own = agent_floors(rec, pooled, data)
+    for key, data, unit in (("velocity", rec.vel, "m/s"), ("position", rec.pos, "m")):
+        own = agent_floors(rec, data)
         if own is not None:
             per_agent[key] = own[:, 0].tolist()
             warns.append(f"the agents' {key} noise differs ({own.min():.3g} to {own.max():.3g} {unit}): each agent's "

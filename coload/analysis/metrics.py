@@ -385,8 +385,8 @@ def final_errors(run: RunData, window_s: float = 20.0) -> dict[str, Any]:
                 out[f"{col}_rel"] = _rms_all((final - true_v) / true_v)
     # a constant external force (force_bias): fb against the plant's external_force (world frame, N)
     if est.has("fb_x", "fb_y") and np.isfinite(est.columns["fb_x"]).any():
-        ext = run.config.get("plant", {}).get("external_force", [0.0, 0.0]) if isinstance(run.config.get("plant"),
-                                                                                          dict) else [0.0, 0.0]
+        plant = run.config.get("plant")
+        ext = plant.get("external_force", [0.0, 0.0]) if isinstance(plant, dict) else [0.0, 0.0]
         true_f = np.array([float(v) for v in ext]) if len(ext) == 2 else np.zeros(2)
         final = np.stack([last_finite(est.columns[c])[0] for c in ("fb_x", "fb_y")], axis=1)
         out["fb_true"] = [float(v) for v in true_f]
