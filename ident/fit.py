@@ -109,7 +109,8 @@ def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions
         spans[-2:] = [(spans[-2][0], spans[-1][1])]  # a short trailing window joins the one before it
     spans = [(a, b) for a, b in spans if b - a >= 3]
     if not spans:
-        raise FitError("no window with at least 3 stamps")
+        raise FitError(f"no window of {wlen:g} s holds 3 stamps (median stamp interval {med:g} s): the stamps "
+                       "must be in seconds, or run.toml must say their unit (time_unit = \"ms\", \"us\", \"ns\")")
     S = len(spans)
     link = np.array([spans[s][1] == spans[s + 1][0] and spans[s + 1][0] not in gapset for s in range(S - 1)], bool)
     # a linked window runs one stamp further, to the next window's first stamp (not measured there)

@@ -23,6 +23,7 @@ SAMPLES_CSV = "samples.csv"
 TRUTH_CSV = "truth.csv"
 WRENCH = ("fx", "fy", "tau")
 HOLDS = ("cubic", "foh", "zoh")
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 
 
 class RecordingError(ValueError):
@@ -202,7 +203,7 @@ def held_share(wrench: np.ndarray) -> float:
 
 
 def read_config(path: Path) -> dict:
-    """run.toml: ``n`` (positive integer) is required; ``dt``, ``edges``, ``input_hold`` optional."""
+    """run.toml: ``n`` (positive integer) is required; ``dt``, ``edges``, ``input_hold``, ``time_unit`` optional."""
     if not path.exists():
         raise RecordingError(f"{path}: missing (a recording needs {RUN_TOML} with at least n)")
     try:
@@ -215,6 +216,10 @@ def read_config(path: Path) -> dict:
     dt = cfg.get("dt")
     if dt is not None and (isinstance(dt, bool) or not isinstance(dt, (int, float)) or not dt > 0):
         raise RecordingError(f"{path}: field 'dt': expected a positive number (s), got {dt!r}")
+    unit = cfg.get("time_unit", "s")
+    if unit not in TIME_UNITS:
+        raise RecordingError(f"{path}: field 'time_unit': expected one of {list(TIME_UNITS)} (the stamps' unit), "
+                             f"got {unit!r}")
     hold = cfg.get("input_hold", default_hold(cfg))
     if hold not in HOLDS:
         raise RecordingError(f"{path}: field 'input_hold': expected one of {list(HOLDS)}, got {hold!r}")
@@ -232,6 +237,7 @@ def read_recording(path: str | Path) -> Recording:
     if not csv_path.exists():
         raise RecordingError(f"{csv_path}: missing (a recording needs {SAMPLES_CSV})")
     t, agent, cols, lines, read_warns = _read_samples(csv_path, n)
+    t, unit_warn = _stamps_in_seconds(t, cfg, csv_path)
     has_v = "vx" in cols and "vy" in cols
     has_p = "x" in cols and "y" in cols
     stamps, inv = np.unique(t, return_inverse=True)
@@ -263,7 +269,7 @@ def read_recording(path: str | Path) -> Recording:
     if T < 10:
         raise RecordingError(f"{csv_path}: {T} distinct stamps, need at least 10")
     truth = None
-    warns = list(read_warns)
+    warns = list(read_warns) + unit_warn
     tpath = path / TRUTH_CSV
     if tpath.exists():
         truth, w = _read_truth(tpath)
@@ -287,6 +293,26 @@ def read_recording(path: str | Path) -> Recording:
             rec.warnings.append(f"sample period {med:.6g} s differs from run.toml dt = {rec.dt:g} s: "
                                 "the stamps are used")
     return rec
+
+
+def _stamps_in_seconds(t: np.ndarray, cfg: dict, path: Path) -> tuple[np.ndarray, list[str]]:
+    """The stamps in seconds: scaled by run.toml's ``time_unit``; without one, a median interval that is
+    1000, 10^6 or 10^9 times run.toml's ``dt`` (within 2 %) is read as stamps in ms, us or ns (a logger
+    writing integer milliseconds or a bag's nanoseconds), with a warning: dt is in seconds by the format, and
+    no sample period in seconds is a power of 1000 times another that a recording could have meant."""
+    unit = cfg.get("time_unit")
+    if unit is not None:
+        return t * TIME_UNITS[unit], []
+    dt = cfg.get("dt")
+    steps = np.diff(np.unique(t))
+    if dt is None or steps.size == 0:
+        return t, []
+    ratio = float(np.median(steps)) / dt
+    for name, scale in TIME_UNITS.items():
+        if scale < 1 and abs(ratio * scale - 1) < 0.02:
+            return t * scale, [f"{path}: stamps read in {name}: their median interval {ratio * dt:g} is {ratio:.4g} x "
+                               f"run.toml's dt = {dt:g} s; declare time_unit in run.toml to say otherwise"]
+    return t, []
 
 
 def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], np.ndarray, list[str]]:

@@ -81,6 +81,21 @@ def test_sample_period_other_than_dt_is_used_and_said(tmp_path):
     assert any("differs from run.toml dt" in w for w in rec.warnings)
 
 
+def test_stamps_in_ms_ns_are_read_in_seconds(tmp_path):
+    """A logger's integer milliseconds: read as ms when their interval is 1000 x dt (said), or as declared."""
+    rows = [f"{10 * k},{i},0.1,0.2,1,0,0" for k in range(20) for i in range(2)]
+    rec = read_recording(write(tmp_path, rows))
+    assert np.allclose(rec.t, 0.01 * np.arange(20)) and any("stamps read in ms" in w for w in rec.warnings)
+    assert not any("differs from run.toml dt" in w for w in rec.warnings)
+    rows = [f"{1_700_000_000_000_000_000 + 10_000_000 * k},{i},0.1,0.2,1,0,0" for k in range(20) for i in range(2)]
+    rec = read_recording(write(tmp_path, rows, toml='n = 2\ntime_unit = "ns"\n'))
+    assert np.allclose(rec.t, 0.01 * np.arange(20), atol=1e-6) and not rec.warnings
+    rows = [f"{10 * k},{i},0.1,0.2,1,0,0" for k in range(400) for i in range(2)]
+    proc = subprocess.run(coload_cmd("diagnose", str(write(tmp_path, rows, toml="n = 2\n")), "--quiet"),
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 2 and "median stamp interval 10 s" in proc.stderr and "time_unit" in proc.stderr
+
+
 def test_round_trip(tmp_path):
     t = np.arange(30) * 0.02
     wr = np.random.default_rng(1).normal(size=(30, 2, 3))
@@ -101,6 +116,7 @@ def test_round_trip(tmp_path):
     (None, ["0.0,0,0,0,0,0"], None, r"samples.csv:2: 6 fields, header has 7"),
     (None, ["0.0,0,0,0,0,0,0"], "dt = 0.01\n", r"run.toml: field 'n': expected a positive integer"),
     (None, ["0.0,0,0,0,0,0,0"], 'n = 2\ninput_hold = "spline"\n', r"run.toml: field 'input_hold'"),
+    (None, ["0.0,0,0,0,0,0,0"], 'n = 2\ntime_unit = "min"\n', r"run.toml: field 'time_unit': expected one of"),
 ])  # fmt: skip
 def test_bad_input_names_file_line_and_field(tmp_path, header, rows, toml, match):
     kw = {"header": header} if header else {}
