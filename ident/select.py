@@ -359,6 +359,9 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
 
     current = nominal
     remaining = [c for c in cands if scores0[c].collinear <= 1 - 1e-6]
+    # a candidate in the span of the model's parameters may leave it once an effect is added (a velocity
+    # offset is a window's start velocity until a velocity-dependent force makes it a force): tried again then
+    hidden = [c for c in cands if c not in remaining]
     accepted: list[str] = []
     ambiguous: list[list[str]] = []
     table: dict[str, dict[str, Any]] = {}
@@ -428,8 +431,15 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         accepted.append(best)
         remaining.remove(best)
         current = fb_
-        if remaining and len(accepted) < opt.max_effects:
-            scores = {c: score(pb, current, c) for c in remaining}
+        if len(accepted) < opt.max_effects:
+            back = {c: score(pb, current, c) for c in hidden}
+            back = {c: sc for c, sc in back.items() if sc.collinear <= 1 - 1e-6}
+            if back:
+                say(f"{', '.join(back)}: identifiable beside {best}: a candidate again")
+                warns = [w for w in warns if not any(w.startswith(f"{c}: not identifiable") for c in back)]
+            hidden = [c for c in hidden if c not in back]
+            remaining += list(back)
+            scores = {c: score(pb, current, c) for c in remaining if c not in back} | back
     if "coulomb_friction" in accepted and fopt.coulomb_speed is None:
         pb, current = _coulomb_speed(pb, current, say)
         cs = pb.coulomb_speed

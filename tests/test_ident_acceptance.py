@@ -187,6 +187,20 @@ def test_velocity_bias_from_velocities_alone_is_not_guessed(tmp_path):
     assert abs(rel_err(d["nominal"]["m"], truth["m"])) < 0.02, info
 
 
+@pytest.mark.slow
+def test_velocity_bias_beside_viscous_friction_is_not_taken_for_a_slope(tmp_path):
+    """With viscous friction c, a velocity offset b is a force c b to a model of velocities alone
+    (u = v + b obeys m du/dt = F + c b - c u): the data cannot tell a biased sensor from a slope, and
+    the diagnosis must say so rather than name the slope."""
+    effects = ["viscous_friction", "velocity_bias"]
+    rec, truth = record(tmp_path, n=3, rate_hz=50, duration_s=15.0, seed=43, effects=effects)
+    d = diagnose(rec)
+    info = summary(d, truth)
+    assert named(d) == ["viscous_friction"], info
+    assert abs(rel_err(effect_value(d, "viscous_friction")[0], truth["effects"]["viscous_friction"])) < 0.05, info
+    assert ["force_bias", "velocity_bias"] in [sorted(p) for p in d["ambiguous"]], info
+
+
 @pytest.mark.long
 def test_pair_viscous_friction_and_rotational_damping(tmp_path):
     effects = ["viscous_friction", "rotational_damping"]
