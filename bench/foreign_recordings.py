@@ -45,6 +45,9 @@ CASES: dict[str, dict] = {
     "logger_dropout": {"b": 8.0, "dropout": (2, 5.0, 15.0)},
     "payload_added": {"b": 8.0, "change": (11.0, 1.5)},
     "one_noisy_agent": {"b": 8.0, "sigma": (0.01, 0.01, 0.01, 0.1)},
+    "force_sensor_noise": {"fnoise": 0.05},
+    "force_sensor_noise_viscous": {"b": 8.0, "fnoise": 0.05},
+    "velocity_offset_viscous": {"b": 8.0, "vbias": (0.03, -0.02)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -52,11 +55,13 @@ CASES: dict[str, dict] = {
 def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sigma: float | tuple = 0.01, seed: int = 1,
            b: float = 0.0, fc: float = 0.0, vs: float = 0.01, c: float = 0.0, delay: float = 0.0,
            hold_hz: float | None = None, glitches: float = 0.0, pos: float = 0.0, wrench_hz: float | None = None,
-           dropout: tuple[int, float, float] | None = None, change: tuple[float, float] | None = None) -> dict:  # fmt: skip
+           dropout: tuple[int, float, float] | None = None, change: tuple[float, float] | None = None,
+           fnoise: float = 0.0, vbias: tuple[float, float] = (0.0, 0.0)) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
-    ``sigma`` one velocity noise for all agents or one per agent."""
+    ``sigma`` one velocity noise for all agents or one per agent; ``fnoise``: the logged force's own noise,
+    as a share of the force's RMS (the plant gets the true force); ``vbias``: every velocity sensor's offset."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
@@ -87,6 +92,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         return [vx, vy, om, acc[0], acc[1], (torque - c * om) / (k * J)]
 
     t = np.arange(0, dur, 1 / rate)
+    frms = float(np.sqrt((amp**2 / 2).sum(-1).mean()))  # RMS of one agent's force component
     sol = solve_ivp(rhs, (-1.0, dur + 0.1), np.zeros(6), dense_output=True, rtol=1e-10, atol=1e-12,
                     max_step=0.5 / hold_hz if hold_hz else 0.01)  # fmt: skip
     rows = []
@@ -97,10 +103,11 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             if pos:
                 y = np.array([px + rw[i, 0], py + rw[i, 1]]) + rng.normal(0, pos, 2)
             else:
-                y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sig[i], 2)
+                y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sig[i], 2) + vbias
                 if glitches and rng.random() < glitches:
                     y += rng.normal(0, 20 * sig[i], 2)
-            w = ",," if wrench_hz else f"{f[i, 0]:.9g},{f[i, 1]:.9g},0"
+            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0)
+            w = ",," if wrench_hz else f"{fl[0]:.9g},{fl[1]:.9g},0"
             rows.append((tk, i, f"{tk:.6f},{i},{y[0]:.9g},{y[1]:.9g},{w}"))
     for tk in np.arange(0, dur, 1 / wrench_hz) if wrench_hz else ():
         f = force(tk)
@@ -113,7 +120,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     edges = [[i, (i + 1) % n] for i in range(n)] if n > 1 else []
     (out / "run.toml").write_text(f"n = {n}\nedges = {json.dumps(edges)}\ndt = {1 / rate}\n")
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay}
-    return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change}
+    return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change,
+            "force_noise": fnoise * frms * np.sqrt(n)}
 
 
 def row(name: str, truth: dict, d: dict, wall: float) -> str:
@@ -134,6 +142,10 @@ def row(name: str, truth: dict, d: dict, wall: float) -> str:
     right = set(named) == set(truth["effects"]) and not d["unexplained"]
     vals = "; ".join(f"{k} {e['value']:.4g} +- {e['ci95']:.2g}" + (f" (truth {truth['effects'][k]:g})"
                      if k in truth["effects"] else "") for k, e in named.items())  # fmt: skip
+    rf = d.get("random_force")
+    if rf:
+        vals += ("; " if vals else "") + f"random force {rf['force_x_N']:.3g}, {rf['force_y_N']:.3g} N" + (
+            f" (truth {truth['force_noise']:.3g})" if truth.get("force_noise") else "")
     nom, aug = d["nominal"], d["augmented"]
 
     def err(rep, key):

@@ -57,17 +57,22 @@ class Problem:
     theta_sigma: float = 0.01
     omega_sigma: float = 0.002
     gap_factor: float = 5.0
+    vel_lag1: float = 0.0  # correlation of consecutive velocity noise samples (-1/2: differences of positions)
 
     def residual(self, g: np.ndarray, x: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
         """(B, S, M) weighted measurement residuals (0 where not measured) and (B, S - 1) continuity
         residuals of the body angle (0 where not linked or without rotation)."""
-        vel, pos, XS = simulate(self.win, lay, g, x, coulomb_speed=self.coulomb_speed, max_step=self.max_step)
+        vel, pos, XS = simulate(self.win, lay, g, x, coulomb_speed=self.coulomb_speed, max_step=self.max_step,
+                                interval_mean=bool(self.vel_lag1))  # fmt: skip
         parts = []
         w = self.win
         ax = np.array(self.base.axes, float)
         if vel is not None:
             m = w.vmask[None, ..., None] * ax
-            parts.append(((w.vel[None] - vel) * m / self.sigma_v).reshape(g.shape[0], w.S, -1))
+            e = (w.vel[None] - vel) * m / self.sigma_v
+            if self.vel_lag1:
+                e = decorrelate(e, self.vel_lag1, first=1) * m
+            parts.append(e.reshape(g.shape[0], w.S, -1))
         if pos is not None:
             m = w.pmask[None, ..., None] * ax
             parts.append(((w.pos[None] - pos) * m / self.sigma_p).reshape(g.shape[0], w.S, -1))
@@ -159,6 +164,31 @@ def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions
     return Problem(win=win, base=base, sigma_v=sigma_v, sigma_p=sigma_p, coulomb_speed=opt.coulomb_speed or 0.0,
                    max_step=opt.max_step, t0=tw[:, 0], last=last, link=link, theta_sigma=opt.theta_sigma,
                    omega_sigma=opt.omega_sigma, gap_factor=opt.gap_factor)  # fmt: skip
+
+
+def differenced(pb: Problem, rho: float) -> Problem:
+    """``pb`` for velocities that are differences of positions over each interval: predicted as the mean
+    velocity over the interval before each stamp (a window's first stamp has no interval: not measured),
+    the residual whitened for noise correlated ``rho`` between consecutive samples."""
+    vmask = pb.win.vmask.copy()
+    vmask[:, 0] = 0.0
+    return replace(pb, win=replace(pb.win, vmask=vmask), vel_lag1=rho)
+
+
+def decorrelate(e: np.ndarray, rho: float, first: int = 0) -> np.ndarray:
+    """``e`` (..., L, n, 2), noise of unit variance whose consecutive samples (axis -3) correlate ``rho``
+    (MA(1): tridiagonal covariance), whitened by the forward substitution of that covariance's Cholesky
+    factor, each window from its stamp ``first`` (those before are left as they are): x_f = e_f,
+    x_k = (e_k - b_k x_(k-1)) / a_k with b_k = rho / a_(k-1), a_k = sqrt(1 - b_k^2). A window's unmeasured
+    tail (its link stamp, padding) must be zero in ``e`` and is masked again by the caller."""
+    L = e.shape[-3]
+    out = e.copy()
+    a = 1.0
+    for k in range(first + 1, L):
+        b = rho / a
+        a = math.sqrt(1.0 - b * b)
+        out[..., k, :, :] = (e[..., k, :, :] - b * out[..., k - 1, :, :]) / a
+    return out
 
 
 @dataclass

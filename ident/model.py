@@ -216,11 +216,14 @@ class _Segment:
                 + (3 * s2 - 2 * s3) * self.u1 + (s3 - s2) * self.H * self.m[1])  # fmt: skip
 
 
-def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_speed: float, max_step: float):
+def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_speed: float, max_step: float,
+             interval_mean: bool = False):
     """Simulate every window from its initial state for B parameter sets.
 
     ``g`` (B, G) global parameters, ``x0`` (B, S, K) window states. Returns predicted contact velocities
-    (B, S, L, n, 2) or None, positions (B, S, L, n, 2) or None, and the state (B, S, L, 6) [vx, vy, omega,
+    (B, S, L, n, 2) or None (with ``interval_mean``, each stamp's velocity is the mean over the interval
+    before it, the contact's displacement over the interval's length: what a difference of positions
+    measures; a window's first stamp has none and keeps the instant's), positions (B, S, L, n, 2) or None, and the state (B, S, L, 6) [vx, vy, omega,
     theta, px, py] at the stamps.
     """
     B, S, L, n = g.shape[0], w.S, w.L, w.n
@@ -318,6 +321,13 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
         else:
             ux = np.repeat(VX[..., None], n, axis=-1)
             uy = np.repeat(VY[..., None], n, axis=-1)
+        if interval_mean:
+            qx = XS[..., 4][..., None] + (Rx if lay.rotation else 0.0)
+            qy = XS[..., 5][..., None] + (Ry if lay.rotation else 0.0)
+            span = np.diff(w.t, axis=1)[None, :, :, None]
+            span = np.where(span > 0, span, 1.0)  # a window's padding repeats its last stamp
+            ux, uy = np.broadcast_to(ux, qx.shape).copy(), np.broadcast_to(uy, qy.shape).copy()
+            ux[:, :, 1:], uy[:, :, 1:] = np.diff(qx, axis=2) / span, np.diff(qy, axis=2) / span
         vel = np.stack((ux + vb[:, None, None, None, :1][..., 0], uy + vb[:, None, None, None, 1:][..., 0]), axis=-1)
     if w.pos is not None and PX is not None:
         if lay.rotation:

@@ -237,11 +237,19 @@ def read_recording(path: str | Path) -> Recording:
     if not csv_path.exists():
         raise RecordingError(f"{csv_path}: missing (a recording needs {SAMPLES_CSV})")
     t, agent, cols, lines, read_warns = _read_samples(csv_path, n)
-    t, unit_warn = _stamps_in_seconds(t, cfg, csv_path)
+    t, notes = _stamps_in_seconds(t, cfg, csv_path)
     has_v = "vx" in cols and "vy" in cols
     has_p = "x" in cols and "y" in cols
     stamps, inv = np.unique(t, return_inverse=True)
     T = stamps.size
+    silent = sorted(set(range(n)) - set(np.unique(agent).tolist()))
+    if silent and len(silent) < n:
+        # an agent that never logged (a robot switched off) carries no data: the others are the recording
+        alive = np.array([i for i in range(n) if i not in silent])
+        agent = np.searchsorted(alive, agent)
+        n = alive.size
+        notes.append(f"{csv_path}: run.toml says n = {alive.size + len(silent)}, but agent(s) {silent} have no "
+                         f"row: left out; the recording's agents are {alive.tolist()}, numbered 0..{n - 1} here")
 
     def grid(names):
         # Rows of one agent at one stamp are one sample (a logger writing each topic in its own row, the
@@ -269,7 +277,7 @@ def read_recording(path: str | Path) -> Recording:
     if T < 10:
         raise RecordingError(f"{csv_path}: {T} distinct stamps, need at least 10")
     truth = None
-    warns = list(read_warns) + unit_warn
+    warns = list(read_warns) + notes
     tpath = path / TRUTH_CSV
     if tpath.exists():
         truth, w = _read_truth(tpath)
@@ -358,7 +366,8 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
             vals[c][j] = v
         a = vals["agent"][j]
         if a != int(a) or not 0 <= a < n:
-            raise RecordingError(f"{where}: column 'agent': agent {r[idx['agent']]} out of range 0..{n - 1}")
+            raise RecordingError(f"{where}: column 'agent': agent {r[idx['agent']]} out of range 0..{n - 1} "
+                                 f"(run.toml's n = {n}; agents are numbered from 0)")
     cols = {c: vals[c] for c in want[2:]}
     for c in WRENCH:
         if c in absent:

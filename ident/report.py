@@ -75,6 +75,7 @@ class Diagnosis:
     model: dict[str, Any] = field(default_factory=dict)
     validation: dict[str, Any] | None = None
     change: dict[str, Any] | None = None  # ident/change.py: a change of the load, and each side's diagnosis
+    random_force: dict[str, Any] | None = None  # ident/random_force.py: the residual's walk, in N and N m
     fits: dict[str, Any] = field(default_factory=dict, repr=False)
     problem: Any = field(default=None, repr=False)
 
@@ -100,6 +101,7 @@ class Diagnosis:
             "signatures": self.signatures, "ambiguous": self.ambiguous, "noise_sigma": _f(self.noise_sigma),
             "noise_floor": _jsonable(self.noise_floor), "identifiable": self.identifiable,
             "model": self.model, "truth": self.truth, "wall_s": self.wall_s, "residual": residual_panels(self),
+            "random_force": None if self.random_force is None else _jsonable(self.random_force),
         }  # fmt: skip
         if self.validation is not None:
             out["validation"] = self.validation

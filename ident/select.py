@@ -27,12 +27,15 @@ from ident.fit import (
     initial_guess,
     linearise,
     lm_fit,
+    differenced,
     make_problem,
     normal_equations,
     refit_states,
     subset,
 )
 from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, expand, simulate
+from ident.glitches import GLITCH_FLOORS, find_glitches
+from ident.random_force import RandomForce, fit_random_force, rigid_modes, robust_covariance, robust_wald, theta_of
 from ident.recording import Recording
 from ident.report import Diagnosis, ModelReport
 
@@ -132,24 +135,7 @@ def residual_modes(pb: Problem, fit: Fit, res: np.ndarray | None = None, theta: 
         size = mask.size // w.S * 2
         e = res[:, k : k + size].reshape(w.S, w.L, w.n, 2)
         k += size
-        cnt = mask.sum(axis=2)
-        new = []
-        with np.errstate(invalid="ignore", divide="ignore"):
-            for c in range(2):
-                if lay.axes[c]:
-                    new.append((e[..., c] * mask).sum(axis=2) / cnt)
-            if lay.rotation:
-                r = fit.g[: 2 * lay.n].reshape(lay.n, 2)
-                s_ = r - r.mean(axis=0)
-                cth, sth = np.cos(theta)[..., None], np.sin(theta)[..., None]
-                Rx, Ry = cth * s_[:, 0] - sth * s_[:, 1], sth * s_[:, 0] + cth * s_[:, 1]
-                if name == "vel":
-                    num = (e[..., 0] * -Ry + e[..., 1] * Rx) * mask
-                else:
-                    num = (e[..., 0] * Rx + e[..., 1] * Ry) * mask
-                new.append(num.sum(axis=2) / (mask * (s_**2).sum(axis=1)).sum(axis=2))
-        for c in new:
-            c[cnt == 0] = np.nan
+        new = rigid_modes(e, mask, lay, fit.g, theta, velocity=name == "vel")
         cols += new
     M = np.stack(cols, axis=-1)  # (S, L, K)
     return M[valid]
@@ -288,6 +274,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     say = progress or (lambda msg: None)
     t_start = clock() if clock is not None else 0.0
     warns = list(rec.warnings)
+    lag1 = _differenced_velocities(rec, warns)
     sv, sp = noise_floor(rec)
     sv_w, sp_w = _floor(sv, rec.vel), _floor(sp, rec.pos)
     per_agent = {}
@@ -298,6 +285,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             warns.append(f"the agents' {key} noise differs ({own.min():.3g} to {own.max():.3g} {unit}): each agent's "
                          "samples are weighted by its own noise floor")  # fmt: skip
             sv_w, sp_w = (own, sp_w) if key == "velocity" else (sv_w, own)
+    rec = _without_glitches(rec, sv_w, sp_w, warns)
     dtm = float(np.median(np.diff(rec.t)))
     fopt = opt.fit
     wlen = min(fopt.window_s, fopt.window_stamps * dtm)
@@ -324,6 +312,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             speed = float(np.sqrt(np.mean(np.sum(np.diff(np.nan_to_num(rec.pos[:, 0]), axis=0) ** 2, axis=-1)))) / dtm
         cs = max(0.005 * speed, 1e-6)
     pb = replace(pb, coulomb_speed=cs)
+    if lag1:
+        pb = differenced(pb, lag1)
     base = pb.base
     say(f"{rec.T} stamps, n = {rec.n}, {pb.win.S} windows of {wlen:.3g} s; noise floor "
         + ", ".join(f"{k} {v:.3g}" for k, v in (("velocity (m/s)", sv), ("position (m)", sp)) if math.isfinite(v)))
@@ -402,11 +392,21 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 except FitError:
                     pass
             F, pF = stats.nested_f(current.rss, f.rss, lay.G - current.lay.G, f.N, f.P)
-            trials[c] = (f, pF)
+            wp = whiteness(pb, f, opt)
             val, ci = f.param(c)
             table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, lay, c), "ci95": _value(ci, lay, c),
-                        "F": F, "p": pF, "delta_bic": f.bic - current.bic, "whiteness_p": whiteness(pb, f, opt),
+                        "F": F, "p": pF, "delta_bic": f.bic - current.bic, "whiteness_p": wp,
                         "on_top_of": list(current.lay.effects)}  # fmt: skip
+            if wp <= opt.alpha_white and pF < alpha_k:
+                # a drifting residual makes the F-test see structure everywhere: the effect must also stand
+                # against the random walk that an unmeasured random force leaves (ident/random_force.py)
+                th = theta_of(pb, f)
+                rf = fit_random_force(pb, f, th, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
+                if rf.present:
+                    pR = robust_wald(f, c, robust_covariance(pb, f, rf, th))
+                    table[c]["p_with_random_force"] = pR
+                    pF = max(pF, pR)
+            trials[c] = (f, pF)
             eligible = sorted((c for c, (f, pF) in trials.items() if pF < alpha_k and f.bic < current.bic),
                               key=lambda c: trials[c][0].bic)  # fmt: skip
         if not eligible:
@@ -457,23 +457,32 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     excess0 = nominal.rss - nominal.N
     share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
     ambiguous_names = {c for pair in ambiguous for c in pair}
-    if accepted and (white > opt.alpha_white or share >= opt.explained):
+    walk, theta_w = (None, None) if white > opt.alpha_white else _walk(pb, current, opt)
+    walk_white = walk is not None and walk.p_white > opt.alpha_white
+    # a walk fits part of any slow structure: it is reported only where it is all that is left
+    walk_info = random_force_values(walk, pb, current, dtm) if walk_white else None
+    if walk_info is not None:
+        warns.append(_walk_warning(walk_info, walk))
+    if accepted and (white > opt.alpha_white or share >= opt.explained or walk_white):
         unexplained = False
         named = [c for c in accepted if c not in ambiguous_names]
         final = current
-        if white <= opt.alpha_white:
+        if white <= opt.alpha_white and not walk_white:
             warns.append(f"the residual with {', '.join(accepted)} is not white (Ljung-Box p {white:.2g}, "
                          f"{math.sqrt(current.sigma2):.3g} x the noise floor), but the effects remove "
                          f"{100 * share:.1f} % of the nominal model's excess residual: named; dynamics outside the "
                          f"vocabulary remain")  # fmt: skip
-    elif not accepted and white > opt.alpha_white:
+    elif not accepted and (white > opt.alpha_white or walk_white):
         unexplained, named, final = False, [], nominal
     else:
         unexplained, named, final = True, [], nominal
         tried = ", ".join(accepted) if accepted else "none"
         warns.append(f"unexplained: a structured residual remains (Ljung-Box p {white:.2g} with {tried} added, "
                      f"explaining {100 * share:.0f} % of the excess; nominal p {p_white0:.2g}); no candidate effect "
-                     f"explains it, so none is named")  # fmt: skip
+                     f"explains it, so none is named; m, J and their 95 % intervals are the nominal model's, which "
+                     f"the data reject: they hold only as far as that model does")  # fmt: skip
+    if walk_white and final is current:
+        final.cov = robust_covariance(pb, final, walk, theta_w)  # the ci95 reported include the walk
     for c in table:
         table[c]["accepted"] = c in named
     effects = []
@@ -518,7 +527,80 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip
         fits={"nominal": nominal, "augmented": final}, problem=pb,
+        random_force=walk_info if final is current else None,
     )  # fmt: skip
+
+
+DIFFERENCED_LAG1 = -0.4  # white sensor noise gives ~0, velocities from differenced positions -1/2
+
+
+def _differenced_velocities(rec: Recording, warns: list[str]) -> float:
+    """The correlation of consecutive velocity noise samples to whiten the residual with: a velocity that is
+    a difference of noisy positions ((n_k - n_(k-1)) / dt, an encoder's counts over the sample period) has
+    noise correlated -1/2 from one sample to the next, which no whiteness test accepts; 0 otherwise."""
+    if rec.vel is None:
+        return 0.0
+    rho = stats.kinematic_lag1(rec.vel)
+    if not rho < DIFFERENCED_LAG1:
+        return 0.0
+    warns.append(f"the velocities' noise is correlated {rho:.2f} from one sample to the next: they are differences "
+                 "of noisy positions (an encoder's counts over the sample period), each the mean velocity over the "
+                 "interval before its stamp: modelled so, and the residual whitened for the noise")
+    return -0.5  # white position noise differenced: exactly; a window's covariance stays positive definite
+
+
+def _without_glitches(rec: Recording, sv: float | np.ndarray, sp: float | np.ndarray, warns: list[str]) -> Recording:
+    """``rec`` with its glitches (ident/glitches.py) not measured, and a warning per channel that had any."""
+    out = rec
+    for key, unit, sig in (("vel", "m/s", sv), ("pos", "m", sp)):
+        data = getattr(rec, key)
+        if data is None:
+            continue
+        flags = find_glitches(rec.t, data, np.broadcast_to(np.ravel(np.asarray(sig, float)), (rec.n,)))
+        if not flags.any():
+            continue
+        clean = data.copy()
+        clean[flags] = np.nan
+        out = replace(out, **{key: clean})
+        k, i = np.nonzero(flags)
+        warns.append(f"{int(flags.sum())} {'velocity' if key == 'vel' else 'position'} samples "
+                     f"({100 * flags.sum() / np.count_nonzero(~np.isnan(data[..., 0])):.2g} %) are more than "
+                     f"{GLITCH_FLOORS:g} noise floors off the cubic through their neighbours (agents "
+                     f"{sorted(set(i.tolist()))}, the first at t = {rec.t0 + rec.t[k.min()]:.6g} s): left out as glitches")
+    return out
+
+
+def _walk(pb: Problem, fit: Fit, opt: DiagnoseOptions) -> tuple[RandomForce | None, np.ndarray | None]:
+    """The random force's walk in ``fit``'s residual when one is significant (else None), and the angle."""
+    if pb.win.vel is None:
+        return None, None
+    th = theta_of(pb, fit)
+    rf = fit_random_force(pb, fit, th, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
+    return (rf, th) if rf.present else (None, None)
+
+
+def random_force_values(rf: RandomForce, pb: Problem, fit: Fit, dt: float) -> dict[str, Any]:
+    """The walk in physical units: per mode the force (N; torque, N m) that, white and held over each
+    sample period ``dt``, drives the velocity (rate) walk: sigma = m sigma_v sqrt(q / dt), sigma_v the floor."""
+    sv = float(np.median(pb.sigma_v))
+    mj = fit.mj()
+    out: dict[str, Any] = {"sample_period_s": dt, "innovations_whiteness_p": rf.p_white}
+    for name, q, lr in zip(rf.modes, rf.q, rf.lr):
+        inertia = mj["J"] if name == "rotation" else mj["m"]
+        key = "torque_N_m" if name == "rotation" else f"force_{name}_N"
+        out[key] = inertia * sv * math.sqrt(q / dt) if math.isfinite(inertia) else None
+        out[f"lr_{name}"] = lr
+    return out
+
+
+def _walk_warning(info: dict[str, Any], rf: RandomForce) -> str:
+    parts = [f"{info[k]:.3g} N along {k.split('_')[1]}" for k in ("force_x_N", "force_y_N") if info.get(k)]
+    if info.get("torque_N_m"):
+        parts.append(f"a torque of {info['torque_N_m']:.3g} N m")
+    return (f"the residual drifts as a random walk within each window, and with the walk fitted its innovations "
+            f"are white (Ljung-Box p {rf.p_white:.2g}): an unmeasured random force of {', '.join(parts)} per "
+            f"{info['sample_period_s']:.3g} s sample (noise on the logged wrench, or a process noise); the 95 % "
+            "intervals include it")
 
 
 def _drop(g: np.ndarray, lay: Layout, name: str) -> np.ndarray:

@@ -75,6 +75,25 @@ def kinematic_noise(vel: np.ndarray) -> float:
                      * n / max(n - 2, 1))
 
 
+def kinematic_lag1(vel: np.ndarray) -> float:
+    """Lag-1 autocorrelation along time of the rigid-body kinematics' remainder (:func:`kinematic_noise`),
+    over runs of stamps where every agent measured: ~0 for white sensor noise, -1/2 for velocities that are
+    differences of noisy positions ((n_k - n_(k-1)) / dt). NaN for n < 3 or too little data."""
+    full = ~np.isnan(vel).any(axis=(1, 2))
+    n = vel.shape[1]
+    if full.sum() < 50 or n < 3:
+        return math.nan
+    w = vel[full, :, 0] + 1j * vel[full, :, 1]
+    rel = w - w.mean(axis=1, keepdims=True)
+    u, sv, vh = np.linalg.svd(rel, full_matrices=False)
+    resid = rel - (u[:, :1] * sv[0]) @ vh[:1]
+    idx = np.flatnonzero(full)
+    nxt = np.flatnonzero(np.diff(idx) == 1)  # consecutive stamps both full
+    r = np.concatenate((resid.real, resid.imag), axis=1)
+    den = float((r * r).sum()) / r.shape[0]
+    return float((r[nxt] * r[nxt + 1]).sum()) / max(nxt.size, 1) / den if den > 0 else math.nan
+
+
 def block_average(x: np.ndarray, block: int) -> np.ndarray:
     """Means over consecutive blocks of ``block`` rows (NaN-aware); a trailing partial block is dropped."""
     nb = x.shape[0] // block

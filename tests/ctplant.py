@@ -433,12 +433,14 @@ def make_recording(out_dir: str | Path | None, *, n: int, rate_hz: float, durati
                    gaps: Sequence[tuple[float, float]] = (), missing: float = 0.0, geometry: str = "random",
                    m: float | None = None, force_rms: float | None = None, band: tuple[float, float] = (0.2, 2.0),
                    pulses: bool = True, max_step: float | None = None, inputs: bool = True,
-                   x0: Sequence[float] | None = None) -> dict[str, Any]:  # fmt: skip
+                   x0: Sequence[float] | None = None, sigma_f: float = 0.0) -> dict[str, Any]:  # fmt: skip
     """Generate one recording into ``out_dir`` (None: only return the truth) and return the truth.
 
     ``effects``: names (realistic magnitudes, :func:`realistic_effects`) or a mapping name -> value
     (None = realistic). ``force_rms`` defaults to 0.4 m (an RMS acceleration of 0.4 m/s^2 per axis).
     ``missing``: probability that an agent's measurement at a stamp is absent (empty cells).
+    ``sigma_f``: noise on the logged force (N, each agent's fx and fy at each stamp; the plant gets the
+    true force): a force sensor's own noise, or what a logged command misses of the force delivered.
     ``max_step`` defaults to 0.02 s or 1/25 of the fastest input period if shorter (the error control
     at rtol 1e-10 sets the accuracy; tests/test_ctplant.py checks a tenth of the sample period agrees).
     ``inputs=False``: no applied wrench (free motion from ``x0``, the state at the start of the motion,
@@ -486,6 +488,9 @@ def make_recording(out_dir: str | Path | None, *, n: int, rate_hz: float, durati
             if a is not None:
                 a[gone] = np.nan
     wrench = inp.wrench(t)
+    if sigma_f:
+        r_force = np.random.default_rng(ss.spawn(1)[0])  # a stream of its own: the others stay as they were
+        wrench[..., :2] += r_force.normal(0.0, sigma_f, size=(T, n, 2))
     s0 = traj.state(np.array([0.0]))[0]
     th0 = s0[2]
     rot = np.array([[math.cos(th0), -math.sin(th0)], [math.sin(th0), math.cos(th0)]])
@@ -499,7 +504,7 @@ def make_recording(out_dir: str | Path | None, *, n: int, rate_hz: float, durati
         "effects": eff_dict, "coulomb_speed": eff.coulomb_speed,
         "rate_hz": rate_hz, "dt": dt, "duration_s": duration_s, "samples": int(T),
         "sigma_v": sigma_v if velocities else None, "sigma_p": sigma_p if positions else None, "jitter": jitter,
-        "gaps": [list(g) for g in gaps], "missing": missing,
+        "gaps": [list(g) for g in gaps], "missing": missing, "sigma_f": sigma_f,
         "force_rms": frms, "band": list(band), "edges": [list(e) for e in edges], "nfev": traj.nfev,
         "identifiable": {"m": True, "J": not axis, "geometry": not axis},
     }  # fmt: skip

@@ -201,6 +201,59 @@ def test_velocity_bias_beside_viscous_friction_is_not_taken_for_a_slope(tmp_path
     assert ["force_bias", "velocity_bias"] in [sorted(p) for p in d["ambiguous"]], info
 
 
+def check_random_force(d: dict[str, Any], truth: dict[str, Any], sigma_f: float) -> None:
+    """The walk is reported at the logged force's noise: each axis's total (n agents) within a factor 1.6
+    (the walk's diffusion from ~10 windows: on a pure walk in white noise of this size the force from its
+    maximum-likelihood estimate has a 5-95 % range of 0.72-1.22 of the truth (tests/test_ident_random_force.py),
+    and the walk the contact points' lever arms share between the modes is not modelled), and m, J within
+    their reported 95 % intervals."""
+    info = summary(d, truth)
+    rf = d["random_force"]
+    assert rf is not None, info
+    total = sigma_f * math.sqrt(truth["n"])
+    for axis in ("x", "y"):
+        assert 1 / 1.6 < rf[f"force_{axis}_N"] / total < 1.6, f"{rf} against {total:.3g} N: {info}"
+    aug = d["augmented"]
+    assert abs(aug["m"] - truth["m"]) < 1.5 * aug["m_ci95"], info
+    assert abs(aug["J"] - truth["J"]) < 1.5 * aug["J_ci95"], info
+
+
+@pytest.mark.slow
+def test_noise_on_the_logged_force_is_a_random_force_not_an_effect(tmp_path):
+    """A force sensor's own noise (5 % of the applied force's RMS per agent and axis): the residual drifts
+    in each window and is white only through the walk; nothing is named, nothing is unexplained."""
+    rec, truth = record(tmp_path, n=4, rate_hz=50, duration_s=20.0, seed=61, sigma_f=0.05 * 0.4 * 30.0, m=30.0)
+    d = diagnose(rec)
+    assert named(d) == [] and not d["unexplained"], summary(d, truth)
+    check_random_force(d, truth, 0.05 * 0.4 * 30.0)
+
+
+@pytest.mark.slow
+def test_velocities_differenced_from_encoder_positions(tmp_path):
+    """A lab's commonest velocity: an encoder's positions (0.1 mm noise) differenced over each 20 ms sample.
+    Its noise correlates -1/2 between consecutive samples and it lags the instant by half a sample; the
+    diagnosis must say so, model it, and name viscous friction alone (no delay, no hold), with m, J and b
+    within their intervals and the residual white."""
+    truth = ctplant.make_recording(None, n=3, rate_hz=50, duration_s=15.0, seed=71, sigma_v=0.0,
+                                   effects=["viscous_friction"], positions=True, sigma_p=1e-4)  # fmt: skip
+    rng = np.random.default_rng(72)
+    pos = truth["pos_true"] + rng.normal(0.0, 1e-4, truth["pos_true"].shape)
+    t = truth["t"]
+    vel = np.diff(pos, axis=0) / np.diff(t)[:, None, None]
+    rec = tmp_path / "rec"
+    ctplant.write_recording(rec, t[1:], truth["wrench"][1:], vel, None, truth["dt"], [(0, 1), (1, 2)])
+    d = diagnose(rec)
+    info = summary(d, truth)
+    assert named(d) == ["viscous_friction"] and not d["unexplained"], info
+    assert any("differences of noisy positions" in w for w in d["warnings"]), info
+    assert d["model"]["hold"] == "cubic", info
+    aug = d["augmented"]
+    assert aug["whiteness_p"] > ALPHA_WHITE, info
+    b = d["effects"][0]
+    assert abs(b["value"] - truth["effects"]["viscous_friction"]) < 1.5 * b["ci95"], info
+    assert abs(aug["m"] - truth["m"]) < 1.5 * aug["m_ci95"] and abs(aug["J"] - truth["J"]) < 1.5 * aug["J_ci95"], info
+
+
 @pytest.mark.long
 def test_pair_viscous_friction_and_rotational_damping(tmp_path):
     effects = ["viscous_friction", "rotational_damping"]

@@ -96,6 +96,14 @@ def test_stamps_in_ms_ns_are_read_in_seconds(tmp_path):
     assert proc.returncode == 2 and "median stamp interval 10 s" in proc.stderr and "time_unit" in proc.stderr
 
 
+def test_an_agent_without_any_row_is_left_out_and_said(tmp_path):
+    """run.toml's n counts a robot that never logged (agent 1 of 3): the other two are the recording."""
+    rows = [f"{0.01 * k!r},{i},0.1,0.2,{i + 1},0,0" for k in range(20) for i in (0, 2)]
+    rec = read_recording(write(tmp_path, rows, toml="n = 3\ndt = 0.01\n"))
+    assert rec.n == 2 and np.allclose(rec.wrench[:, :, 0], [1.0, 3.0])
+    assert any("agent(s) [1] have no row" in w for w in rec.warnings)
+
+
 def test_round_trip(tmp_path):
     t = np.arange(30) * 0.02
     wr = np.random.default_rng(1).normal(size=(30, 2, 3))
