@@ -23,7 +23,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ident import stats
-from scipy.stats import chi2
+from scipy.stats import chi2, f_oneway
 from ident.fit import Fit, Problem, normal_equations
 from ident.model import Layout, simulate
 
@@ -34,12 +34,16 @@ MODE_NAMES = ("x", "y", "rotation")
 class RandomForce:
     """Per rigid-body mode (``modes``, of :data:`MODE_NAMES`): the walk's diffusion ``q`` in the weighted
     residual's units (floor^2 per s; 0 where the likelihood ratio ``lr`` is below its level), and the
-    Ljung-Box p of the modes' standardised one-step innovations under the fitted walk."""
+    Ljung-Box p of the modes' standardised one-step innovations under the fitted walk; ``p_motion`` the
+    one-way analysis of variance of each walking mode's innovations over eight quantile bins of its own
+    rate (x and y velocity of the centre of mass, the angular rate), Bonferroni over the modes: a random
+    force does not depend on the motion, a friction outside the vocabulary does."""
 
     modes: tuple[str, ...]
     q: np.ndarray
     lr: np.ndarray
     p_white: float
+    p_motion: float = 1.0  # the innovations' dependence on the motion (a force that is a function of it)
 
     @property
     def present(self) -> bool:
@@ -163,12 +167,26 @@ def _local_level(y: np.ndarray, R: np.ndarray, dt: np.ndarray, q: float) -> tupl
     return nll, inn
 
 
-def fit_random_force(pb: Problem, fit: Fit, theta: np.ndarray, *, alpha: float, lags: int,
+def _motion_anova(inn: np.ndarray, rate: np.ndarray, bins: int = 8) -> float:
+    """p of the one-way analysis of variance of ``inn`` over ``bins`` quantile bins of ``rate``."""
+    ok = np.isfinite(inn) & np.isfinite(rate)
+    x, r = inn[ok], rate[ok]
+    if x.size < 10 * bins:
+        return 1.0
+    edges = np.quantile(r, np.linspace(0, 1, bins + 1)[1:-1])
+    b = np.searchsorted(edges, r)
+    groups = [x[b == k] for k in range(bins) if np.count_nonzero(b == k) > 1]
+    return float(f_oneway(*groups).pvalue) if len(groups) > 1 else 1.0
+
+
+def fit_random_force(pb: Problem, fit: Fit, states: np.ndarray, *, alpha: float, lags: int,
                      block: int) -> RandomForce:  # fmt: skip
     """The walk's diffusion per velocity mode of ``fit``'s residual by maximum likelihood; a mode's q is
     kept where its likelihood ratio against q = 0 passes ``alpha`` (q = 0 is the boundary: half the
-    chi2(1) tail), and ``p_white`` is the Ljung-Box p (``lags`` of ``block``-averaged innovations)."""
+    chi2(1) tail), and ``p_white`` is the Ljung-Box p (``lags`` of ``block``-averaged innovations).
+    ``states`` (S, L, 6): the fitted model's [vx, vy, omega, theta, px, py] at the stamps."""
     w = pb.win
+    theta = states[..., 3]
     if w.vel is None or pb.vel_lag1:
         return NONE  # the walk is modelled on an uncorrelated residual
     valid = window_valid(pb)
@@ -195,6 +213,8 @@ def fit_random_force(pb: Problem, fit: Fit, theta: np.ndarray, *, alpha: float, 
     q = np.zeros(len(ys))
     lr = np.zeros(len(ys))
     inns = []
+    p_motion = 1.0
+    rates = [states[..., c] for c in range(2) if fit.lay.axes[c]] + ([states[..., 2]] if fit.lay.rotation else [])
     for j, (y, R) in enumerate(zip(ys, Rs)):
         idx = _rows(pb, valid, chained=names[j] == "rotation")
         y, R, dt = _take(y, idx, np.nan), _take(R, idx, np.inf), _steps(w.t, idx)
@@ -208,6 +228,7 @@ def fit_random_force(pb: Problem, fit: Fit, theta: np.ndarray, *, alpha: float, 
         if lr[j] > crit:
             q[j] = scale * math.exp(float(res.x))
             inns.append(_local_level(y, R, dt, q[j])[1])
+            p_motion = min(p_motion, len(ys) * _motion_anova(inns[-1], _take(rates[j], idx, np.nan)))
         else:
             inns.append(inn0)
     Q, dof = 0.0, 0
@@ -215,7 +236,7 @@ def fit_random_force(pb: Problem, fit: Fit, theta: np.ndarray, *, alpha: float, 
         qj, dj, _ = stats.ljung_box(stats.block_average(i[np.isfinite(i)], block)[:, None], lags)
         Q, dof = Q + qj, dof + dj
     p = float(chi2.sf(Q, dof)) if dof else 1.0
-    return RandomForce(names, q, lr, p)
+    return RandomForce(names, q, lr, p, min(p_motion, 1.0))
 
 
 def walk_covariance(pb: Problem, fit: Fit, rf: RandomForce, A: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -272,8 +293,8 @@ def robust_wald(fit: Fit, name: str, cov: np.ndarray) -> float:
     return float(chi2.sf(W, sl.stop - sl.start))
 
 
-def theta_of(pb: Problem, fit: Fit) -> np.ndarray:
-    """(S, L) the fitted body angle at the stamps."""
+def states_of(pb: Problem, fit: Fit) -> np.ndarray:
+    """(S, L, 6) the fitted model's state [vx, vy, omega, theta, px, py] at the stamps."""
     _, _, XS = simulate(pb.win, fit.lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed,
                         max_step=pb.max_step)  # fmt: skip
-    return XS[0, ..., 3]
+    return XS[0]

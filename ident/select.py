@@ -35,7 +35,7 @@ from ident.fit import (
 )
 from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, expand, simulate
 from ident.glitches import GLITCH_FLOORS, find_glitches
-from ident.random_force import RandomForce, fit_random_force, rigid_modes, robust_covariance, robust_wald, theta_of
+from ident.random_force import RandomForce, fit_random_force, rigid_modes, robust_covariance, robust_wald, states_of
 from ident.recording import Recording
 from ident.report import Diagnosis, ModelReport
 
@@ -350,8 +350,11 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     current = nominal
     remaining = [c for c in cands if scores0[c].collinear <= 1 - 1e-6]
     # a candidate in the span of the model's parameters may leave it once an effect is added (a velocity
-    # offset is a window's start velocity until a velocity-dependent force makes it a force): tried again then
+    # offset is a window's start velocity until a velocity-dependent force makes it a force c b): it is tried
+    # again then, as a twin that can make another candidate ambiguous but is never named itself (what it
+    # adds is what the named effect's form happens to allow, not evidence of its own)
     hidden = [c for c in cands if c not in remaining]
+    twins: list[str] = []
     accepted: list[str] = []
     ambiguous: list[list[str]] = []
     table: dict[str, dict[str, Any]] = {}
@@ -400,20 +403,21 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             if wp <= opt.alpha_white and pF < alpha_k:
                 # a drifting residual makes the F-test see structure everywhere: the effect must also stand
                 # against the random walk that an unmeasured random force leaves (ident/random_force.py)
-                th = theta_of(pb, f)
-                rf = fit_random_force(pb, f, th, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
+                st = states_of(pb, f)
+                rf = fit_random_force(pb, f, st, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
                 if rf.present:
-                    pR = robust_wald(f, c, robust_covariance(pb, f, rf, th))
+                    pR = robust_wald(f, c, robust_covariance(pb, f, rf, st[..., 3]))
                     table[c]["p_with_random_force"] = pR
                     pF = max(pF, pR)
             trials[c] = (f, pF)
             eligible = sorted((c for c, (f, pF) in trials.items() if pF < alpha_k and f.bic < current.bic),
                               key=lambda c: trials[c][0].bic)  # fmt: skip
-        if not eligible:
+        primary = [c for c in eligible if c not in twins]
+        if not primary:
             break
-        best = eligible[0]
+        best = primary[0]
         fb_ = trials[best][0]
-        for c2 in eligible[1:]:
+        for c2 in [c for c in eligible if c != best]:
             if trials[c2][0].bic - fb_.bic >= opt.ambiguous_bic:
                 continue
             lay2 = fb_.lay.with_effects(fb_.lay.effects + (c2,))
@@ -439,6 +443,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 warns = [w for w in warns if not any(w.startswith(f"{c}: not identifiable") for c in back)]
             hidden = [c for c in hidden if c not in back]
             remaining += list(back)
+            twins += list(back)
             scores = {c: score(pb, current, c) for c in remaining if c not in back} | back
     if "coulomb_friction" in accepted and fopt.coulomb_speed is None:
         pb, current = _coulomb_speed(pb, current, say)
@@ -458,7 +463,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
     ambiguous_names = {c for pair in ambiguous for c in pair}
     walk, theta_w = (None, None) if white > opt.alpha_white else _walk(pb, current, opt)
-    walk_white = walk is not None and walk.p_white > opt.alpha_white
+    walk_white = walk is not None and walk.p_white > opt.alpha_white and walk.p_motion > opt.alpha_white
     # a walk fits part of any slow structure: it is reported only where it is all that is left
     walk_info = random_force_values(walk, pb, current, dtm) if walk_white else None
     if walk_info is not None:
@@ -574,9 +579,9 @@ def _walk(pb: Problem, fit: Fit, opt: DiagnoseOptions) -> tuple[RandomForce | No
     """The random force's walk in ``fit``'s residual when one is significant (else None), and the angle."""
     if pb.win.vel is None:
         return None, None
-    th = theta_of(pb, fit)
-    rf = fit_random_force(pb, fit, th, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
-    return (rf, th) if rf.present else (None, None)
+    st = states_of(pb, fit)
+    rf = fit_random_force(pb, fit, st, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
+    return (rf, st[..., 3]) if rf.present else (None, None)
 
 
 def random_force_values(rf: RandomForce, pb: Problem, fit: Fit, dt: float) -> dict[str, Any]:
