@@ -120,7 +120,7 @@ def test_a_ruled_out_candidate_is_a_marker_in_the_report(periodic_run):
     assert any(line.split()[:3] == ["ruled_out", "coulomb_friction", str(first["tick"])] for line in table)
 
 
-@pytest.mark.slow
+@pytest.mark.long  # ~1 min: out of CI's budget; quick's closed loop above runs there
 def test_paper_fig4_geometry_periodic_force_ends_with_nothing_on_and_unexplained(tmp_path):
     """friction-online (n = 10, sigma 0.3) without friction, m stage 25 s: the bench's plant, shorter (~30 s).
     The force's part along v_C alternates the viscous score's sign with its period; a positive window can pass
