@@ -142,28 +142,31 @@ def _mode_variances(mask: np.ndarray, lay: Layout, g: np.ndarray) -> list[np.nda
 
 def _local_level(y: np.ndarray, R: np.ndarray, dt: np.ndarray, q: float) -> tuple[float, np.ndarray]:
     """Negative log-likelihood and standardised innovations of a random walk (diffusion ``q``) seen
-    through white noise of variance ``R``, every window (row) on its own from a diffuse start."""
+    through white noise of variance ``R``, every row (a window, or a run of linked windows) on its own from
+    a diffuse start. Scalar Kalman recursion over plain floats: a row runs over up to every stamp of the
+    recording, where per-step numpy calls would cost a hundred times the arithmetic."""
     S, L = y.shape
-    x = np.full(S, np.nan)
-    P = np.full(S, np.nan)
     inn = np.full((S, L), np.nan)
     nll = 0.0
-    for k in range(L):
-        P = P + q * dt[:, k]
-        yk = y[:, k]
-        ok = np.isfinite(yk)
-        new = ok & np.isnan(x)
-        upd = ok & ~new
-        V = P + R[:, k]
-        e = yk - x
-        if upd.any():
-            inn[upd, k] = e[upd] / np.sqrt(V[upd])
-            nll += 0.5 * float(np.sum(np.log(V[upd]) + e[upd] ** 2 / V[upd]))
-            K = np.where(upd, P / np.where(upd, V, 1.0), 0.0)
-            x = np.where(upd, x + K * e, x)
-            P = np.where(upd, (1.0 - K) * P, P)
-        x = np.where(new, yk, x)
-        P = np.where(new, R[:, k], P)
+    for r, (yr, Rr, dr) in enumerate(zip(y.tolist(), R.tolist(), dt.tolist())):
+        x = P = None
+        out = inn[r]
+        for k in range(L):
+            yk = yr[k]
+            if x is not None:
+                P += q * dr[k]
+            if yk != yk:  # NaN: not measured
+                continue
+            if x is None:
+                x, P = yk, Rr[k]
+                continue
+            V = P + Rr[k]
+            e = yk - x
+            out[k] = e / math.sqrt(V)
+            nll += 0.5 * (math.log(V) + e * e / V)
+            K = P / V
+            x += K * e
+            P *= 1.0 - K
     return nll, inn
 
 
