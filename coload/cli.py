@@ -301,6 +301,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", action="store_true",
                    help="draw RECORDING/diagnose.png: residual before/after and its autocorrelation with bounds")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.add_argument("--max-samples", type=int, default=150_000, metavar="N",
+                   help="fit at most N samples (windows x stamps x agents; default 150000: 2.5 min of 10 agents "
+                        "at 100 Hz); a longer recording is fitted on runs of its windows spread over it; 0: all")
     p.add_argument("--validate", type=Path, metavar="OTHER",
                    help="also predict the recording OTHER (same plant) with the nominal and the augmented model and "
                         "report both errors")

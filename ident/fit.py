@@ -700,11 +700,14 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
         Tq = tq + np.cos(theta) * P + np.sin(theta) * Q
         C = _cumint_windows(t, wid, Tq, rec.hold)
         damp = "rotational_damping" in lay.effects
-        Ab = np.zeros((T, S + 1 + damp))
+        tbias = "torque_bias" in lay.effects
+        Ab = np.zeros((T, S + 1 + damp + tbias))
         Ab[np.arange(T), wid] = 1.0
         Ab[:, S] = C
         if damp:  # b c_r multiplies -int omega
             Ab[:, S + 1] = -_cumint_windows(t, wid, omega, "foh")
+        if tbias:  # b T_0 multiplies the time since the window's start
+            Ab[:, S + 1 + damp] = t - t0w
         cb = np.linalg.lstsq(Ab[good], omega[good], rcond=None)[0]
         b = float(cb[S])
         if not b > 0:
@@ -713,6 +716,8 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
         g0[lay.ib] = b
         if damp:
             g0[lay.slot("rotational_damping")] = max(float(cb[S + 1]) / b, 0.0)
+        if tbias:
+            g0[lay.slot("torque_bias")] = float(cb[S + 1 + damp]) / b
         for s in range(S):
             k = np.flatnonzero(wid == s)
             if k.size:

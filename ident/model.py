@@ -29,6 +29,7 @@ EFFECTS: dict[str, tuple[str, str]] = {
     "rotational_damping": ("N m s", "integral of omega"),
     "measurement_delay": ("s", "applied-force lag (rate of the prediction)"),
     "force_bias": ("N", "constant force (ramp in v_C)"),
+    "torque_bias": ("N m", "constant torque (ramp in omega)"),
     "velocity_bias": ("m/s", "constant velocity offset"),
 }
 """Effect name -> (unit, the signature it leaves in the residual)."""
@@ -241,6 +242,7 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
 
     cv, fc = eff("viscous_friction"), eff("coulomb_friction")
     cr, d = eff("rotational_damping"), eff("measurement_delay")
+    tb = eff("torque_bias")
     fb = np.zeros((B, 2))
     if "force_bias" in lay.effects:
         fb[:, iax] = g[:, lay.slot("force_bias")]
@@ -263,6 +265,7 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
     cvv = cv[:, :1, None] if cv is not None else None
     fcc = fc[:, :1, None] if fc is not None else None
     crr = cr[:, :1] if cr is not None else None
+    tbb = tb[:, :1] if tb is not None else None
     a3 = a[:, :, None] * ax
     rot = b is not None
 
@@ -280,6 +283,8 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
             tq = U[..., 2] + np.cos(th) * U[..., 3] + np.sin(th) * U[..., 4]
             if crr is not None:
                 tq = tq - crr * X[..., 2]
+            if tbb is not None:
+                tq = tq + tbb
             out[..., 2] = b * tq
             out[..., 3] = X[..., 2]
         else:

@@ -60,6 +60,7 @@ class DiagnoseOptions:
     max_effects: int = 3
     max_fits: int = 3  # candidates fitted per round: those with the strongest score tests
     explained: float = 0.9  # share of the nominal excess residual the effects must remove when not white
+    max_samples: int = 150_000  # windows x stamps x agents fitted at most (0: all): runs of windows spread out
     candidates: tuple[str, ...] = tuple(EFFECTS)
     fit: FitOptions = FitOptions()
 
@@ -220,7 +221,7 @@ def score(pb: Problem, fit: Fit, name: str) -> _Score:
 
 def _ref_scale(name: str) -> float:
     return {"viscous_friction": 1.0, "coulomb_friction": 1.0, "rotational_damping": 1.0, "measurement_delay": 0.01,
-            "force_bias": 1.0, "velocity_bias": 0.01}[name]  # fmt: skip
+            "force_bias": 1.0, "torque_bias": 1.0, "velocity_bias": 0.01}[name]  # fmt: skip
 
 
 def _reference(name: str, m: float, J: float, dt: float) -> float:
@@ -232,6 +233,7 @@ def _reference(name: str, m: float, J: float, dt: float) -> float:
         "rotational_damping": (J if math.isfinite(J) and J > 0 else 100.0) / 20.0,
         "measurement_delay": max(0.02, 2 * dt),
         "force_bias": 0.005 * mg,
+        "torque_bias": 0.005 * mg * 0.2,  # half a percent of the weight at a 0.2 m arm
         "velocity_bias": 0.02,
     }[name]
 
@@ -314,6 +316,13 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     pb = replace(pb, coulomb_speed=cs)
     if lag1:
         pb = differenced(pb, lag1)
+    size = pb.win.S * pb.win.L * rec.n
+    if opt.max_samples and size > opt.max_samples:
+        idx = spread_windows(pb.win.S, max(8, opt.max_samples // (pb.win.L * rec.n)))
+        warns.append(f"a long recording ({pb.win.S} windows of {wlen:.3g} s, {size} samples to simulate): the fit "
+                     f"uses {idx.size} of its windows, in runs of {RUN} spread over it (at most {opt.max_samples} "
+                     "samples; --max-samples 0 fits every window, at a cost that grows with the length)")
+        pb, x0 = subset(pb, idx), x0[idx]
     base = pb.base
     say(f"{rec.T} stamps, n = {rec.n}, {pb.win.S} windows of {wlen:.3g} s; noise floor "
         + ", ".join(f"{k} {v:.3g}" for k, v in (("velocity (m/s)", sv), ("position (m)", sp)) if math.isfinite(v)))
@@ -323,7 +332,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     if not all(base.axes):
         warns.append(f"axis {'y' if base.axes[0] else 'x'}: no force and no motion: left out of the model "
                      "(its components of force_bias and velocity_bias are not identifiable)")  # fmt: skip
-    cands = [c for c in opt.candidates if (c != "rotational_damping" or base.rotation)
+    cands = [c for c in opt.candidates if (c not in ("rotational_damping", "torque_bias") or base.rotation)
              and (c != "velocity_bias" or rec.vel is not None)]  # fmt: skip
     say("nominal model: fitting")
     nominal = fit_robust(pb, base, g0, x0)
@@ -552,6 +561,18 @@ def _differenced_velocities(rec: Recording, warns: list[str]) -> float:
                  "of noisy positions (an encoder's counts over the sample period), each the mean velocity over the "
                  "interval before its stamp: modelled so, and the residual whitened for the noise")
     return -0.5  # white position noise differenced: exactly; a window's covariance stays positive definite
+
+
+RUN = 4  # consecutive windows kept together: the rotation's links between them carry J's information
+
+
+def spread_windows(S: int, keep: int) -> np.ndarray:
+    """Indices of ``keep`` of ``S`` windows, in runs of :data:`RUN` consecutive ones spread evenly."""
+    if keep >= S:
+        return np.arange(S)
+    runs = max(1, -(-keep // RUN))
+    starts = np.round(np.linspace(0, S - RUN, runs)).astype(int)
+    return np.unique((starts[:, None] + np.arange(RUN)).ravel())
 
 
 def _without_glitches(rec: Recording, sv: float | np.ndarray, sp: float | np.ndarray, warns: list[str]) -> Recording:

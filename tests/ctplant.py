@@ -17,6 +17,7 @@ Effects (vocabulary names of the diagnosis; values in SI units):
     coulomb_friction    F_c     F -= F_c tanh(|v|/v_s) v/|v|        (v_s = ``coulomb_speed``)
     rotational_damping  c_r     T -= c_r omega
     force_bias          (bx,by) F += b (world frame)
+    torque_bias         T_0     T += T_0
     measurement_delay   d       every measurement at t is the true value at t - d
     velocity_bias       (bx,by) every measured velocity is offset by b (world frame)
 and outside the vocabulary:
@@ -44,6 +45,7 @@ from scipy.integrate import solve_ivp
 
 VOCABULARY = (
     "viscous_friction", "coulomb_friction", "rotational_damping", "measurement_delay", "force_bias", "velocity_bias",
+    "torque_bias",
 )  # fmt: skip
 OUTSIDE = ("periodic_force", "load_change")
 GEOMETRIES = ("random", "perimeter", "axis")
@@ -195,6 +197,8 @@ def realistic_effects(names: Sequence[str], load: Load, force_rms: float, band: 
             out[name] = 0.2 * J * w_mid
         elif name == "force_bias":  # 5 % of the applied force's RMS, a fixed direction
             out[name] = [0.05 * force_rms * math.cos(0.6), 0.05 * force_rms * math.sin(0.6)]
+        elif name == "torque_bias":  # 5 % of the applied force's RMS at the load's radius of gyration
+            out[name] = 0.05 * force_rms * math.sqrt(J / m)
         elif name == "measurement_delay":  # 30 ms: a sensor pipeline's latency
             out[name] = 0.03
         elif name == "velocity_bias":  # 3 cm/s: an encoder calibration offset
@@ -213,6 +217,7 @@ MAGNITUDES = {
     "coulomb_friction": "0.1 force_rms (N), smoothing speed 0.01 m/s",
     "rotational_damping": "0.2 J w_mid (N m s)",
     "force_bias": "0.05 force_rms (N), direction 0.6 rad",
+    "torque_bias": "0.05 force_rms sqrt(J / m) (N m)",
     "measurement_delay": "0.03 s",
     "velocity_bias": "(0.03, -0.02) m/s",
     "periodic_force": "0.3 force_rms at 2.7 w_mid / 2 pi Hz, direction 0.4 rad",
@@ -227,6 +232,7 @@ class Effects:
     coulomb_speed: float = 0.01
     rotational: float = 0.0
     fbias: tuple[float, float] = (0.0, 0.0)
+    tbias: float = 0.0
     delay: float = 0.0
     vbias: tuple[float, float] = (0.0, 0.0)
     periodic: tuple[float, float, float] = (0.0, 0.0, 0.0)  # amplitude, freq, angle
@@ -242,6 +248,7 @@ class Effects:
             viscous=float(eff.get("viscous_friction", 0.0)), coulomb=float(eff.get("coulomb_friction", 0.0)),
             coulomb_speed=float(eff.get("coulomb_speed", 0.01)), rotational=float(eff.get("rotational_damping", 0.0)),
             fbias=tuple(map(float, eff.get("force_bias", (0.0, 0.0)))), delay=float(eff.get("measurement_delay", 0.0)),
+            tbias=float(eff.get("torque_bias", 0.0)),
             vbias=tuple(map(float, eff.get("velocity_bias", (0.0, 0.0)))),
             periodic=(float(p["amplitude"]), float(p["freq"]), float(p["angle"])) if p else (0.0, 0.0, 0.0),
             change=eff.get("load_change"),
@@ -297,7 +304,7 @@ class _Segment:
                 fx -= k * vx
                 fy -= k * vy
         # cross(R r_i, f_i) summed = cos(th) P - sin(th) Q
-        tq += math.cos(th) * P - math.sin(th) * Q - e.rotational * w
+        tq += math.cos(th) * P - math.sin(th) * Q - e.rotational * w + e.tbias
         return np.array([vx, vy, w, fx / self.m, fy / self.m, tq / self.J])
 
 

@@ -134,7 +134,7 @@ def test_held_force_model_cannot_fit_a_continuous_recording(tmp_path):
 
 
 # --- single effects ----------------------------------------------------------------------------------
-EFFECTS = ["viscous_friction", "coulomb_friction", "rotational_damping", "force_bias", "measurement_delay"]
+EFFECTS = ["viscous_friction", "coulomb_friction", "rotational_damping", "force_bias", "measurement_delay", "torque_bias"]
 
 
 def check_named(d: dict[str, Any], truth: dict[str, Any], effects: list[str]) -> None:

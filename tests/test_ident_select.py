@@ -57,3 +57,14 @@ def test_viscous_friction_is_named_alone_with_its_value():
     for key in ("m_rel_err", "J_rel_err"):
         before, after = abs(getattr(r.nominal, key)), abs(getattr(r.augmented, key))
         assert after <= before / 3 or after < 0.01, (key, before, after)
+
+
+def test_a_long_recording_is_fitted_on_runs_of_windows_spread_over_it():
+    """240 windows, room for 74: runs of four consecutive windows from the first to the last, none twice."""
+    from ident.select import RUN, spread_windows
+
+    idx = spread_windows(240, 74)
+    assert idx[0] == 0 and idx[-1] == 239 and np.all(np.diff(idx) > 0)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    assert all(r.size % RUN == 0 for r in runs) and 74 <= idx.size <= 74 + RUN
+    assert np.array_equal(spread_windows(50, 60), np.arange(50))

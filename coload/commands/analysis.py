@@ -58,6 +58,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from ident.diagnose import (
         DiagnoseError,
+        DiagnoseOptions,
         diagnose_dir,
         format_diagnosis,
         plot_diagnosis,
@@ -67,8 +68,10 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if refuse_unwritable("diagnose", ("--json", args.json)):
         return 2
     try:
+        if args.max_samples < 0:
+            raise DiagnoseError(f"--max-samples: expected 0 (all) or a positive number, got {args.max_samples}")
         result = diagnose_dir(args.recording, progress=None if args.quiet else stderr_progress(),
-                              validate=args.validate)
+                              validate=args.validate, options=DiagnoseOptions(max_samples=args.max_samples))
     except DiagnoseError as exc:
         print(f"coload diagnose: {exc}", file=sys.stderr)
         return 2
