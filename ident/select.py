@@ -277,6 +277,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     t_start = clock() if clock is not None else 0.0
     warns = list(rec.warnings)
     lag1 = _differenced_velocities(rec, warns)
+    rec = _without_glitches(rec, warns)  # before the floors: glitches inflate them
     sv, sp = noise_floor(rec)
     sv_w, sp_w = _floor(sv, rec.vel), _floor(sp, rec.pos)
     per_agent = {}
@@ -287,7 +288,6 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             warns.append(f"the agents' {key} noise differs ({own.min():.3g} to {own.max():.3g} {unit}): each agent's "
                          "samples are weighted by its own noise floor")  # fmt: skip
             sv_w, sp_w = (own, sp_w) if key == "velocity" else (sv_w, own)
-    rec = _without_glitches(rec, sv_w, sp_w, warns)
     dtm = float(np.median(np.diff(rec.t)))
     fopt = opt.fit
     wlen = min(fopt.window_s, fopt.window_stamps * dtm)
@@ -575,14 +575,16 @@ def spread_windows(S: int, keep: int) -> np.ndarray:
     return np.unique((starts[:, None] + np.arange(RUN)).ravel())
 
 
-def _without_glitches(rec: Recording, sv: float | np.ndarray, sp: float | np.ndarray, warns: list[str]) -> Recording:
-    """``rec`` with its glitches (ident/glitches.py) not measured, and a warning per channel that had any."""
+def _without_glitches(rec: Recording, warns: list[str]) -> Recording:
+    """``rec`` with its glitches (ident/glitches.py, against each agent's own divided-difference floor: a
+    noisier sensor's samples are not glitches) not measured, and a warning per channel that had any."""
     out = rec
-    for key, unit, sig in (("vel", "m/s", sv), ("pos", "m", sp)):
+    for key in ("vel", "pos"):
         data = getattr(rec, key)
         if data is None:
             continue
-        flags = find_glitches(rec.t, data, np.broadcast_to(np.ravel(np.asarray(sig, float)), (rec.n,)))
+        sig = np.array([stats.difference_noise(rec.t, data[:, i], 3) for i in range(rec.n)])
+        flags = find_glitches(rec.t, data, sig)
         if not flags.any():
             continue
         clean = data.copy()
