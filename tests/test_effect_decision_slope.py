@@ -25,6 +25,7 @@ from agents.rigid_filter import EFFECT_PARAMS
 
 LAGS = 10
 SLOPE = EFFECTS.index("force_bias")
+COUL = EFFECTS.index("coulomb_friction")
 LEVEL = 0.01 / (1 + N_EFF)
 
 
@@ -52,14 +53,10 @@ def test_chi2_z_is_the_normal_equivalent_of_the_2_dof_tail():
 
 @pytest.mark.parametrize("rho", [0.0, 0.9])
 def test_the_2_dof_test_rejects_at_its_level_on_white_innovations(rho):
-    """Under H0 the slope's chi2 (own, and orthogonal to the scalar candidates; its x signature correlated
-    ``rho`` with viscous friction's) rejects at its level: 600 windows, within four binomial sd at 1 % and 5 %."""
+    """Under H0 the slope's chi2 (its x signature correlated ``rho`` with viscous friction's) rejects at its
+    level: 600 windows, within four binomial sd at 1 % and 5 %."""
     rng = np.random.default_rng(31)
-    zs = []
-    for _ in range(600):
-        _, z, o = pooled(_window(rng, 250, (0.0,) * N_PAR, rho), 1)
-        zs.append((z[SLOPE], o[SLOPE]))
-    zs = np.array(zs)
+    zs = np.array([pooled(_window(rng, 250, (0.0,) * N_PAR, rho), 1)[1][SLOPE] for _ in range(600)])
     for level in (0.01, 0.05):
         rate = np.mean(np.vectorize(normal_sf)(zs) < level, axis=0)
         sd = math.sqrt(level * (1 - level) / len(zs))
@@ -67,10 +64,11 @@ def test_the_2_dof_test_rejects_at_its_level_on_white_innovations(rho):
 
 
 def test_the_pool_names_a_slope_signature_and_only_it():
-    """A force along a fixed direction (x and y rates 0.08, -0.06) in ten agents' windows: the pool names the
-    slope in most windows, with its x signature correlated 0.9 with viscous friction's (viscous friction's own
-    score is then significant too: only the orthogonal scores tell, and viscous friction's, N(0, 1), exceeds
-    the slope's now and then: 1 of 40 here)."""
+    """A force along a fixed direction (x and y rates 0.08, -0.06) in ten agents' windows, its x signature
+    correlated 0.9 with viscous friction's: viscous friction's own score is significant too, and the pool
+    names the slope unless what the slope explains beyond viscous friction (its y rate, the rest of its x)
+    is below the price of its second rate, ~2 log(z sqrt(2 pi)) of chi2: viscous friction in 11 of 300 draws
+    of another seed (3.7 %, 1.5 expected in 40; 5 is 3 binomial sd above), the slope in 285."""
     rng = np.random.default_rng(7)
     theta = [0.0] * N_PAR
     theta[EFFECT_PARAMS[SLOPE][0]], theta[EFFECT_PARAMS[SLOPE][1]] = 0.08, -0.06
@@ -78,11 +76,70 @@ def test_the_pool_names_a_slope_signature_and_only_it():
     for _ in range(40):
         stats = [_window(rng, 200, theta, 0.9) for _ in range(10)]
         means = list(np.mean(np.array(stats), axis=0))
-        zp, zs, zo = pooled(means, 10)
-        k, _ = judge(zp, zs, 0.01, 0, zo=zo)
+        zp, zs = pooled(means, 10)
+        k, _ = judge(zp, zs, 0.01, 0)
         named += k == SLOPE
         wrong += 0 <= k < N_EFF and k != SLOPE
-    assert named >= 36 and wrong <= 2, (named, wrong)
+    assert named >= 35 and wrong <= 5, (named, wrong)
+
+
+def _coulomb_window(rng, n, kappa, slope, phi, reverse, misfit=0.05):
+    """One window of a plant with Coulomb friction ``kappa`` and a slope's rates ``slope``, the load moving
+    along phi: while it keeps its direction the plant's -F_c sat(v_C) is a constant force, in the slope's
+    span, and the filter's Coulomb signature is that force's up to ``misfit`` (its smoothed sign's, and the
+    direction's drift). With ``reverse`` the motion reverses at mid-window and Coulomb friction turns with it
+    (a slope does not)."""
+    g = np.cumsum(rng.normal(size=(N_PAR, n, 2)), axis=1) / 10.0
+    sx, sy = EFFECT_PARAMS[SLOPE]
+    coulomb = math.cos(phi) * g[sx] + math.sin(phi) * g[sy]
+    if reverse:
+        coulomb[n // 2:] *= -1.0
+    w = rng.normal(size=(n, 2)) + kappa * coulomb + slope[0] * g[sx] + slope[1] * g[sy]
+    g[COUL] = coulomb + misfit * g[COUL]
+    ev = WindowEvidence(LAGS)
+    for k in range(n):
+        ev.observe(w[k, 0], w[k, 1], [(g[p, k, 0], g[p, k, 1]) for p in range(N_PAR)])
+    return ev.close()
+
+
+def _team_verdict(rng, kappa, slope, reverse):
+    """Ten agents' windows, one direction of motion for the team: (decision, own z per candidate)."""
+    phi = rng.uniform(0.0, 2.0 * math.pi)
+    stats = [_coulomb_window(rng, 200, kappa, slope, phi, reverse) for _ in range(10)]
+    zp, zs = pooled(list(np.mean(np.array(stats), axis=0)), 10)
+    return judge(zp, zs, 0.01, 0)[0], zs
+
+
+def test_coulomb_friction_in_the_slopes_span_is_named_coulomb():
+    """A Coulomb plant whose force lies in the slope's span (the load keeps its direction), the filter's
+    Coulomb signature that force's up to a misfit of 0.05 (correlation 0.999): the slope's chi2 is Coulomb's
+    z^2 plus a chi2 with 1 dof of noise (and the misfit's z^2 (1 - r^2)), and its normal-equivalent z exceeds
+    Coulomb's own z only when that excess exceeds ~2 log(z sqrt(2 pi)) (5.4 at z = 6): P ~0.02. 200 seeded
+    draws at Coulomb's z ~4-8: named Coulomb in >= 190 (95 %; 3 slopes expected at P 0.015, 10 is over four
+    binomial sd away). The score orthogonal to the other candidates' names the slope in 78 of these 200 (the
+    rule before): Coulomb's keeps only the misfit, the slope's a chi2 of the rest."""
+    rng = np.random.default_rng(41)
+    named, slope, zc = 0, 0, []
+    for _ in range(200):
+        k, zs = _team_verdict(rng, 0.1, (0.0, 0.0), False)
+        named += k == COUL
+        slope += k == SLOPE
+        zc.append(zs[COUL])
+    assert 4.0 < np.median(zc) < 8.0, np.median(zc)
+    assert named >= 190, (named, slope)
+
+
+def test_a_slope_whose_motion_reverses_is_named_the_slope():
+    """A slope plant (x and y rates 0.1, -0.08) where the motion reverses within the window: Coulomb
+    friction's signature turns with it and explains little; the slope is named in >= 39 of 40 draws and
+    Coulomb friction never."""
+    rng = np.random.default_rng(43)
+    named = coul = 0
+    for _ in range(40):
+        k, _ = _team_verdict(rng, 0.0, (0.1, -0.08), True)
+        named += k == SLOPE
+        coul += k == COUL
+    assert named >= 39 and coul == 0, (named, coul)
 
 
 def test_a_switched_slope_is_withdrawn_only_when_its_wald_chi2_is_below_the_lower_quantile():
@@ -105,10 +162,10 @@ def test_a_switched_slope_is_withdrawn_only_when_its_wald_chi2_is_below_the_lowe
     for scale, withdrawn in ((0.9, True), (1.1, False)):
         # r with r^T info r = scale * q
         r = np.array([1.0, 0.0]) * math.sqrt(scale * q / info[0][0])
-        _, zs, _ = pooled(held_pool(r, info), 1, held=bit)
+        _, zs = pooled(held_pool(r, info), 1, held=bit)
         assert normal_sf(-zs[SLOPE]) == pytest.approx(1.0 - math.exp(-0.5 * scale * q), rel=1e-6)
         assert judge(math.nan, zs, 0.01, bit, bit) == ((N_EFF + SLOPE, True) if withdrawn else (-1, False))
-    _, zs, _ = pooled(held_pool([10.0, -5.0], info), 1, held=bit)
+    _, zs = pooled(held_pool([10.0, -5.0], info), 1, held=bit)
     assert zs[SLOPE] > 5.0 and judge(math.nan, zs, 0.01, bit, bit) == (-1, False)
 
 
