@@ -74,14 +74,14 @@ def _window(rng, n, theta=(0.0,) * N_PAR, ar=0.0, rho=0.0):
 
 
 def _z(stats, n_agents=1):
-    """Pooled statistics (z_p, own z) of a list of agents' window stats (the team sums; no consensus)."""
+    """Pooled statistics (z_p, own z, the vector's beyond the others) of a list of agents' window stats (the team sums; no consensus)."""
     means = np.mean(np.array(stats), axis=0)
     return pooled(list(means), n_agents)
 
 
 def _verdict(stats, n_agents=1):
-    zp, zs = _z(stats, n_agents)
-    return judge(zp, zs, 0.01, 0)
+    zp, zs, zv = _z(stats, n_agents)
+    return judge(zp, zs, 0.01, 0, zv=zv)
 
 
 @pytest.mark.parametrize("rho", [0.0, 0.95])
@@ -90,7 +90,7 @@ def test_each_test_rejects_at_its_level_on_white_innovations(rho):
     persistence z are N(0, 1): rejection rate at 1 % and 5 % within four binomial sd over 600 windows of 250
     updates (the closed loop's shortest)."""
     rng = np.random.default_rng(3)
-    zs = np.array([[zp, *z] for zp, z in (_z([_window(rng, 250, rho=rho)]) for _ in range(600))])
+    zs = np.array([[zp, *z] for zp, z, _ in (_z([_window(rng, 250, rho=rho)]) for _ in range(600))])
     for level in (0.01, 0.05):
         rate = np.mean(np.vectorize(normal_sf)(zs) < level, axis=0)
         sd = math.sqrt(level * (1 - level) / len(zs))
@@ -124,9 +124,9 @@ def test_correlated_candidates_are_told_apart_by_their_own_scores(truth, other):
         seed = int(rng.integers(1 << 30))
         theta = tuple(0.3 if k == truth else 0.0 for k in range(N_PAR))
         stats = [_window(np.random.default_rng(seed + i), 200, theta=theta, rho=0.95) for i in range(10)]
-        zp, zs = _z(stats, 10)
+        zp, zs, zv = _z(stats, 10)
         raw_other += zs[other] > z_at
-        k, _ = judge(zp, zs, 0.01, 0)
+        k, _ = judge(zp, zs, 0.01, 0, zv=zv)
         named += k == truth
         wrong += k == other
     assert raw_other >= 55 and named >= 55 and wrong == 0, (raw_other, named, wrong)
@@ -178,11 +178,11 @@ def test_a_window_nobody_offered_is_not_judged_on_the_consensus_residue():
     n = 10
     # team means: count 0.02 agents; else z_p 4.7, z_b 40
     residue = _pool([0.4, 0.02, 0.0], [1e-3, 1e-4, 1e-4], 0.066, 0.002)
-    zp, zs = pooled(residue, n)
-    assert zp != zp and all(z != z for z in zs)
+    zp, zs, zv = pooled(residue, n)
+    assert zp != zp and all(z != z for z in zs + zv)
     assert judge(zp, zs, 0.01, 0) == (-1, False)
     one = _pool([0.4 / n, 0.0, 0.0], [1.0 / n] * 3, 3.0 / n, 1.0 / n)  # one agent's window, the others nothing
-    zp, zs = pooled(one, n)
+    zp, zs, _ = pooled(one, n)
     assert zp == pytest.approx(3.0) and zs[0] == pytest.approx(0.4)
 
 
@@ -223,7 +223,7 @@ def test_a_switched_rate_is_pooled_by_inverse_variance():
         u = [0.0] * N_POOL
         d.begin_tick(w, u, [0.0] * N_POOL, [rate] + [(0.0, 0.0)] * (N_EFF - 1))
         inputs.append(u)
-    zp, zs = pooled(list(np.mean(inputs, axis=0)), 10, held=0b01)
+    zp, zs, _ = pooled(list(np.mean(inputs, axis=0)), 10, held=0b01)
     assert zp != zp and zs[0] == pytest.approx(-900 / math.sqrt(9e4 + 10)) and zs[1] != zs[1]
     assert zs[0] == pytest.approx(-3.0, rel=1e-3)
 
@@ -367,11 +367,11 @@ def test_consensus_pools_the_team_statistic_with_loss_and_a_dead_agent():
     inputs = [_window(rng, 200, theta=_theta(visc=0.01)) for _ in range(n)]
     central = _z(inputs, n)
     for x in _line_pool(n, inputs, 1500, rng, loss=0.2):
-        zp, zs = pooled(x, n)
+        zp, zs, _ = pooled(x, n)
         assert abs(zp - central[0]) < 1e-3
         assert max(abs(a - b) for a, b in zip(zs, central[1], strict=True)) < 1e-3
     views = [pooled(x, n) for i, x in enumerate(_line_pool(n, inputs, 1500, rng, loss=0.2, dead=9)) if i != 9]
-    for zp, zs in views:
+    for zp, zs, _ in views:
         assert abs(zp - views[0][0]) < 1e-3 and abs(zs[0] - views[0][1][0]) < 1e-3
 
 
