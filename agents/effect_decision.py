@@ -57,10 +57,14 @@ The vector candidate (force_bias) has no sign: its score is the chi2 with 2 dof 
 and their 2 x 2 information, judged at the same level and ranked on the same scale through its
 normal-equivalent z (:func:`chi2_z`: its second rate pays for the noise it fits, ~2 log(z sqrt(2 pi)) of
 chi2 at large z). Its rates span every constant force, and within a window where the load keeps its
-direction that is what Coulomb friction (-F_c sat(v_C)) looks like: so the slope counts as significant only
-if its score orthogonal to the other candidates' rates (zv: S_a - V_aO V_OO^-1 S_O, V_aa - V_aO V_OO^-1 V_Oa,
-the others' rates the nuisance) is significant too, the general model switched only where the data hold
-something of it that no special one explains. It is never ruled out by its own score (there is no negative
+direction that is what Coulomb friction (-F_c sat(v_C)) looks like: so where a scalar candidate is
+significant too, the slope counts as significant only if its score orthogonal to the rate of the scalar
+candidate with the largest own z, j (zv: S_a - V_aj / V_jj S_j, V_aa - V_aj V_ja / V_jj; C(alpha) again,
+j's rate the nuisance), is significant as well: the nested test of the general model against the special
+one the window would name instead. Orthogonal to every other candidate's rate (their signs free) it would
+be too strict: on a slope plant the frictions' own scores are significantly negative (a force along the
+motion is negative friction while the load keeps its direction), and with their rates free the slope keeps
+nothing of its own. It is never ruled out by its own score (there is no negative
 to contradict) nor contradicts another's switch, but a scalar candidate's score orthogonal to it can rule it
 out; its withdrawal is the same rule on its rates' Wald chi2 (below the level's lower quantile).
 
@@ -139,9 +143,9 @@ def pooled(means: Sequence[float], n: int, held: int = 0,
     """(z_p, [z_k], [zv_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
     agent contributed. Means times n are the team sums S_p, V_pq: a candidate's own score z_k = S_k /
     sqrt(V_kk); for the vector candidate (force_bias: its rates a_x, a_y) the chi2 S_k^T V_kk^-1 S_k with 2 dof
-    as its normal-equivalent z (:func:`chi2_z`), and zv_k, the same chi2 of its score orthogonal to the other
-    candidates' rates (S_k - V_kO V_OO^-1 S_O, V_kk - V_kO V_OO^-1 V_Ok, O the others' rates; NaN for a
-    scalar candidate, and where the vector's information is all in the others'). The candidates are the
+    as its normal-equivalent z (:func:`chi2_z`), and zv_k, the same chi2 of its score orthogonal to the rate
+    of the scalar candidate with the largest own z, j (S_k - V_kj / V_jj S_j, V_kk - V_kj V_jk / V_jj; NaN for
+    a scalar candidate, and where the vector's information is all in j's). The candidates are the
     effects not in ``out`` (bit k: on, declared or withdrawn: not tested), whose z are NaN. For an effect
     switched on (bit k of ``held``) its rates' channels carry (P^-1 r, P^-1) (r the released rates, P their
     covariance): z_k is the team's Wald z of the inverse-variance weighted mean (a vector's: the Wald chi2's
@@ -164,18 +168,17 @@ def pooled(means: Sequence[float], n: int, held: int = 0,
             zs[k] = _score_z(S[ps], V[np.ix_(ps, ps)], n)
     if empty:
         return nan, zs, zv
-    for k in cand:
-        if not (VECTOR >> k) & 1:
-            continue
-        ps = list(EFFECT_PARAMS[k])
-        o = [p for j in cand if j != k for p in EFFECT_PARAMS[j]]
-        s, v = S[ps], V[np.ix_(ps, ps)]
-        if o:  # the part of its score that the other candidates' rates explain is theirs
-            c = np.linalg.pinv(V[np.ix_(o, o)]) @ V[np.ix_(o, ps)]
-            s = s - c.T @ S[o]
-            v = v - V[np.ix_(ps, o)] @ c
-        # what is left of its information below rounding: nothing of its own
-        zv[k] = _score_z(s, v, n) if np.linalg.eigvalsh(v)[0] > 1e-9 * float(np.max(np.diag(V)[ps])) else nan
+    scalars = [j for j in cand if not (VECTOR >> j) & 1 and zs[j] == zs[j]]
+    if scalars:  # the scalar candidate the window names if not the vector: the one with the largest own z
+        j = EFFECT_PARAMS[max(scalars, key=lambda j: zs[j])][0]
+        for k in cand:
+            if not (VECTOR >> k) & 1:
+                continue
+            ps = list(EFFECT_PARAMS[k])
+            c = V[j, ps] / V[j, j]  # the part of its score that j's rate explains is j's
+            s, v = S[ps] - c * S[j], V[np.ix_(ps, ps)] - np.outer(c, V[j, ps])
+            # what is left of its information below rounding: nothing of its own
+            zv[k] = _score_z(s, v, n) if np.linalg.eigvalsh(v)[0] > 1e-9 * float(np.max(np.diag(V)[ps])) else nan
     zsum, cnt = means[CH_Z], means[CH_CNT]
     zp = math.sqrt(n) * zsum / math.sqrt(cnt) if cnt > 0.0 else nan
     return zp, zs, zv
@@ -232,10 +235,11 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
     Whether an effect is missing is each candidate's own score test (zs); which one, among those significant,
     the one with the largest own z: the effect that, added alone to the nominal model, explains the most, its
     evidence measured on one scale whatever its number of rates (a vector's chi2 through its
-    normal-equivalent z, so that its second rate pays for the noise it fits). A vector candidate (its rates
-    span every constant force, which is what a scalar effect looks like within one window) is significant
-    only if its score orthogonal to the other candidates' (``zv``) is too: the general model is switched
-    when the data hold something of it that no special one explains (module docstring). For an effect
+    normal-equivalent z, so that its second rate pays for the noise it fits). When a scalar candidate is
+    significant, a vector candidate (its rates span every constant force, which is what a scalar effect looks
+    like within one window) is significant only if its score orthogonal to the best scalar's (``zv``) is
+    too: the general model is switched over the special one the window would name only where the data hold
+    something of it that the special one does not explain (module docstring). For an effect
     switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below the
     level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect is
     withdrawn (the most negative first), and the structure it was switched on for stays unexplained.
@@ -248,12 +252,12 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
     if worst >= 0:
         return N_EFF + worst, True
     best, zbest = -1, -math.inf
-    for k, z in enumerate(zs):
-        if ((on | held) >> k) & 1 or not (z == z):
+    free = [(k, z) for k, z in enumerate(zs) if not ((on | held) >> k) & 1 and z == z and normal_sf(z) < level]
+    special = any(not (VECTOR >> k) & 1 for k, _ in free)  # a scalar candidate is significant
+    for k, z in free:
+        if special and (VECTOR >> k) & 1 and zv is not None and not normal_sf(zv[k]) < level:
             continue
-        if (VECTOR >> k) & 1 and zv is not None and not normal_sf(zv[k]) < level:
-            continue
-        if normal_sf(z) < level and (best < 0 or z > zbest):
+        if best < 0 or z > zbest:
             best, zbest = k, z
     structured = zp == zp and normal_sf(zp) < level
     return best, best < 0 and structured
