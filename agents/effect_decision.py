@@ -19,15 +19,15 @@ whitened sensitivities g_k (both from S = L L^T) and sums, over global windows o
 
 Pooling without a coordinator: each agent puts its window's (s_k, V_jk (j <= k), z, 1) on flow-updating
 average consensus channels (agents/consensus.py) for the next window. The team sums S_k and V_jk give each
-candidate's score z_k = S_k / sqrt(V_kk) and its score orthogonal to the other candidates' (C(alpha) again,
-the others' rates the nuisance): zo_k = (S_k - V_kO V_OO^-1 S_O) / sqrt(V_kk - V_kO V_OO^-1 V_Ok), O the
-others. Viscous and Coulomb friction have nearly the same signature when the speed changes little: either
-plant makes both z_k significant, and only the part of each score the other cannot explain tells which.
-With z_p = sum_i z_i / sqrt(count) (:func:`pooled`), each is N(0, 1) under the nominal model for
-independent agents. At the next window's last tick each agent judges them (:func:`judge`): each z_k
-one-sided at the Bonferroni level ``alpha / (1 + candidates)``; of the significant candidates the one with
-the largest zo_k is proposed with a switch tick ``horizon`` later; structure (z_p significant) with no
-significant candidate is ``unexplained``. Proposals are flooded
+candidate's own score z_k = S_k / sqrt(V_kk), and with z_p = sum_i z_i / sqrt(count) (:func:`pooled`) each is
+N(0, 1) under the nominal model for independent agents. At the next window's last tick each agent judges
+them (:func:`judge`): each z_k one-sided at the Bonferroni level ``alpha / (1 + candidates)``; of the
+significant candidates the one with the largest z_k, the effect that explains the most added alone (forward
+selection: one effect is switched at a time), is proposed with a switch tick ``horizon`` later; structure
+(z_p significant) with no significant candidate is ``unexplained``. Viscous and Coulomb friction have nearly
+the same signature when the speed changes little: either plant makes both z_k significant, and the larger
+is the plant's (with two candidates this is the order of their scores orthogonal to each other's too:
+z_b^2 + zc|b^2 = z_c^2 + zb|c^2, the pair's joint chi2). Proposals are flooded
 (:class:`DecisionFlood`): the earliest switch tick, then the largest |z| wins, so every agent that has
 heard all proposals by the switch tick switches the same effect on the same tick.
 
@@ -54,9 +54,18 @@ is structure no switch changes and blocks no candidate. A ruled-out candidate's 
 still checks the later switches of its near-twins.
 
 The vector candidate (force_bias) has no sign: its score is the chi2 with 2 dof of its two rates' scores
-and their 2 x 2 information (orthogonal to the others' rates as above), judged at the same level through its
-normal-equivalent z (:func:`chi2_z`); it is never ruled out by its own score (there is no negative to
-contradict) nor contradicts another's switch, but a scalar candidate's score orthogonal to it can rule it
+and their 2 x 2 information, judged at the same level and ranked on the same scale through its
+normal-equivalent z (:func:`chi2_z`: its second rate pays for the noise it fits, ~2 log(z sqrt(2 pi)) of
+chi2 at large z). Its rates span every constant force, and within a window where the load keeps its
+direction that is what Coulomb friction (-F_c sat(v_C)) looks like: so where a scalar candidate is
+significant too, the slope counts as significant only if its score orthogonal to the rate of the scalar
+candidate with the largest own z, j (zv: S_a - V_aj / V_jj S_j, V_aa - V_aj V_ja / V_jj; C(alpha) again,
+j's rate the nuisance), is significant as well: the nested test of the general model against the special
+one the window would name instead. Orthogonal to every other candidate's rate (their signs free) it would
+be too strict: on a slope plant the frictions' own scores are significantly negative (a force along the
+motion is negative friction while the load keeps its direction), and with their rates free the slope keeps
+nothing of its own. It is never ruled out by its own score (there is no negative
+to contradict) nor contradicts another's switch, but a scalar candidate's score orthogonal to it can rule it
 out; its withdrawal is the same rule on its rates' Wald chi2 (below the level's lower quantile).
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
@@ -111,16 +120,13 @@ def chi2_z(x: float) -> float:
     return z
 
 
-def _score_z(s: np.ndarray, v: np.ndarray, n: int, ref: float) -> float:
+def _score_z(s: np.ndarray, v: np.ndarray, n: int) -> float:
     """The team's score statistic of one candidate from the team means ``s`` (its rates' scores) and ``v``
-    (their information): signed z = sqrt(n) s / sqrt(v) for a scalar rate, the chi2 n s^T v^-1 s's
-    normal-equivalent z (:func:`chi2_z`) for a vector; NaN where ``v`` is singular to ``ref`` (the rates'
-    own information before any projection: collinear with the others, no part of its own)."""
+    (their information, positive diagonal): signed z = sqrt(n) s / sqrt(v) for a scalar rate, the chi2
+    n s^T v^-1 s's normal-equivalent z (:func:`chi2_z`) for a vector; NaN where a vector's ``v`` is singular."""
     if len(s) == 1:
-        vv = float(v[0, 0])
-        return math.sqrt(n) * float(s[0]) / math.sqrt(vv) if vv > 1e-9 * ref else math.nan
-    ev = np.linalg.eigvalsh(v)
-    if not ev[0] > 1e-9 * ref:
+        return math.sqrt(n) * float(s[0]) / math.sqrt(float(v[0, 0]))
+    if not np.linalg.eigvalsh(v)[0] > 0.0:
         return math.nan
     return chi2_z(n * float(s @ np.linalg.solve(v, s)))  # the vector candidates are planar: 2 rates
 
@@ -132,15 +138,18 @@ def _gram(means: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
     return S, V
 
 
-def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple[float, list[float], list[float]]:
-    """(z_p, [z_k], [zo_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
-    agent contributed. Means times n are the team sums S_p, V_pq: a candidate's own score z_k = S_k / sqrt(V_kk)
-    and zo_k, its score orthogonal to the other candidates' (module docstring); for the vector candidate
-    (force_bias: its rates a_x, a_y) the chi2 S_k^T V_kk^-1 S_k with 2 dof as its normal-equivalent z
-    (:func:`chi2_z`), orthogonal the same way. The candidates are the effects not in ``out`` (bit k: on,
-    declared or withdrawn: not tested), whose z are NaN. For an effect switched on (bit k of ``held``) its
-    rates' channels carry (P^-1 r, P^-1) (r the released rates, P their covariance): z_k is the team's Wald z
-    of the inverse-variance weighted mean (a vector's: the Wald chi2's normal-equivalent z).
+def pooled(means: Sequence[float], n: int, held: int = 0,
+           out: int = 0) -> tuple[float, list[float], list[float]]:
+    """(z_p, [z_k], [zv_k]) from the team means of the :data:`N_POOL` channels over ``n`` agents; NaN where no
+    agent contributed. Means times n are the team sums S_p, V_pq: a candidate's own score z_k = S_k /
+    sqrt(V_kk); for the vector candidate (force_bias: its rates a_x, a_y) the chi2 S_k^T V_kk^-1 S_k with 2 dof
+    as its normal-equivalent z (:func:`chi2_z`), and zv_k, the same chi2 of its score orthogonal to the rate
+    of the scalar candidate with the largest own z, j (S_k - V_kj / V_jj S_j, V_kk - V_kj V_jk / V_jj; NaN for
+    a scalar candidate, and where the vector's information is all in j's). The candidates are the
+    effects not in ``out`` (bit k: on, declared or withdrawn: not tested), whose z are NaN. For an effect
+    switched on (bit k of ``held``) its rates' channels carry (P^-1 r, P^-1) (r the released rates, P their
+    covariance): z_k is the team's Wald z of the inverse-variance weighted mean (a vector's: the Wald chi2's
+    normal-equivalent z).
 
     The count's team sum is a whole number of agents; below one half no agent contributed a score window,
     and what the channels hold is what the consensus has not yet forgotten of an earlier window (with delayed
@@ -149,29 +158,30 @@ def pooled(means: Sequence[float], n: int, held: int = 0, out: int = 0) -> tuple
     nan = math.nan
     empty = n * means[CH_CNT] < 0.5
     zs = [nan] * N_EFF
-    zo = [nan] * N_EFF
+    zv = [nan] * N_EFF
     S, V = _gram(means)
     cand = [k for k in range(N_EFF)
             if not ((out | held) >> k) & 1 and all(V[p, p] > 0.0 for p in EFFECT_PARAMS[k])]
     for k in range(N_EFF):
         ps = list(EFFECT_PARAMS[k])
         if all(V[p, p] > 0.0 for p in ps) and ((held >> k) & 1 or (k in cand and not empty)):
-            zs[k] = _score_z(S[ps], V[np.ix_(ps, ps)], n, 0.0)
+            zs[k] = _score_z(S[ps], V[np.ix_(ps, ps)], n)
     if empty:
-        return nan, zs, zo
-    for k in cand:
-        ps = list(EFFECT_PARAMS[k])
-        o = [p for j in cand if j != k for p in EFFECT_PARAMS[j]]
-        s, v = S[ps], V[np.ix_(ps, ps)]
-        if o:  # the part of k's score that the other candidates' rates explain is theirs
-            c = np.linalg.pinv(V[np.ix_(o, o)]) @ V[np.ix_(o, ps)]
-            s = s - c.T @ S[o]
-            v = v - V[np.ix_(ps, o)] @ c
-        # collinear with the others (to rounding): no part of its own
-        zo[k] = _score_z(s, v, n, float(np.max(np.diag(V)[ps])))
+        return nan, zs, zv
+    scalars = [j for j in cand if not (VECTOR >> j) & 1 and zs[j] == zs[j]]
+    if scalars:  # the scalar candidate the window names if not the vector: the one with the largest own z
+        j = EFFECT_PARAMS[max(scalars, key=lambda j: zs[j])][0]
+        for k in cand:
+            if not (VECTOR >> k) & 1:
+                continue
+            ps = list(EFFECT_PARAMS[k])
+            c = V[j, ps] / V[j, j]  # the part of its score that j's rate explains is j's
+            s, v = S[ps] - c * S[j], V[np.ix_(ps, ps)] - np.outer(c, V[j, ps])
+            # what is left of its information below rounding: nothing of its own
+            zv[k] = _score_z(s, v, n) if np.linalg.eigvalsh(v)[0] > 1e-9 * float(np.max(np.diag(V)[ps])) else nan
     zsum, cnt = means[CH_Z], means[CH_CNT]
     zp = math.sqrt(n) * zsum / math.sqrt(cnt) if cnt > 0.0 else nan
-    return zp, zs, zo
+    return zp, zs, zv
 
 
 def window_level(alpha: float, cands: int = N_EFF) -> float:
@@ -215,7 +225,7 @@ def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: 
 
 
 def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
-          zo: Sequence[float] | None = None, cands: int = N_EFF) -> tuple[int, bool]:
+          zv: Sequence[float] | None = None, cands: int = N_EFF) -> tuple[int, bool]:
     """The team's verdict on one window: (decision or -1, unexplained). Decision k < N_EFF: switch candidate
     k on; N_EFF + k: withdraw effect k.
 
@@ -223,12 +233,16 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
     too) at alpha / (1 + number of candidates); candidates already on or withdrawn (bit k of ``on``) are not
     tested for a switch but still count in the level, which stays the same whatever has been switched.
     Whether an effect is missing is each candidate's own score test (zs); which one, among those significant,
-    the one whose score orthogonal to the others' (``zo``) is the largest: what the data hold of it that no
-    other candidate explains (without ``zo``, the largest zs). Two candidates with nearly the same signature
-    are then both significant, and named by the part that tells them apart. For
-    an effect switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below
-    the level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect
-    is withdrawn (the most negative first), and the structure it was switched on for stays unexplained.
+    the one with the largest own z: the effect that, added alone to the nominal model, explains the most, its
+    evidence measured on one scale whatever its number of rates (a vector's chi2 through its
+    normal-equivalent z, so that its second rate pays for the noise it fits). When a scalar candidate is
+    significant, a vector candidate (its rates span every constant force, which is what a scalar effect looks
+    like within one window) is significant only if its score orthogonal to the best scalar's (``zv``) is
+    too: the general model is switched over the special one the window would name only where the data hold
+    something of it that the special one does not explain (module docstring). For an effect
+    switched on online (bit k of ``held``) zs[k] is the Wald z of its released rate instead: below the
+    level's lower quantile the team's estimate is inconsistent with a positive coefficient, the effect is
+    withdrawn (the most negative first), and the structure it was switched on for stays unexplained.
     ``cands``: the number of candidates the level is shared by."""
     level = window_level(alpha, cands)
     worst, zworst = -1, math.inf
@@ -238,12 +252,13 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
     if worst >= 0:
         return N_EFF + worst, True
     best, zbest = -1, -math.inf
-    for k, z in enumerate(zs):
-        if ((on | held) >> k) & 1 or not (z == z):
+    free = [(k, z) for k, z in enumerate(zs) if not ((on | held) >> k) & 1 and z == z and normal_sf(z) < level]
+    special = any(not (VECTOR >> k) & 1 for k, _ in free)  # a scalar candidate is significant
+    for k, z in free:
+        if special and (VECTOR >> k) & 1 and zv is not None and not normal_sf(zv[k]) < level:
             continue
-        rank = z if zo is None else zo[k] if zo[k] == zo[k] else -math.inf
-        if normal_sf(z) < level and (best < 0 or rank > zbest):
-            best, zbest = k, rank
+        if best < 0 or z > zbest:
+            best, zbest = k, z
     structured = zp == zp and normal_sf(zp) < level
     return best, best < 0 and structured
 
@@ -452,14 +467,14 @@ class OnlineDetection:
             held = self.switched
             scores = (tick + 1 - 2 * w) >= self.score_from  # the window started after the last switch settled
             if scores or (held and (tick + 1 - w) >= self.settle_from):  # ... or at least its close did
-                zp, zs, zo = pooled(x[c:c + N_POOL], self.n, held, self.on | self.withdrawn)
+                zp, zs, zv = pooled(x[c:c + N_POOL], self.n, held, self.on | self.withdrawn)
                 if scores:
                     self.zp, self.zs = zp, zs
                 else:  # only the switched rates are judged
                     zp = math.nan
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
-                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zo, self.ncand)
+                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zv, self.ncand)
                 z = zs[k % N_EFF]
                 out = self._contradicted(zs, self.on | self.withdrawn | held)
                 # a rule-out comes before a switch in the same window, unless the switch's model explains it: no

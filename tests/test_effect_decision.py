@@ -74,24 +74,23 @@ def _window(rng, n, theta=(0.0,) * N_PAR, ar=0.0, rho=0.0):
 
 
 def _z(stats, n_agents=1):
-    """Pooled statistics (z_p, own z, orthogonal z) of a list of agents' window stats (the team sums; no
-    consensus)."""
+    """Pooled statistics (z_p, own z, the vector's beyond the others) of a list of agents' window stats (the team sums; no consensus)."""
     means = np.mean(np.array(stats), axis=0)
     return pooled(list(means), n_agents)
 
 
 def _verdict(stats, n_agents=1):
-    zp, zs, zo = _z(stats, n_agents)
-    return judge(zp, zs, 0.01, 0, zo=zo)
+    zp, zs, zv = _z(stats, n_agents)
+    return judge(zp, zs, 0.01, 0, zv=zv)
 
 
 @pytest.mark.parametrize("rho", [0.0, 0.95])
 def test_each_test_rejects_at_its_level_on_white_innovations(rho):
-    """Under H0 the one-sided scores (each orthogonal to the others, Coulomb's signature correlated ``rho``
-    with viscous friction's) and the persistence z are N(0, 1): rejection rate at 1 % and 5 % within four
-    binomial sd over 600 windows of 250 updates (the closed loop's shortest)."""
+    """Under H0 the one-sided scores (Coulomb's signature correlated ``rho`` with viscous friction's) and the
+    persistence z are N(0, 1): rejection rate at 1 % and 5 % within four binomial sd over 600 windows of 250
+    updates (the closed loop's shortest)."""
     rng = np.random.default_rng(3)
-    zs = np.array([[zp, *z, *o] for zp, z, o in (_z([_window(rng, 250, rho=rho)]) for _ in range(600))])
+    zs = np.array([[zp, *z] for zp, z, _ in (_z([_window(rng, 250, rho=rho)]) for _ in range(600))])
     for level in (0.01, 0.05):
         rate = np.mean(np.vectorize(normal_sf)(zs) < level, axis=0)
         sd = math.sqrt(level * (1 - level) / len(zs))
@@ -114,25 +113,23 @@ def test_pooling_ten_agents_names_an_effect_one_agent_cannot():
 
 
 @pytest.mark.parametrize("truth,other", [(COUL, VISC), (VISC, COUL)])
-def test_correlated_candidates_are_told_apart_by_their_cross_information(truth, other):
+def test_correlated_candidates_are_told_apart_by_their_own_scores(truth, other):
     """Viscous and Coulomb friction's signatures correlated 0.95 (the measured 0.83-0.99 per window): each
-    one's own score is significant whichever is the plant's, the score orthogonal to the other's (the pool's
-    cross information) only for the plant's own, at the level's rate for the other, and the pool names the
-    plant's effect and never the other."""
+    one's own score is significant whichever is the plant's, and the pool names the plant's effect (the
+    largest own z: the one that explains the most alone) and never the other."""
     rng = np.random.default_rng(23)
     z_at = NormalDist().inv_cdf(1 - LEVEL)
-    raw_other = orth_other = named = wrong = 0
+    raw_other = named = wrong = 0
     for _ in range(60):
         seed = int(rng.integers(1 << 30))
         theta = tuple(0.3 if k == truth else 0.0 for k in range(N_PAR))
         stats = [_window(np.random.default_rng(seed + i), 200, theta=theta, rho=0.95) for i in range(10)]
-        zp, zs, zo = _z(stats, 10)
+        zp, zs, zv = _z(stats, 10)
         raw_other += zs[other] > z_at
-        orth_other += zo[other] > z_at
-        k, _ = judge(zp, zs, 0.01, 0, zo=zo)
+        k, _ = judge(zp, zs, 0.01, 0, zv=zv)
         named += k == truth
         wrong += k == other
-    assert raw_other >= 55 and orth_other <= 2 and named >= 55 and wrong == 0, (raw_other, orth_other, named, wrong)
+    assert raw_other >= 55 and named >= 55 and wrong == 0, (raw_other, named, wrong)
 
 
 def test_structure_no_candidate_explains_is_unexplained():
@@ -181,12 +178,12 @@ def test_a_window_nobody_offered_is_not_judged_on_the_consensus_residue():
     n = 10
     # team means: count 0.02 agents; else z_p 4.7, z_b 40
     residue = _pool([0.4, 0.02, 0.0], [1e-3, 1e-4, 1e-4], 0.066, 0.002)
-    zp, zs, zo = pooled(residue, n)
-    assert zp != zp and all(z != z for z in zs + zo)
-    assert judge(zp, zs, 0.01, 0, zo=zo) == (-1, False)
+    zp, zs, zv = pooled(residue, n)
+    assert zp != zp and all(z != z for z in zs + zv)
+    assert judge(zp, zs, 0.01, 0) == (-1, False)
     one = _pool([0.4 / n, 0.0, 0.0], [1.0 / n] * 3, 3.0 / n, 1.0 / n)  # one agent's window, the others nothing
-    zp, zs, zo = pooled(one, n)
-    assert zp == pytest.approx(3.0) and zs[0] == pytest.approx(0.4) and zo[0] == pytest.approx(0.4)
+    zp, zs, _ = pooled(one, n)
+    assert zp == pytest.approx(3.0) and zs[0] == pytest.approx(0.4)
 
 
 def test_judge_level_is_bonferroni_and_skips_effects_already_on():
@@ -370,9 +367,9 @@ def test_consensus_pools_the_team_statistic_with_loss_and_a_dead_agent():
     inputs = [_window(rng, 200, theta=_theta(visc=0.01)) for _ in range(n)]
     central = _z(inputs, n)
     for x in _line_pool(n, inputs, 1500, rng, loss=0.2):
-        zp, zs, zo = pooled(x, n)
+        zp, zs, _ = pooled(x, n)
         assert abs(zp - central[0]) < 1e-3
-        assert max(abs(a - b) for a, b in zip(zs + zo, central[1] + central[2], strict=True)) < 1e-3
+        assert max(abs(a - b) for a, b in zip(zs, central[1], strict=True)) < 1e-3
     views = [pooled(x, n) for i, x in enumerate(_line_pool(n, inputs, 1500, rng, loss=0.2, dead=9)) if i != 9]
     for zp, zs, _ in views:
         assert abs(zp - views[0][0]) < 1e-3 and abs(zs[0] - views[0][1][0]) < 1e-3

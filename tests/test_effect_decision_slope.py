@@ -5,6 +5,7 @@ z, its withdrawal, and its rates in the filter."""
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 
 import numpy as np
 import pytest
@@ -25,6 +26,7 @@ from agents.rigid_filter import EFFECT_PARAMS
 
 LAGS = 10
 SLOPE = EFFECTS.index("force_bias")
+COUL = EFFECTS.index("coulomb_friction")
 LEVEL = 0.01 / (1 + N_EFF)
 
 
@@ -55,11 +57,7 @@ def test_the_2_dof_test_rejects_at_its_level_on_white_innovations(rho):
     """Under H0 the slope's chi2 (own, and orthogonal to the scalar candidates; its x signature correlated
     ``rho`` with viscous friction's) rejects at its level: 600 windows, within four binomial sd at 1 % and 5 %."""
     rng = np.random.default_rng(31)
-    zs = []
-    for _ in range(600):
-        _, z, o = pooled(_window(rng, 250, (0.0,) * N_PAR, rho), 1)
-        zs.append((z[SLOPE], o[SLOPE]))
-    zs = np.array(zs)
+    zs = np.array([pooled(_window(rng, 250, (0.0,) * N_PAR, rho), 1)[1:] for _ in range(600)])[:, :, SLOPE]
     for level in (0.01, 0.05):
         rate = np.mean(np.vectorize(normal_sf)(zs) < level, axis=0)
         sd = math.sqrt(level * (1 - level) / len(zs))
@@ -67,22 +65,99 @@ def test_the_2_dof_test_rejects_at_its_level_on_white_innovations(rho):
 
 
 def test_the_pool_names_a_slope_signature_and_only_it():
-    """A force along a fixed direction (x and y rates 0.08, -0.06) in ten agents' windows: the pool names the
-    slope in most windows, with its x signature correlated 0.9 with viscous friction's (viscous friction's own
-    score is then significant too: only the orthogonal scores tell, and viscous friction's, N(0, 1), exceeds
-    the slope's now and then: 1 of 40 here)."""
+    """A force along a fixed direction (x and y rates 0.08, -0.06) in ten agents' windows, its x signature
+    correlated 0.9 with viscous friction's in every window (no reversal tells them apart): viscous friction's
+    own score is significant too, and the slope is named only where its score beyond viscous friction's is
+    significant as well (its y rate, the rest of its x); elsewhere viscous friction, which explains most of
+    it alone. Over 300 draws of another seed: the slope 228, viscous friction 68, nothing 4 (30.4 and 9.1
+    expected in 40; the bounds are three binomial sd away); never another candidate."""
     rng = np.random.default_rng(7)
     theta = [0.0] * N_PAR
     theta[EFFECT_PARAMS[SLOPE][0]], theta[EFFECT_PARAMS[SLOPE][1]] = 0.08, -0.06
-    named = wrong = 0
+    named = visc = wrong = 0
     for _ in range(40):
         stats = [_window(rng, 200, theta, 0.9) for _ in range(10)]
         means = list(np.mean(np.array(stats), axis=0))
-        zp, zs, zo = pooled(means, 10)
-        k, _ = judge(zp, zs, 0.01, 0, zo=zo)
+        zp, zs, zv = pooled(means, 10)
+        k, _ = judge(zp, zs, 0.01, 0, zv=zv)
         named += k == SLOPE
-        wrong += 0 <= k < N_EFF and k != SLOPE
-    assert named >= 36 and wrong <= 2, (named, wrong)
+        visc += k == 0
+        wrong += 0 <= k < N_EFF and k not in (0, SLOPE)
+    assert named >= 22 and visc <= 17 and wrong == 0, (named, visc, wrong)
+
+
+def test_the_slope_needs_its_score_beyond_the_scalar_candidates():
+    """Of the significant candidates the largest own z is named; beside a significant scalar the slope counts
+    as significant only if its score beyond the best scalar's is too (else the scalar is named); with no
+    scalar significant its own score is enough."""
+    z_at = NormalDist().inv_cdf(1 - LEVEL)
+    nan = math.nan
+    zs = [0.0, 0.0, 6.0, 7.0]
+    assert judge(0.0, zs, 0.01, 0) == (SLOPE, False)
+    assert judge(0.0, zs, 0.01, 0, zv=[nan, nan, nan, z_at + 1e-6]) == (SLOPE, False)
+    assert judge(0.0, zs, 0.01, 0, zv=[nan, nan, nan, z_at - 1e-6]) == (COUL, False)
+    assert judge(0.0, zs, 0.01, 0, zv=[nan, nan, nan, nan]) == (COUL, False)  # nothing of its own
+    assert judge(9.0, [0.0, 0.0, 1.0, 7.0], 0.01, 0, zv=[nan, nan, nan, 1.0]) == (SLOPE, False)
+
+
+def _coulomb_window(rng, n, kappa, slope, phi, reverse, misfit=0.05):
+    """One window of a plant with Coulomb friction ``kappa`` and a slope's rates ``slope``, the load moving
+    along phi: while it keeps its direction the plant's -F_c sat(v_C) is a constant force, in the slope's
+    span, and the filter's Coulomb signature is that force's up to ``misfit`` (its smoothed sign's, and the
+    direction's drift). With ``reverse`` the motion reverses at mid-window and Coulomb friction turns with it
+    (a slope does not)."""
+    g = np.cumsum(rng.normal(size=(N_PAR, n, 2)), axis=1) / 10.0
+    sx, sy = EFFECT_PARAMS[SLOPE]
+    coulomb = math.cos(phi) * g[sx] + math.sin(phi) * g[sy]
+    if reverse:
+        coulomb[n // 2:] *= -1.0
+    w = rng.normal(size=(n, 2)) + kappa * coulomb + slope[0] * g[sx] + slope[1] * g[sy]
+    g[COUL] = coulomb + misfit * g[COUL]
+    ev = WindowEvidence(LAGS)
+    for k in range(n):
+        ev.observe(w[k, 0], w[k, 1], [(g[p, k, 0], g[p, k, 1]) for p in range(N_PAR)])
+    return ev.close()
+
+
+def _team_verdict(rng, kappa, slope, reverse):
+    """Ten agents' windows, one direction of motion for the team: (decision, own z per candidate)."""
+    phi = rng.uniform(0.0, 2.0 * math.pi)
+    stats = [_coulomb_window(rng, 200, kappa, slope, phi, reverse) for _ in range(10)]
+    zp, zs, zv = pooled(list(np.mean(np.array(stats), axis=0)), 10)
+    return judge(zp, zs, 0.01, 0, zv=zv)[0], zs
+
+
+def test_coulomb_friction_in_the_slopes_span_is_named_coulomb():
+    """A Coulomb plant whose force lies in the slope's span (the load keeps its direction), the filter's
+    Coulomb signature that force's up to a misfit of 0.05 (correlation 0.999): the slope's chi2 is Coulomb's
+    z^2 plus a chi2 with 1 dof of noise (and the misfit's z^2 (1 - r^2)). Ranked by own z alone, the slope
+    wins when that excess exceeds ~2 log(z sqrt(2 pi)) (5.4 at z = 6); its score beyond Coulomb's (the
+    excess alone) must also be significant, at the level (chi2 12.4). 200 seeded draws at Coulomb's z ~4-8:
+    named Coulomb in >= 190 (199 measured; the own z alone 197, ranked by the scores orthogonal to the
+    others' 117, the slope 78: Coulomb's keeps only the misfit, the slope's a chi2 of the rest). With a
+    misfit of 0.3 (correlation 0.958): 188, the own z alone 134."""
+    rng = np.random.default_rng(41)
+    named, slope, zc = 0, 0, []
+    for _ in range(200):
+        k, zs = _team_verdict(rng, 0.1, (0.0, 0.0), False)
+        named += k == COUL
+        slope += k == SLOPE
+        zc.append(zs[COUL])
+    assert 4.0 < np.median(zc) < 8.0, np.median(zc)
+    assert named >= 190, (named, slope)
+
+
+def test_a_slope_whose_motion_reverses_is_named_the_slope():
+    """A slope plant (x and y rates 0.1, -0.08) where the motion reverses within the window: Coulomb
+    friction's signature turns with it and explains little; the slope is named in >= 39 of 40 draws and
+    Coulomb friction never."""
+    rng = np.random.default_rng(43)
+    named = coul = 0
+    for _ in range(40):
+        k, _ = _team_verdict(rng, 0.0, (0.1, -0.08), True)
+        named += k == SLOPE
+        coul += k == COUL
+    assert named >= 39 and coul == 0, (named, coul)
 
 
 def test_a_switched_slope_is_withdrawn_only_when_its_wald_chi2_is_below_the_lower_quantile():
