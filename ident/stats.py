@@ -58,18 +58,27 @@ def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
     return math.sqrt(_trimmed_variance(d2))
 
 
+def _kinematic_remainder(vel: np.ndarray, min_stamps: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The relative contact velocities' remainder after their rank-1 part (a rigid body's i omega z_i), at the
+    stamps where every agent measured (complex, (K, n)), and those stamps' indices; None for n < 3 or fewer
+    than ``min_stamps`` such stamps."""
+    full = ~np.isnan(vel).any(axis=(1, 2))
+    if full.sum() < min_stamps or vel.shape[1] < 3:
+        return None
+    w = vel[full, :, 0] + 1j * vel[full, :, 1]
+    rel = w - w.mean(axis=1, keepdims=True)
+    u, sv, vh = np.linalg.svd(rel, full_matrices=False)
+    return rel - (u[:, :1] * sv[0]) @ vh[:1], np.flatnonzero(full)
+
+
 def kinematic_noise(vel: np.ndarray) -> float:
     """Velocity noise sigma from the rigid-body kinematics alone (n >= 3): relative contact velocities
     of a rigid body are rank 1 (i omega z_i) over (stamp, agent); what is left is noise (a few glitches
     aside: the largest 1 % are dropped and the truncation corrected for)."""
-    full = ~np.isnan(vel).any(axis=(1, 2))
-    n = vel.shape[1]
-    if full.sum() < 20 or n < 3:
+    got = _kinematic_remainder(vel, 20)
+    if got is None:
         return math.nan
-    w = vel[full, :, 0] + 1j * vel[full, :, 1]
-    rel = w - w.mean(axis=1, keepdims=True)
-    u, sv, vh = np.linalg.svd(rel, full_matrices=False)
-    resid = rel - (u[:, :1] * sv[0]) @ vh[:1]
+    resid, n = got[0], vel.shape[1]
     # each component is N(0, s^2 (n - 2) / n)
     return math.sqrt(_trimmed_variance(np.concatenate([resid.real.ravel(), resid.imag.ravel()]) ** 2)
                      * n / max(n - 2, 1))
@@ -79,15 +88,10 @@ def kinematic_lag1(vel: np.ndarray) -> float:
     """Lag-1 autocorrelation along time of the rigid-body kinematics' remainder (:func:`kinematic_noise`),
     over runs of stamps where every agent measured: ~0 for white sensor noise, -1/2 for velocities that are
     differences of noisy positions ((n_k - n_(k-1)) / dt). NaN for n < 3 or too little data."""
-    full = ~np.isnan(vel).any(axis=(1, 2))
-    n = vel.shape[1]
-    if full.sum() < 50 or n < 3:
+    got = _kinematic_remainder(vel, 50)
+    if got is None:
         return math.nan
-    w = vel[full, :, 0] + 1j * vel[full, :, 1]
-    rel = w - w.mean(axis=1, keepdims=True)
-    u, sv, vh = np.linalg.svd(rel, full_matrices=False)
-    resid = rel - (u[:, :1] * sv[0]) @ vh[:1]
-    idx = np.flatnonzero(full)
+    resid, idx = got
     nxt = np.flatnonzero(np.diff(idx) == 1)  # consecutive stamps both full
     r = np.concatenate((resid.real, resid.imag), axis=1)
     den = float((r * r).sum()) / r.shape[0]
