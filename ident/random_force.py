@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize_scalar
+from scipy.stats import chi2, f_oneway
 
 from ident import stats
-from scipy.stats import chi2, f_oneway
 from ident.fit import Fit, Problem, normal_equations
 from ident.model import Layout, simulate
 
@@ -155,7 +156,7 @@ def _local_level(y: np.ndarray, R: np.ndarray, dt: np.ndarray, q: float) -> tupl
             yk = yr[k]
             if x is not None:
                 P += q * dr[k]
-            if yk != yk:  # NaN: not measured
+            if math.isnan(yk):  # not measured
                 continue
             if x is None:
                 x, P = yk, Rr[k]
@@ -301,3 +302,36 @@ def states_of(pb: Problem, fit: Fit) -> np.ndarray:
     _, _, XS = simulate(pb.win, fit.lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed,
                         max_step=pb.max_step)  # fmt: skip
     return XS[0]
+
+
+def significant_walk(pb: Problem, fit: Fit, *, alpha: float, lags: int, block: int) -> tuple[RandomForce | None, np.ndarray | None]:
+    """The random force's walk in ``fit``'s residual when one is significant (else None), and the angle."""
+    if pb.win.vel is None:
+        return None, None
+    st = states_of(pb, fit)
+    rf = fit_random_force(pb, fit, st, alpha=alpha, lags=lags, block=block)
+    return (rf, st[..., 3]) if rf.present else (None, None)
+
+
+def walk_values(rf: RandomForce, pb: Problem, fit: Fit, dt: float) -> dict[str, Any]:
+    """The walk in physical units: per mode the force (N; torque, N m) that, white and held over each
+    sample period ``dt``, drives the velocity (rate) walk: sigma = m sigma_v sqrt(q / dt), sigma_v the floor."""
+    sv = float(np.median(pb.sigma_v))
+    mj = fit.mj()
+    out: dict[str, Any] = {"sample_period_s": dt, "innovations_whiteness_p": rf.p_white}
+    for name, q, lr in zip(rf.modes, rf.q, rf.lr):
+        inertia = mj["J"] if name == "rotation" else mj["m"]
+        key = "torque_N_m" if name == "rotation" else f"force_{name}_N"
+        out[key] = inertia * sv * math.sqrt(q / dt) if math.isfinite(inertia) else None
+        out[f"lr_{name}"] = lr
+    return out
+
+
+def walk_warning(info: dict[str, Any], rf: RandomForce) -> str:
+    parts = [f"{info[k]:.3g} N along {k.split('_')[1]}" for k in ("force_x_N", "force_y_N") if info.get(k)]
+    if info.get("torque_N_m"):
+        parts.append(f"a torque of {info['torque_N_m']:.3g} N m")
+    return (f"the residual drifts as a random walk within each window, and with the walk fitted its innovations "
+            f"are white (Ljung-Box p {rf.p_white:.2g}): an unmeasured random force of {', '.join(parts)} per "
+            f"{info['sample_period_s']:.3g} s sample (noise on the logged wrench, or a process noise); the 95 % "
+            "intervals include it")

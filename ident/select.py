@@ -23,19 +23,36 @@ from ident.fit import (
     FitOptions,
     Lin,
     Problem,
+    differenced,
     fit_robust,
     initial_guess,
     linearise,
     lm_fit,
-    differenced,
     make_problem,
     normal_equations,
     refit_states,
     subset,
 )
 from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, expand, simulate
-from ident.glitches import GLITCH_FLOORS, find_glitches
-from ident.random_force import RandomForce, fit_random_force, rigid_modes, robust_covariance, robust_wald, states_of
+from ident.prepare import (
+    RUN,
+    agent_floors,
+    differenced_velocities,
+    noise_floor,
+    spread_windows,
+    usable_floor,
+    without_glitches,
+)
+from ident.random_force import (
+    fit_random_force,
+    rigid_modes,
+    robust_covariance,
+    robust_wald,
+    significant_walk,
+    states_of,
+    walk_values,
+    walk_warning,
+)
 from ident.recording import Recording
 from ident.report import Diagnosis, ModelReport
 
@@ -63,42 +80,6 @@ class DiagnoseOptions:
     max_samples: int = 150_000  # windows x stamps x agents fitted at most (0: all): runs of windows spread out
     candidates: tuple[str, ...] = tuple(EFFECTS)
     fit: FitOptions = FitOptions()
-
-
-def noise_floor(rec: Recording) -> tuple[float, float]:
-    """(sigma_v m/s, sigma_p m) estimated from the data; NaN for an absent channel."""
-    sv = sp = math.nan
-    if rec.vel is not None:
-        sv = stats.kinematic_noise(rec.vel) if rec.n >= 3 else math.nan
-        if not math.isfinite(sv):
-            sv = stats.difference_noise(rec.t, rec.vel, 3)
-    if rec.pos is not None:
-        sp = stats.difference_noise(rec.t, rec.pos, 3)
-    return sv, sp
-
-
-AGENT_SPREAD = 1.5  # agents whose noise floors differ by more than this factor are weighted each by its own
-
-
-def agent_floors(rec: Recording, data: np.ndarray | None) -> np.ndarray | None:
-    """Per-agent noise floors (n, 1) of ``data`` (velocities or positions) when the agents' sensors differ:
-    each agent's own divided-difference noise (the pooled kinematic floor mixes the agents: its rank-one
-    fit takes up part of the noisiest agent's noise); None when they agree within ``AGENT_SPREAD`` (the
-    pooled floor for all) or cannot be told apart."""
-    if data is None or rec.n < 2:
-        return None
-    own = np.array([stats.difference_noise(rec.t, data[:, i], 3) for i in range(rec.n)])
-    if not np.isfinite(own).all() or own.min() <= 0 or own.max() / own.min() <= AGENT_SPREAD:
-        return None
-    return own[:, None]
-
-
-def _floor(x: float, data: np.ndarray | None) -> float:
-    """A usable weight: a zero or NaN floor (quantised, noiseless data) becomes a tiny share of the signal."""
-    if data is None:
-        return math.nan
-    scale = float(np.nanstd(data)) or 1.0
-    return x if math.isfinite(x) and x > 1e-9 * scale else 1e-9 * scale
 
 
 def _channels(pb: Problem, fit: Fit) -> dict[str, np.ndarray]:
@@ -276,10 +257,10 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     say = progress or (lambda msg: None)
     t_start = clock() if clock is not None else 0.0
     warns = list(rec.warnings)
-    lag1 = _differenced_velocities(rec, warns)
-    rec = _without_glitches(rec, warns)  # before the floors: glitches inflate them
+    lag1 = differenced_velocities(rec, warns)
+    rec = without_glitches(rec, warns)  # before the floors: glitches inflate them
     sv, sp = noise_floor(rec)
-    sv_w, sp_w = _floor(sv, rec.vel), _floor(sp, rec.pos)
+    sv_w, sp_w = usable_floor(sv, rec.vel), usable_floor(sp, rec.pos)
     per_agent = {}
     for key, data, unit in (("velocity", rec.vel, "m/s"), ("position", rec.pos, "m")):
         own = agent_floors(rec, data)
@@ -471,12 +452,13 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     excess0 = nominal.rss - nominal.N
     share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
     ambiguous_names = {c for pair in ambiguous for c in pair}
-    walk, theta_w = (None, None) if white > opt.alpha_white else _walk(pb, current, opt)
+    walk, theta_w = (None, None) if white > opt.alpha_white else significant_walk(
+        pb, current, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
     walk_white = walk is not None and walk.p_white > opt.alpha_white and walk.p_motion > opt.alpha_white
     # a walk fits part of any slow structure: it is reported only where it is all that is left
-    walk_info = random_force_values(walk, pb, current, dtm) if walk_white else None
+    walk_info = walk_values(walk, pb, current, dtm) if walk_white else None
     if walk_info is not None:
-        warns.append(_walk_warning(walk_info, walk))
+        warns.append(walk_warning(walk_info, walk))
     if accepted and (white > opt.alpha_white or share >= opt.explained or walk_white):
         unexplained = False
         named = [c for c in accepted if c not in ambiguous_names]
@@ -543,92 +525,6 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         fits={"nominal": nominal, "augmented": final}, problem=pb,
         random_force=walk_info if final is current else None,
     )  # fmt: skip
-
-
-DIFFERENCED_LAG1 = -0.4  # white sensor noise gives ~0, velocities from differenced positions -1/2
-
-
-def _differenced_velocities(rec: Recording, warns: list[str]) -> float:
-    """The correlation of consecutive velocity noise samples to whiten the residual with: a velocity that is
-    a difference of noisy positions ((n_k - n_(k-1)) / dt, an encoder's counts over the sample period) has
-    noise correlated -1/2 from one sample to the next, which no whiteness test accepts; 0 otherwise."""
-    if rec.vel is None:
-        return 0.0
-    rho = stats.kinematic_lag1(rec.vel)
-    if not rho < DIFFERENCED_LAG1:
-        return 0.0
-    warns.append(f"the velocities' noise is correlated {rho:.2f} from one sample to the next: they are differences "
-                 "of noisy positions (an encoder's counts over the sample period), each the mean velocity over the "
-                 "interval before its stamp: modelled so, and the residual whitened for the noise")
-    return -0.5  # white position noise differenced: exactly; a window's covariance stays positive definite
-
-
-RUN = 4  # consecutive windows kept together: the rotation's links between them carry J's information
-
-
-def spread_windows(S: int, keep: int) -> np.ndarray:
-    """Indices of ``keep`` of ``S`` windows, in runs of :data:`RUN` consecutive ones spread evenly."""
-    if keep >= S:
-        return np.arange(S)
-    runs = max(1, -(-keep // RUN))
-    starts = np.round(np.linspace(0, S - RUN, runs)).astype(int)
-    return np.unique((starts[:, None] + np.arange(RUN)).ravel())
-
-
-def _without_glitches(rec: Recording, warns: list[str]) -> Recording:
-    """``rec`` with its glitches (ident/glitches.py, against each agent's own divided-difference floor: a
-    noisier sensor's samples are not glitches) not measured, and a warning per channel that had any."""
-    out = rec
-    for key in ("vel", "pos"):
-        data = getattr(rec, key)
-        if data is None:
-            continue
-        sig = np.array([stats.difference_noise(rec.t, data[:, i], 3) for i in range(rec.n)])
-        flags = find_glitches(rec.t, data, sig)
-        if not flags.any():
-            continue
-        clean = data.copy()
-        clean[flags] = np.nan
-        out = replace(out, **{key: clean})
-        k, i = np.nonzero(flags)
-        warns.append(f"{int(flags.sum())} {'velocity' if key == 'vel' else 'position'} samples "
-                     f"({100 * flags.sum() / np.count_nonzero(~np.isnan(data[..., 0])):.2g} %) are more than "
-                     f"{GLITCH_FLOORS:g} noise floors off the cubic through their neighbours (agents "
-                     f"{sorted(set(i.tolist()))}, the first at t = {rec.t0 + rec.t[k.min()]:.6g} s): left out as glitches")
-    return out
-
-
-def _walk(pb: Problem, fit: Fit, opt: DiagnoseOptions) -> tuple[RandomForce | None, np.ndarray | None]:
-    """The random force's walk in ``fit``'s residual when one is significant (else None), and the angle."""
-    if pb.win.vel is None:
-        return None, None
-    st = states_of(pb, fit)
-    rf = fit_random_force(pb, fit, st, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
-    return (rf, st[..., 3]) if rf.present else (None, None)
-
-
-def random_force_values(rf: RandomForce, pb: Problem, fit: Fit, dt: float) -> dict[str, Any]:
-    """The walk in physical units: per mode the force (N; torque, N m) that, white and held over each
-    sample period ``dt``, drives the velocity (rate) walk: sigma = m sigma_v sqrt(q / dt), sigma_v the floor."""
-    sv = float(np.median(pb.sigma_v))
-    mj = fit.mj()
-    out: dict[str, Any] = {"sample_period_s": dt, "innovations_whiteness_p": rf.p_white}
-    for name, q, lr in zip(rf.modes, rf.q, rf.lr):
-        inertia = mj["J"] if name == "rotation" else mj["m"]
-        key = "torque_N_m" if name == "rotation" else f"force_{name}_N"
-        out[key] = inertia * sv * math.sqrt(q / dt) if math.isfinite(inertia) else None
-        out[f"lr_{name}"] = lr
-    return out
-
-
-def _walk_warning(info: dict[str, Any], rf: RandomForce) -> str:
-    parts = [f"{info[k]:.3g} N along {k.split('_')[1]}" for k in ("force_x_N", "force_y_N") if info.get(k)]
-    if info.get("torque_N_m"):
-        parts.append(f"a torque of {info['torque_N_m']:.3g} N m")
-    return (f"the residual drifts as a random walk within each window, and with the walk fitted its innovations "
-            f"are white (Ljung-Box p {rf.p_white:.2g}): an unmeasured random force of {', '.join(parts)} per "
-            f"{info['sample_period_s']:.3g} s sample (noise on the logged wrench, or a process noise); the 95 % "
-            "intervals include it")
 
 
 def _drop(g: np.ndarray, lay: Layout, name: str) -> np.ndarray:

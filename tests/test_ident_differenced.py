@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+import ctplant
 import numpy as np
 
-import ctplant
 from ident.fit import decorrelate
 from ident.stats import kinematic_lag1
 

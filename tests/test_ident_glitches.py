@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import ctplant
 import numpy as np
 import pytest
 
-import ctplant
 from ident.glitches import find_glitches
 
 

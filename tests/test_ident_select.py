@@ -61,7 +61,7 @@ def test_viscous_friction_is_named_alone_with_its_value():
 
 def test_a_long_recording_is_fitted_on_runs_of_windows_spread_over_it():
     """240 windows, room for 74: runs of four consecutive windows from the first to the last, none twice."""
-    from ident.select import RUN, spread_windows
+    from ident.prepare import RUN, spread_windows
 
     idx = spread_windows(240, 74)
     assert idx[0] == 0 and idx[-1] == 239 and np.all(np.diff(idx) > 0)
