@@ -355,14 +355,21 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         # far above the noise floor the score test, linearised at a poor fit, can miss the effect that
         # made the fit poor and misrank the rest: every candidate left is then fitted
         screened = current.sigma2 <= opt.restart_misfit**2
-        if screened and all(scores[c].p >= alpha_k for c in remaining) and \
-                (p_white0 if current is nominal else whiteness(pb, current, opt)) <= opt.alpha_white:
+        structured = screened and (p_white0 if current is nominal else whiteness(pb, current, opt)) <= opt.alpha_white
+        if structured and all(scores[c].p >= alpha_k for c in remaining):
             # a structured residual that no score test points at: the fit may have absorbed the effect
             # elsewhere (viscous friction named first, J ten times too large for a rotational damping), where
             # the linearised test is blind to it; every candidate left is then fitted
             screened = False
-        ranked = sorted((c for c in remaining if scores[c].p < alpha_k or not screened),
-                        key=lambda c: (scores[c].logp, -scores[c].lm))  # fmt: skip
+        order = sorted(remaining, key=lambda c: (scores[c].logp, -scores[c].lm))
+        ranked = [c for c in order if scores[c].p < alpha_k or not screened]
+        blind: list[str] = []
+        if structured and screened:
+            # the same blindness with another candidate's score passing in its place (a constant torque's
+            # score takes up the damping's structure but its fit does not qualify): the rest are fitted after
+            # it, as unscreened ones are, only when none of those the scores point at qualifies
+            blind = [c for c in order if c not in ranked]
+            ranked += blind
         trials: dict[str, tuple[Fit, float]] = {}
         eligible: list[str] = []
         for j, c in enumerate(ranked):
@@ -374,7 +381,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             sl = lay.slot(c)
             g[sl] = np.maximum(scores[c].step, lay.lower()[sl])  # the score test's Gauss-Newton step
             f = lm_fit(pb, lay, g, current.x)
-            if f.sigma2 > opt.restart_misfit**2 or not screened:
+            if f.sigma2 > opt.restart_misfit**2 or not screened or c in blind:
                 # the model without the candidate may have moved far to make up for it (a large J for a
                 # strong damping), and a fit from there can stop halfway: start again from the
                 # kinematics' equation error with the candidate, and keep the better
