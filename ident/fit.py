@@ -191,6 +191,24 @@ def decorrelate(e: np.ndarray, rho: float, first: int = 0) -> np.ndarray:
     return out
 
 
+def window_valid(pb: Problem) -> np.ndarray:
+    """(S, L) the stamps each window owns (a linked window's last stamp is the next window's first)."""
+    w = pb.win
+    valid = np.zeros((w.S, w.L), bool)
+    for s in range(w.S):
+        valid[s, : pb.last[s] + 1] = True
+        if s < w.S - 1 and pb.link[s]:
+            valid[s, pb.last[s]] = False
+    return valid
+
+
+def states_of(pb: Problem, fit: Fit) -> np.ndarray:
+    """(S, L, 6) the fitted model's state [vx, vy, omega, theta, px, py] at the stamps."""
+    _, _, XS = simulate(pb.win, fit.lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed,
+                        max_step=pb.max_step)  # fmt: skip
+    return XS[0]
+
+
 @dataclass
 class Lin:
     """The residuals and their derivatives at one point (derivatives of the prediction = -d residual)."""

@@ -25,8 +25,8 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import chi2, f_oneway
 
 from ident import stats
-from ident.fit import Fit, Problem, normal_equations
-from ident.model import Layout, simulate
+from ident.fit import Fit, Problem, normal_equations, window_valid
+from ident.model import Layout
 
 MODE_NAMES = ("x", "y", "rotation")
 
@@ -52,17 +52,6 @@ class RandomForce:
 
 
 NONE = RandomForce((), np.zeros(0), np.zeros(0), 1.0)
-
-
-def window_valid(pb: Problem) -> np.ndarray:
-    """(S, L) the stamps each window owns (a linked window's last stamp is the next window's first)."""
-    w = pb.win
-    valid = np.zeros((w.S, w.L), bool)
-    for s in range(w.S):
-        valid[s, : pb.last[s] + 1] = True
-        if s < w.S - 1 and pb.link[s]:
-            valid[s, pb.last[s]] = False
-    return valid
 
 
 def _rows(pb: Problem, valid: np.ndarray, chained: bool) -> np.ndarray:
@@ -297,20 +286,12 @@ def robust_wald(fit: Fit, name: str, cov: np.ndarray) -> float:
     return float(chi2.sf(W, sl.stop - sl.start))
 
 
-def states_of(pb: Problem, fit: Fit) -> np.ndarray:
-    """(S, L, 6) the fitted model's state [vx, vy, omega, theta, px, py] at the stamps."""
-    _, _, XS = simulate(pb.win, fit.lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed,
-                        max_step=pb.max_step)  # fmt: skip
-    return XS[0]
-
-
-def significant_walk(pb: Problem, fit: Fit, *, alpha: float, lags: int, block: int) -> tuple[RandomForce | None, np.ndarray | None]:
-    """The random force's walk in ``fit``'s residual when one is significant (else None), and the angle."""
-    if pb.win.vel is None:
-        return None, None
-    st = states_of(pb, fit)
-    rf = fit_random_force(pb, fit, st, alpha=alpha, lags=lags, block=block)
-    return (rf, st[..., 3]) if rf.present else (None, None)
+def significant_walk(pb: Problem, fit: Fit, states: np.ndarray, *, alpha: float, lags: int,
+                     block: int) -> RandomForce | None:  # fmt: skip
+    """The random force's walk in ``fit``'s residual (``states``: :func:`ident.fit.states_of`) when one is
+    significant, else None."""
+    rf = fit_random_force(pb, fit, states, alpha=alpha, lags=lags, block=block)
+    return rf if rf.present else None
 
 
 def walk_values(rf: RandomForce, pb: Problem, fit: Fit, dt: float) -> dict[str, Any]:

@@ -31,9 +31,11 @@ from ident.fit import (
     make_problem,
     normal_equations,
     refit_states,
+    states_of,
     subset,
+    window_valid,
 )
-from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, expand, simulate
+from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, expand
 from ident.prepare import (
     RUN,
     agent_floors,
@@ -49,7 +51,6 @@ from ident.random_force import (
     robust_covariance,
     robust_wald,
     significant_walk,
-    states_of,
     walk_values,
     walk_warning,
 )
@@ -101,14 +102,9 @@ def residual_modes(pb: Problem, fit: Fit, res: np.ndarray | None = None, theta: 
     w = pb.win
     lay = fit.lay
     if theta is None:
-        _, _, XS = simulate(w, lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed, max_step=pb.max_step)
-        theta = XS[0, ..., 3]
+        theta = states_of(pb, fit)[..., 3]
     res = fit.res if res is None else res
-    valid = np.zeros((w.S, w.L), bool)
-    for s in range(w.S):
-        valid[s, : pb.last[s] + 1] = True
-        if s < w.S - 1 and pb.link[s]:
-            valid[s, pb.last[s]] = False  # the link stamp belongs to the next window
+    valid = window_valid(pb)
     cols = []
     k = 0
     for name, mask in (("vel", w.vmask), ("pos", w.pmask)):
@@ -123,14 +119,13 @@ def residual_modes(pb: Problem, fit: Fit, res: np.ndarray | None = None, theta: 
     return M[valid]
 
 
-def whiteness(pb: Problem, fit: Fit, opt: DiagnoseOptions, modes: np.ndarray | None = None, draws: int = 100) -> float:
+def whiteness(pb: Problem, fit: Fit, opt: DiagnoseOptions, modes: np.ndarray | None = None, draws: int = 100,
+              theta: np.ndarray | None = None) -> float:
     """Ljung-Box p of the block-averaged residual modes. Each window's free start state removes part of
     a white residual, which leaves the residual slightly anti-correlated at lags within a window; that
     autocorrelation is measured on white noise projected the same way (``draws`` draws, a fixed seed)
-    and subtracted (:func:`ident.stats.ljung_box`)."""
-    _, _, XS = simulate(pb.win, fit.lay, fit.g[None], fit.x[None], coulomb_speed=pb.coulomb_speed,
-                        max_step=pb.max_step)  # fmt: skip
-    theta = XS[0, ..., 3]
+    and subtracted (:func:`ident.stats.ljung_box`). ``theta``: the fit's body angle, when already simulated."""
+    theta = states_of(pb, fit)[..., 3] if theta is None else theta
     modes = residual_modes(pb, fit, theta=theta) if modes is None else modes
     block = _block(pb, opt)
     lin = fit.lin if fit.lin is not None else linearise(pb, fit.lay, fit.g, fit.x, cols=np.zeros(0, int))
@@ -392,7 +387,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 except FitError:
                     pass
             F, pF = stats.nested_f(current.rss, f.rss, lay.G - current.lay.G, f.N, f.P)
-            wp = whiteness(pb, f, opt)
+            st = states_of(pb, f)
+            wp = whiteness(pb, f, opt, theta=st[..., 3])
             val, ci = f.param(c)
             table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, lay, c), "ci95": _value(ci, lay, c),
                         "F": F, "p": pF, "delta_bic": f.bic - current.bic, "whiteness_p": wp,
@@ -400,7 +396,6 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             if wp <= opt.alpha_white and pF < alpha_k:
                 # a drifting residual makes the F-test see structure everywhere: the effect must also stand
                 # against the random walk that an unmeasured random force leaves (ident/random_force.py)
-                st = states_of(pb, f)
                 rf = fit_random_force(pb, f, st, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
                 if rf.present:
                     pR = robust_wald(f, c, robust_covariance(pb, f, rf, st[..., 3]))
@@ -454,13 +449,15 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 accepted.remove(c)
                 table[c]["dropped"] = "stood in for the Coulomb term's smoothing"
                 current = without
-    modes1 = residual_modes(pb, current)
-    white = whiteness(pb, current, opt, modes1)
+    st1 = states_of(pb, current)
+    theta_w = st1[..., 3]
+    modes1 = residual_modes(pb, current, theta=theta_w)
+    white = whiteness(pb, current, opt, modes1, theta=theta_w)
     excess0 = nominal.rss - nominal.N
     share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
     ambiguous_names = {c for pair in ambiguous for c in pair}
-    walk, theta_w = (None, None) if white > opt.alpha_white else significant_walk(
-        pb, current, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
+    walk = None if white > opt.alpha_white or pb.win.vel is None else significant_walk(
+        pb, current, st1, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
     walk_white = walk is not None and walk.p_white > opt.alpha_white and walk.p_motion > opt.alpha_white
     # a walk fits part of any slow structure: it is reported only where it is all that is left
     walk_info = walk_values(walk, pb, current, dtm) if walk_white else None
