@@ -224,7 +224,8 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
     ``g`` (B, G) global parameters, ``x0`` (B, S, K) window states. Returns predicted contact velocities
     (B, S, L, n, 2) or None (with ``interval_mean``, each stamp's velocity is the mean over the interval
     before it, the contact's displacement over the interval's length: what a difference of positions
-    measures; a window's first stamp has none and keeps the instant's), positions (B, S, L, n, 2) or None, and the state (B, S, L, 6) [vx, vy, omega,
+    measures; a window's first stamp has none and keeps the instant's), positions (B, S, L, n, 2) or None,
+    and the state (B, S, L, 6) [vx, vy, omega,
     theta, px, py] at the stamps.
     """
     B, S, L, n = g.shape[0], w.S, w.L, w.n

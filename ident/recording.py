@@ -249,7 +249,7 @@ def read_recording(path: str | Path) -> Recording:
         agent = np.searchsorted(alive, agent)
         n = alive.size
         notes.append(f"{csv_path}: run.toml says n = {alive.size + len(silent)}, but agent(s) {silent} have no "
-                         f"row: left out; the recording's agents are {alive.tolist()}, numbered 0..{n - 1} here")
+                     f"row: left out; the recording's agents are {alive.tolist()}, numbered 0..{n - 1} here")
 
     def grid(names):
         # Rows of one agent at one stamp are one sample (a logger writing each topic in its own row, the
