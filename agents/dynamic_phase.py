@@ -227,6 +227,8 @@ class DynamicPhase:
             self.detect.regime_change()
         if stage == M_EXCITE:
             self.m_start = tick
+            if self.detect is not None:
+                self.detect.push_reverses(tick + self.m_switch)
         elif stage == J_EXCITE:
             self.j_start = tick
         self.barrier.reset()

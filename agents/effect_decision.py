@@ -66,7 +66,14 @@ be too strict: on a slope plant the frictions' own scores are significantly nega
 motion is negative friction while the load keeps its direction), and with their rates free the slope keeps
 nothing of its own. It is never ruled out by its own score (there is no negative
 to contradict) nor contradicts another's switch, but a scalar candidate's score orthogonal to it can rule it
-out; its withdrawal is the same rule on its rates' Wald chi2 (below the level's lower quantile).
+out; its withdrawal is the same rule on its rates' Wald chi2 (below the level's lower quantile). It is judged
+only on windows that start once the m stage's common force has first reversed
+(:meth:`OnlineDetection.push_reverses`): while the push keeps its direction a constant force along it and
+1/m F are one signature (a constant acceleration), and the filter's 1/m, restarted at the stage's start,
+takes up part of any constant force along the push, Coulomb friction's included; the window holding the first
+reversal still carries that transient (a Coulomb plant's slope beyond Coulomb friction's score reached 3.55
+there). A window that does not judge the slope still rules a candidate out (its score significantly negative),
+and structure the slope would explain is not counted ``unexplained``.
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -390,7 +397,7 @@ class OnlineDetection:
 
     __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "switched", "withdrawn",
                  "last_tick", "last_z", "unexplained", "zp", "zs", "settle_from", "score_from", "late",
-                 "mixed", "cand", "ncand")
+                 "mixed", "cand", "ncand", "vector_from")
 
     def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0,
                  cand: int = ALL) -> None:
@@ -417,6 +424,16 @@ class OnlineDetection:
         self.score_from = 0  # ... nor judged for a new switch (a switched filter is still re-learning)
         self.late = 0
         self.mixed = False  # the window being filled spans a change of regime (see regime_change)
+        self.vector_from = 0  # windows starting before this tick do not judge the slope (see push_reverses)
+
+    def push_reverses(self, tick: int) -> None:
+        """The m stage started and its common force first reverses at ``tick``: the slope is judged only on
+        windows that start from then on. While the push keeps its direction a constant force along it and
+        1/m F are one signature (a constant acceleration), and the filter's 1/m, restarted at the stage's
+        start, takes up any constant force along the push; only the reversed push separates them, and the
+        window holding the first reversal still carries the transient of that 1/m (docs/online-detection.md,
+        "Decision and switch")."""
+        self.vector_from = max(self.vector_from, tick)
 
     def regime_change(self) -> None:
         """The agent's stage changed or its filter (re)started: the window being filled is not offered. The
@@ -474,7 +491,11 @@ class OnlineDetection:
                     zp = math.nan
                     zs = [z if (held >> k) & 1 else math.nan for k, z in enumerate(zs)]
                     self.zs = [z if (held >> k) & 1 else self.zs[k] for k, z in enumerate(zs)]
-                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zv, self.ncand)
+                early = tick + 1 - 2 * w < self.vector_from  # the slope waits for the push's first reversal
+                unjudged = VECTOR & self.cand & ~(self.on | self.withdrawn) if early else 0
+                k, unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn | unjudged, held, zv, self.ncand)
+                if unexplained and unjudged:  # structure a slope not yet judged would explain is not unexplained
+                    unexplained = judge(zp, zs, self.alpha, self.on | self.withdrawn, held, zv, self.ncand)[1]
                 z = zs[k % N_EFF]
                 out = self._contradicted(zs, self.on | self.withdrawn | held)
                 # a rule-out comes before a switch in the same window, unless the switch's model explains it: no

@@ -11,11 +11,14 @@ import numpy as np
 import pytest
 
 from agents.effect_decision import (
+    CH_CNT,
+    CH_Z,
     EFFECTS,
     N_EFF,
     N_PAR,
     N_POOL,
     VCH,
+    OnlineDetection,
     WindowEvidence,
     chi2_z,
     judge,
@@ -209,3 +212,56 @@ def test_the_filter_carries_a_constant_force_and_finds_it():
     assert abs(kf.accel / kf.mu - f) < 0.05 * abs(f), kf.accel / kf.mu
     kf.withdraw_effect(SLOPE)
     assert kf.accel == 0 and not kf.P[10:12].any() and not kf.P[:, 10:12].any()
+
+
+def _team_means(s: dict[int, float], v: dict[tuple[int, int], float], zp_sum: float = 0.0) -> list[float]:
+    """Team means of the pool channels with the rates' scores ``s`` and information ``v`` (1 on the diagonal
+    where not given) and the persistence z's mean ``zp_sum``, every agent contributing."""
+    x = [0.0] * N_POOL
+    for p in range(N_PAR):
+        x[p], x[VCH[p, p]] = s.get(p, 0.0), 1.0
+    for (p, q), vpq in v.items():
+        x[VCH[p, q]] = vpq
+    x[CH_CNT] = 1.0
+    x[CH_Z] = zp_sum
+    return x
+
+
+def _decisions(d: OnlineDetection, means: list[float], ticks: range) -> list[tuple[int, int]]:
+    out = []
+    for tick in ticks:
+        k = d.begin_tick(tick, [0.0] * N_POOL, means, [(0.0, 0.0)] * N_EFF)
+        if k >= 0:
+            out.append((tick, k))
+    return out
+
+
+W, H = 100, 20
+
+
+def test_the_slope_is_judged_only_on_windows_after_the_push_first_reverses():
+    """A slope significant in every window: with the push's first reversal at 3W, the windows starting at 0,
+    W and 2W do not judge it (until the push reverses, 1/m F and a constant force along the push are one
+    signature) and the first starting at 3W switches it, judged at that window's successor's last tick; without
+    a reversal announced the first window does. The windows that wait are structured (persistence z 7) but not
+    ``unexplained``: the slope not yet judged explains them."""
+    ax, ay = EFFECT_PARAMS[SLOPE]
+    means = _team_means({ax: 4.0, ay: 1.0}, {}, zp_sum=5.0)
+    d = OnlineDetection(2, W, LAGS, 0.01, H, 0)
+    d.push_reverses(3 * W)
+    assert _decisions(d, means, range(6 * W)) == [(5 * W - 1 + H, SLOPE)] and d.unexplained == 0
+    assert _decisions(OnlineDetection(2, W, LAGS, 0.01, H, 0), means, range(6 * W)) == [(2 * W - 1 + H, SLOPE)]
+
+
+def test_a_window_that_does_not_judge_the_slope_still_rules_out():
+    """Before the reversal a slope pushing along the motion makes Coulomb friction's own score significantly
+    negative (-0.95 the slope's x score): that window rules Coulomb friction out (a rule-out does not wait for
+    the slope), and the next window, which judges the slope, switches it: Coulomb friction's own score, below
+    the quantile, blocks no switch."""
+    ax, _ = EFFECT_PARAMS[SLOPE]
+    kappa = EFFECT_PARAMS[COUL][0]
+    means = _team_means({ax: 5.0, kappa: -4.75}, {(kappa, ax): -0.95})
+    d = OnlineDetection(2, W, LAGS, 0.01, H, 0)
+    d.push_reverses(W)
+    assert _decisions(d, means, range(4 * W)) == [(3 * W - 1 + H, SLOPE)]
+    assert d.withdrawn == 1 << COUL and d.unexplained == 1 and d.on == 1 << SLOPE
