@@ -135,7 +135,7 @@ def format_diagnosis(r: Diagnosis) -> str:
                      f"whiteness p {m.whiteness_p:.3g}, held-out {m.heldout_rms:.4g}{err}")  # fmt: skip
     if r.effects:
         for e in r.effects:
-            lines.append(f"effect    {e['name']}: {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}")
+            lines.append(f"effect    {e['name']}: {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}{_agents(e)}")
     else:
         lines.append("effect    none named")
     lines.append(f"unexplained: {str(r.unexplained).lower()}")
@@ -170,6 +170,14 @@ def format_diagnosis(r: Diagnosis) -> str:
                      + (" (the other recording holds a force or effect the models lack)" if v["flagged"] else ""))
     lines += [f"warning   {w}" for w in r.warnings]
     return "\n".join(lines)
+
+
+def _agents(e: dict[str, Any]) -> str:
+    """A per-agent effect's reading: which agents are off the reference agent, and by how much."""
+    if e.get("agents") is None:
+        return ""
+    off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]) or "none"
+    return f" (per agent, relative to agent {e['reference']}, the team's median; outside its 95 % interval: {off})"
 
 
 def _fmt(v: Any) -> str:
