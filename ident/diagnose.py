@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from ident.change import diagnose_sides
+from ident.fit import states_of, window_valid
+from ident.frames import frame_check, to_world
 from ident.model import EFFECTS, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
@@ -54,12 +56,20 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                  validate: str | Path | None = None) -> Diagnosis:  # fmt: skip
     """Read a recording directory and diagnose it; with ``validate`` (another recording directory) also
     report the models' errors on it (``Diagnosis.validation``)."""
-    rec = read_recording(path)
+    rec = raw = read_recording(path)
     other = read_recording(validate) if validate is not None else None
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        rec, frames = _robot_frames(rec, options or DiagnoseOptions(), progress)
         result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
+        if frames is not None and frames["robot_frame"]:
+            # the kinematics' angle is the start's (a few % of the rotation off): the fitted model's angle
+            # turns the forces again, and the recording is diagnosed once more
+            angle = fitted_angle(result)
+            if angle is not None:
+                rec, frames = _robot_frames(raw, options or DiagnoseOptions(), progress, angle)
+                result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
         held = _half_sample_delay(result, rec)
         if held is not None:
             if progress is not None:
@@ -75,6 +85,20 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                        "run.toml if the wrench is smooth and the delay is real")
                 result = alt
     result.model["hold_source"] = rec.hold_source
+    if frames is not None:
+        result.frames = frames
+        if frames["robot_frame"]:
+            n = len(frames["phi_deg"])
+            result.effects.insert(0, {"name": "robot_frame_forces", "value": frames["phi_deg"], "unit": "deg",
+                                      "ci95": frames["phi_ci95_deg"], "agents": list(range(n)), "reference": None,
+                                      "kind": "logger"})  # fmt: skip
+            result.warnings.insert(0, "robot_frame_forces: the forces are logged in each robot's own frame, "
+                                      "turning with the load (equation error "
+                                      f"{frames['rss_world'] / frames['rss_robot']:.3g} x lower with them turned "
+                                      f"by the load's angle; t {frames['t']:.3g} over {frames['windows']} windows, "
+                                      f"p {frames['p']:.2g}): turned to the world frame before the fit, each by the "
+                                      "load's angle (the kinematics', then the fitted model's) plus its mounting "
+                                      "angle (value, deg)")
     result.change = diagnose_sides(rec, result, options, progress)
     ch = result.change
     if ch and ch["found"]:
@@ -93,6 +117,38 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         except ValueError as exc:
             raise DiagnoseError(f"{validate}: cannot predict it with this model: {exc}") from None
     return result
+
+
+def fitted_angle(result: Diagnosis) -> tuple[np.ndarray, np.ndarray] | None:
+    """The final model's angle and rate at every stamp of the recording, or None when the fit left windows out
+    (a long recording fitted in part)."""
+    pb, fit = result.problem, result.fits.get("augmented")
+    if pb is None or fit is None or not fit.lay.rotation:
+        return None
+    valid = window_valid(pb)
+    st = states_of(pb, fit)[valid]
+    if st.shape[0] != pb.win.u_t.size:
+        return None
+    return st[:, 3], st[:, 2]
+
+
+def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) -> tuple[Recording, dict | None]:
+    """The robot-frame check (:mod:`ident.frames`) at the family-wise level of the selection; the recording
+    turned to the world frame when its forces are in the robots' frames, else as it is."""
+    dtm = float(np.median(np.diff(rec.t)))
+    fc = frame_check(rec, min(opt.fit.window_s, opt.fit.window_stamps * dtm), opt.fit.gap_factor, angle)
+    if fc is None:
+        return rec, None
+    found = bool(fc.p < opt.alpha)
+    out = {"robot_frame": found, "rss_world": fc.rss_world, "rss_robot": fc.rss_robot, "t": fc.t, "p": fc.p,
+           "windows": fc.windows, "phi_deg": np.degrees(fc.phi).tolist(),
+           "phi_ci95_deg": np.degrees(fc.phi_ci95).tolist()}  # fmt: skip
+    if not found:
+        return rec, out
+    if progress is not None:
+        progress(f"forces logged in the robots' own frames (equation error {fc.rss_world / fc.rss_robot:.3g} x lower "
+                 f"turned with the load, p {fc.p:.2g}): turned to the world frame")
+    return to_world(rec, fc.theta, fc.phi), out
 
 
 def sample_period(rec: Recording) -> float:

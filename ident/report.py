@@ -74,6 +74,7 @@ class Diagnosis:
     identifiable: dict[str, bool] = field(default_factory=dict)
     model: dict[str, Any] = field(default_factory=dict)
     validation: dict[str, Any] | None = None
+    frames: dict[str, Any] | None = None  # ident/frames.py: the robot-frame check
     change: dict[str, Any] | None = None  # ident/change.py: a change of the load, and each side's diagnosis
     random_force: dict[str, Any] | None = None  # ident/random_force.py: the residual's walk, in N and N m
     fits: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -106,6 +107,7 @@ class Diagnosis:
         if self.validation is not None:
             out["validation"] = self.validation
         out["change"] = _jsonable(self.change)
+        out["frames"] = _jsonable(self.frames)
         return out
 
 
@@ -176,6 +178,8 @@ def _agents(e: dict[str, Any]) -> str:
     """A per-agent effect's reading: which agents are off the reference agent, and by how much."""
     if e.get("agents") is None:
         return ""
+    if e.get("reference") is None:
+        return " (per agent: each robot's mounting angle, body frame at the first stamp)"
     off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]) or "none"
     return f" (per agent, relative to agent {e['reference']}, the team's median; outside its 95 % interval: {off})"
 
