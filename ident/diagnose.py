@@ -37,6 +37,7 @@ CANDIDATES: dict[str, tuple[int, str, str]] = {
 }
 """name -> (number of parameters on a planar load, unit, the signature shown in the cross-correlation)."""
 MIN_STAMPS = 50
+FRAME_WINDOW_S = 1.0  # the robot-frame check's windows (s)
 HALF_SAMPLE_TOL = 0.2  # a delay within 2 ci95 or this share of half a sample period of it is the hold's
 
 
@@ -135,8 +136,10 @@ def fitted_angle(result: Diagnosis) -> tuple[np.ndarray, np.ndarray] | None:
 def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) -> tuple[Recording, dict | None]:
     """The robot-frame check (:mod:`ident.frames`) at the family-wise level of the selection; the recording
     turned to the world frame when its forces are in the robots' frames, else as it is."""
+    # windows of 1 s are the check's units (its t-test has one degree of freedom per window less one): the
+    # fit's 2.5 s windows leave a 10 s recording 3, where no t-test reaches the selection's level
     dtm = float(np.median(np.diff(rec.t)))
-    fc = frame_check(rec, min(opt.fit.window_s, opt.fit.window_stamps * dtm), opt.fit.gap_factor, angle)
+    fc = frame_check(rec, min(FRAME_WINDOW_S, opt.fit.window_stamps * dtm), opt.fit.gap_factor, angle)
     if fc is None:
         return rec, None
     found = bool(fc.p < opt.alpha)
