@@ -156,6 +156,10 @@ def _named(k: str, e: dict) -> str:
     return f"{k} {e['value']:.4g} +- {e['ci95']:.2g}"
 
 
+def _truth(v) -> str:
+    return " (truth: the robots' frames)" if v is True else f" (truth {v:g})"
+
+
 def row(name: str, truth: dict, d: dict, wall: float) -> str:
     ch = d.get("change") or {}
     if truth["change"]:  # the change must be found and each side must name the truth's effects
@@ -172,7 +176,7 @@ def row(name: str, truth: dict, d: dict, wall: float) -> str:
                 + f" | {sides} | | | | {d['model']['hold']} ({d['model'].get('hold_source', '-')}) | {wall:.0f} |")
     named = {e["name"]: e for e in d["effects"]}
     right = set(named) == set(truth["effects"]) and not d["unexplained"]
-    vals = "; ".join(_named(k, e) + (f" (truth {truth['effects'][k]:g})" if k in truth["effects"] else "")
+    vals = "; ".join(_named(k, e) + (_truth(truth["effects"][k]) if k in truth["effects"] else "")
                      for k, e in named.items())  # fmt: skip
     rf = d.get("random_force")
     if rf:

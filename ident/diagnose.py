@@ -18,7 +18,7 @@ import numpy as np
 from ident.change import diagnose_sides
 from ident.fit import states_of, window_valid
 from ident.frames import frame_check, to_world
-from ident.model import EFFECTS, VECTOR_EFFECTS
+from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
 from ident.report import (
@@ -33,9 +33,11 @@ from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
 
 CANDIDATES: dict[str, tuple[int, str, str]] = {
-    name: (2 if name in VECTOR_EFFECTS else 1, unit, sig) for name, (unit, sig) in EFFECTS.items()
+    name: (2 if name in VECTOR_EFFECTS else -1 if name in PER_AGENT else 1, unit, sig)
+    for name, (unit, sig) in EFFECTS.items()
 }
-"""name -> (number of parameters on a planar load, unit, the signature shown in the cross-correlation)."""
+"""name -> (number of parameters on a planar load, -1 for n - 1: one per agent but the reference; unit, the
+signature shown in the cross-correlation)."""
 MIN_STAMPS = 50
 FRAME_WINDOW_S = 1.0  # the robot-frame check's windows (s)
 HALF_SAMPLE_TOL = 0.2  # a delay within 2 ci95 or this share of half a sample period of it is the hold's

@@ -181,7 +181,8 @@ def _agents(e: dict[str, Any]) -> str:
     if e.get("reference") is None:
         return " (per agent: each robot's mounting angle, body frame at the first stamp)"
     off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]) or "none"
-    return f" (per agent, relative to agent {e['reference']}, the team's median; outside its 95 % interval: {off})"
+    why = "the team's median" if len(e["value"]) > 2 else "two agents: which of them is off is not identifiable"
+    return f" (per agent, relative to agent {e['reference']}, {why}; outside its 95 % interval: {off})"
 
 
 def _fmt(v: Any) -> str:
