@@ -105,6 +105,17 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
     result.change = diagnose_sides(rec, result, options, progress)
     ch = result.change
     if ch and ch["found"]:
+        if result.effects:
+            # named on a structured residual (the 90 % rule, or a random force's walk) by one model over a
+            # recording that two models explain: each side's diagnosis names its own (a per-agent gain
+            # follows a change of m in part where the agents push differently before and after it)
+            result.warnings.append(f"{', '.join(e['name'] for e in result.effects)}: named by one model over the "
+                                   "whole recording, whose residual stays structured; superseded by the change: "
+                                   "each side names its own effects (see change)")  # fmt: skip
+            if result.random_force is not None:
+                result.warnings = [w for w in result.warnings if not w.startswith("the residual drifts as a random walk")]
+            result.effects, result.augmented, result.random_force = [], result.nominal, None
+            result.fits["augmented"] = result.fits["nominal"]
         result.unexplained = False
         result.warnings = [w for w in result.warnings if not w.startswith("unexplained:")]
         result.warnings.append(f"the residual of one model over the whole recording is structured, and a change of "
