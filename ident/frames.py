@@ -36,10 +36,11 @@ class FrameCheck:
     theta: np.ndarray
 
 
-def _design(rec: Recording, theta: np.ndarray, omega: np.ndarray, z: np.ndarray, wid: np.ndarray, robot: bool):
-    """Columns of the complex equation error of the agents' mean velocity: each window's start velocity,
-    each agent's integrated force (turned by the load's angle when ``robot``), the integrated velocity
-    (viscous friction) and the centroid's offset (i omega e^{i theta})."""
+def _design(rec: Recording, theta: np.ndarray, omega: np.ndarray, wid: np.ndarray, robot: bool):
+    """Columns of the complex equation error of the agents' mean velocity: each agent's integrated force
+    (turned by the load's angle when ``robot``), the integrated velocity (viscous friction) and the
+    centroid's offset (i omega e^{i theta}); each window's start velocity is taken out by removing each
+    window's mean (of the rows used) from the columns and the velocity."""
     t = rec.t
     f = rec.wrench[..., 0] + 1j * rec.wrench[..., 1]  # (T, n)
     if robot:
@@ -47,57 +48,78 @@ def _design(rec: Recording, theta: np.ndarray, omega: np.ndarray, z: np.ndarray,
     y = np.nanmean(rec.vel[..., 0] + 1j * rec.vel[..., 1], axis=1)
     ok = ~np.isnan(y)
     yf = np.interp(t, t[ok], y[ok].real) + 1j * np.interp(t, t[ok], y[ok].imag)
-    S = int(wid.max()) + 1
-    cols = [(wid == s).astype(complex) for s in range(S)]
     If = _cumint_windows(t, wid, f, "foh")
-    cols += [If[:, i] for i in range(rec.n)]
-    cols += [_cumint_windows(t, wid, yf, "foh"), 1j * omega * np.exp(1j * theta)]
-    return np.column_stack(cols), y, ok
+    A = np.column_stack((If, _cumint_windows(t, wid, yf, "foh"), 1j * omega * np.exp(1j * theta)))
+    return A, y, ok
+
+
+def _within(x: np.ndarray, wid: np.ndarray, ok: np.ndarray, S: int) -> np.ndarray:
+    """``x`` (T, ...) less its mean over each window's rows ``ok``; 0 off them."""
+    x = np.where(ok.reshape((-1,) + (1,) * (x.ndim - 1)), x, 0)
+    cnt = np.maximum(np.bincount(wid, weights=ok.astype(float), minlength=S), 1)
+    flat = x.reshape(x.shape[0], -1)
+    out = flat - (_window_sums(flat, wid, S) / cnt[:, None])[wid]
+    return np.where(ok[:, None], out, 0).reshape(x.shape)
+
+
+def _window_sums(x: np.ndarray, wid: np.ndarray, S: int) -> np.ndarray:
+    """(S, ...) the sums of complex ``x`` (T, ...) over each window's rows."""
+    flat = x.reshape(x.shape[0], -1)
+    out = np.stack([np.bincount(wid, weights=c.real, minlength=S) + 1j * np.bincount(wid, weights=c.imag, minlength=S)
+                    for c in flat.T], axis=-1)  # fmt: skip
+    return out.reshape((S,) + x.shape[1:])
 
 
 def frame_check(rec: Recording, window_s: float, gap_factor: float = 5.0,
-                angle: tuple[np.ndarray, np.ndarray] | None = None) -> FrameCheck | None:
-    """The check on a velocity recording of n >= 2 agents whose load turns; None where it cannot be made.
-    ``angle``: the load's angle and rate (T,) each, from a fit, in place of the kinematics'."""
+                angle: tuple[np.ndarray, np.ndarray] | None = None, min_rows: int = 10) -> FrameCheck | None:
+    """The check on a velocity recording of n >= 2 agents whose load turns; None where it cannot be made
+    (fewer than 3 windows with ``min_rows`` rows). ``angle``: the load's angle and rate (T,) each, from a
+    fit, in place of the kinematics'."""
     if rec.vel is None or rec.n < 2:
         return None
     filled = _filled(rec, gap_factor)
     if angle is not None:
         theta, omega = angle
-        z, good = None, np.isfinite(theta)
+        good = np.isfinite(theta)
     else:
         try:
-            theta, omega, z, good = _rotation_kinematics(filled, gap_factor=gap_factor)
+            theta, omega, _, good = _rotation_kinematics(filled, gap_factor=gap_factor)
         except FitError:
             return None
     t = rec.t
     wid = np.floor((t - t[0]) / window_s).astype(int)
     S = int(wid.max()) + 1
-    if S < 3:
-        return None
     out = {}
     for robot in (False, True):
-        A, y, ok = _design(filled, theta, omega, z, wid, robot)
+        A, y, ok = _design(filled, theta, omega, wid, robot)
         ok &= good
-        coef = np.linalg.lstsq(A[ok], y[ok], rcond=None)[0]
+        rows = np.bincount(wid, weights=ok.astype(float), minlength=S)
+        ok &= rows[wid] >= min_rows
+        used = np.flatnonzero(rows >= min_rows)
+        if used.size < 3:
+            return None
+        A, y = _within(A, wid, ok, S), _within(y, wid, ok, S)
+        # per-window normal equations: the whole fit and each delete-one-window fit by subtraction
+        Gs = _window_sums(A.conj()[:, :, None] * A[:, None, :], wid, S)[used]
+        bs = _window_sums(A.conj() * y[:, None], wid, S)[used]
+        coef = np.linalg.lstsq(Gs.sum(0), bs.sum(0), rcond=None)[0]
         e = np.where(ok, y - A @ coef, 0)
-        per = np.bincount(wid, weights=np.abs(e) ** 2, minlength=S)
+        per = np.bincount(wid, weights=np.abs(e) ** 2, minlength=S)[used]
         # the mounting angles left out one window at a time: the equation error is correlated within a
         # window, so the windows are the independent units of its spread
-        jack = []
-        for s in range(S):
-            keep = ok & (wid != s)
-            c = np.linalg.lstsq(A[keep], y[keep], rcond=None)[0]
-            jack.append(np.angle(c[S : S + rec.n] * np.conj(coef[S : S + rec.n])))
-        jack = np.array(jack)
-        se = np.sqrt((S - 1) / S * ((jack - jack.mean(axis=0)) ** 2).sum(axis=0))
-        out[robot] = (per, np.angle(coef[S : S + rec.n]), sst.t.ppf(0.975, S - 1) * se)
+        n = rec.n
+        jack = np.array([np.angle(np.linalg.lstsq(Gs.sum(0) - Gs[k], bs.sum(0) - bs[k], rcond=None)[0][:n]
+                                  * np.conj(coef[:n])) for k in range(used.size)])  # fmt: skip
+        m = used.size
+        se = np.sqrt((m - 1) / m * ((jack - jack.mean(axis=0)) ** 2).sum(axis=0))
+        out[robot] = (per, np.angle(coef[:n]), sst.t.ppf(0.975, m - 1) * se)
+    m = out[True][0].size
     # each window's log ratio: the windows differ in excitation, so the ratio, not the difference, is alike
-    d = np.log(out[False][0] / np.maximum(out[True][0], 1e-300))  # > 0 where the robot frames fit better
+    d = np.log(np.maximum(out[False][0], 1e-300) / np.maximum(out[True][0], 1e-300))  # > 0: robot frames fit better
     sd = float(d.std(ddof=1))
-    tt = float(d.mean() / (sd / math.sqrt(S))) if sd > 0 else (math.inf if d.mean() > 0 else -math.inf)
-    p = float(sst.t.sf(tt, S - 1))
-    return FrameCheck(float(out[False][0].sum()), float(out[True][0].sum()), tt, p, S, out[True][1], out[True][2],
+    tt = float(d.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if d.mean() > 0 else -math.inf)
+    p = float(sst.t.sf(tt, m - 1))
+    return FrameCheck(float(out[False][0].sum()), float(out[True][0].sum()), tt, p, m, out[True][1], out[True][2],
                       theta)
 
 
