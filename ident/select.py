@@ -282,6 +282,19 @@ def _regauge(pb: Problem, fit: Fit, say: Callable[[str], None]) -> Fit:
     return lm_fit(pb, lay2, g, fit.x)
 
 
+def _retimed(rec: Recording, offset: np.ndarray) -> Recording:
+    """``rec`` with each agent's velocities moved to the time they were measured at: its row at stamp t holds
+    the velocity at t - offset_i, so the velocity at t is its series read at t + offset_i (linear)."""
+    vel = rec.vel.copy()
+    for i, d in enumerate(offset):
+        for c in range(2):
+            y = rec.vel[:, i, c]
+            ok = ~np.isnan(y)
+            if d and ok.sum() >= 2:
+                vel[:, i, c] = np.where(ok, np.interp(rec.t + d, rec.t[ok], y[ok], left=np.nan, right=np.nan), np.nan)
+    return replace(rec, vel=vel)
+
+
 def _rms(pb: Problem, fit_res: np.ndarray) -> dict[str, float]:
     """Unweighted residual RMS per channel, per measured component."""
     w = pb.win
@@ -551,10 +564,13 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         if c in PER_AGENT:
             effects[-1]["reference"] = final.lay.ref
             effects[-1]["agents"] = _agents_off(effects[-1]["value"], effects[-1]["ci95"], c)
-            if c == "agent_clock_offset":
-                warns.append("agent_clock_offset: the noise floor is read from the agents' relative velocities at "
-                             "common stamps, where an agent's offset counts as noise: it reads high, and the "
-                             "residual over it low")  # fmt: skip
+            if c == "agent_clock_offset" and rec.vel is not None and math.isfinite(sv):
+                sv2 = noise_floor(_retimed(rec, np.asarray(effects[-1]["value"])))[0]
+                per_agent["velocity_retimed"] = sv2
+                warns.append(f"agent_clock_offset: the noise floor ({sv:.3g} m/s) is read from the agents' relative "
+                             f"velocities at common stamps, where an agent's offset counts as noise; with each "
+                             f"agent's velocities re-timed by its offset it reads {sv2:.3g} m/s, and the residual "
+                             f"is {math.sqrt(final.rss / final.N) * sv / sv2:.3g} x that")  # fmt: skip
 
     def report(f: Fit, pw: float, modes: np.ndarray) -> ModelReport:
         say(f"held-out error of {list(f.lay.effects) or 'nominal'}: fitting the first {1 - opt.holdout:.0%}")
@@ -587,7 +603,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         candidates=list(table.values()), signatures=signatures, ambiguous=ambiguous,
         noise_sigma=sv if math.isfinite(sv) else sp, wall_s=clock() - t_start if clock is not None else 0.0,
         truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp,
-                                                                   **{f"{k}_per_agent": v for k, v in per_agent.items()}},
+                                                                   **{k if k.endswith("retimed") else f"{k}_per_agent": v
+                                                                      for k, v in per_agent.items()}},
         identifiable={"m": True, "J": base.rotation, "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip
