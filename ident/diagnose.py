@@ -113,7 +113,8 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                    "whole recording, whose residual stays structured; superseded by the change: "
                                    "each side names its own effects (see change)")  # fmt: skip
             if result.random_force is not None:
-                result.warnings = [w for w in result.warnings if not w.startswith("the residual drifts as a random walk")]
+                walk = "the residual drifts as a random walk"
+                result.warnings = [w for w in result.warnings if not w.startswith(walk)]
             result.effects, result.augmented, result.random_force = [], result.nominal, None
             result.fits["augmented"] = result.fits["nominal"]
         result.unexplained = False

@@ -14,7 +14,9 @@ centred-difference slopes (``cubic``, the default for a recording that does not 
 the straight line (first-order hold, ``foh``), or held (zero-order hold, ``zoh``) when the recording
 says its actuators hold it. The ODE is integrated by classical RK4 with substeps no longer than ``max_step`` between
 stamps (stamps may be irregular). A measurement delay d is the same model driven by the input
-d earlier, since every window starts from a free state. See docs/diagnose.md ("Model").
+d earlier, since every window starts from a free state. Per agent (``PER_AGENT``): agent i's force is
+scaled by its gain g_i, and an agent whose rows are stamped d_i late has its force taken d_i later and its
+velocity predicted d_i earlier. See docs/diagnose.md ("Model").
 """
 
 from __future__ import annotations

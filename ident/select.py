@@ -595,6 +595,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             rep.J_rel_err = mj["J"] / rec.truth["J"] - 1 if base.rotation else None
         return rep
 
+    floors = {k if k.endswith("retimed") else f"{k}_per_agent": v for k, v in per_agent.items()}
     nominal_rep = report(nominal, p_white0, modes0)
     aug_rep = nominal_rep if final is nominal else report(final, white, modes1)
     block = _block(pb, opt)
@@ -602,9 +603,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         nominal=nominal_rep, augmented=aug_rep, effects=effects, unexplained=unexplained, warnings=warns,
         candidates=list(table.values()), signatures=signatures, ambiguous=ambiguous,
         noise_sigma=sv if math.isfinite(sv) else sp, wall_s=clock() - t_start if clock is not None else 0.0,
-        truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp,
-                                                                   **{k if k.endswith("retimed") else f"{k}_per_agent": v
-                                                                      for k, v in per_agent.items()}},
+        truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp, **floors},
         identifiable={"m": True, "J": base.rotation, "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip
