@@ -48,6 +48,9 @@ CASES: dict[str, dict] = {
     "force_sensor_noise": {"fnoise": 0.05},
     "force_sensor_noise_viscous": {"b": 8.0, "fnoise": 0.05},
     "velocity_offset_viscous": {"b": 8.0, "vbias": (0.03, -0.02)},
+    "one_actuator_80pct": {"b": 8.0, "gain": (2, 0.8)},
+    "one_clock_50ms": {"b": 8.0, "clock": (1, 0.05)},
+    "robot_frame_forces": {"b": 8.0, "robot_frame": True},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -56,12 +59,17 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            b: float = 0.0, fc: float = 0.0, vs: float = 0.01, c: float = 0.0, delay: float = 0.0,
            hold_hz: float | None = None, glitches: float = 0.0, pos: float = 0.0, wrench_hz: float | None = None,
            dropout: tuple[int, float, float] | None = None, change: tuple[float, float] | None = None,
-           fnoise: float = 0.0, vbias: tuple[float, float] = (0.0, 0.0)) -> dict:  # fmt: skip
+           fnoise: float = 0.0, vbias: tuple[float, float] = (0.0, 0.0), gain: tuple[int, float] | None = None,
+           clock: tuple[int, float] | None = None, robot_frame: bool = False) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
     ``sigma`` one velocity noise for all agents or one per agent; ``fnoise``: the logged force's own noise,
-    as a share of the force's RMS (the plant gets the true force); ``vbias``: every velocity sensor's offset."""
+    as a share of the force's RMS (the plant gets the true force); ``vbias``: every velocity sensor's offset;
+    ``gain`` (agent, k): that agent's actuator delivers k x the force it logs; ``clock`` (agent, s): that agent's
+    logger stamps its rows s late (the row at stamp t holds what happened at t - s); ``robot_frame``: each
+    robot logs its force in its own frame, fixed to the load and facing the load's centre (logged
+    f_i = R(theta + phi_i)^T f_i, phi_i the contact's polar angle + pi)."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
@@ -73,7 +81,15 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     amp = rng.uniform(2, 8, (n, 2, 3)) * m / 40
     ph = rng.uniform(0, 2 * np.pi, (n, 2, 3))
 
-    def force(t: float) -> np.ndarray:  # (n, 2), world frame
+    kg = np.ones((n, 1))
+    if gain:
+        kg[gain[0]] = gain[1]
+    lag = np.zeros(n)
+    if clock:
+        lag[clock[0]] = clock[1]
+    phi = ang + np.pi
+
+    def force(t: float) -> np.ndarray:  # (n, 2), world frame, as logged
         if hold_hz:
             t = np.floor(t * hold_hz + 1e-9) / hold_hz
         return (amp * np.sin(2 * np.pi * freq * t + ph)).sum(-1)
@@ -84,7 +100,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
 
     def rhs(t, y):
         _, _, th, vx, vy, om = y
-        rw, f = arms(th), force(t)
+        rw, f = arms(th), kg * force(t)
         torque = float((rw[:, 0] * f[:, 1] - rw[:, 1] * f[:, 0]).sum())
         v = np.array([vx, vy])
         k = change[1] if change and t >= change[0] else 1.0
@@ -97,9 +113,14 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                     max_step=0.5 / hold_hz if hold_hz else 0.01)  # fmt: skip
     rows = []
     for tk in t:
-        px, py, th, vx, vy, om = sol.sol(max(tk - delay, -1.0))
-        rw, f = arms(th), force(tk)
         for i in range(n):
+            px, py, th, vx, vy, om = sol.sol(max(tk - lag[i] - delay, -1.0))
+            rw = arms(th)
+            f = force(tk - lag[i])
+            if robot_frame:
+                thf = sol.sol(tk)[2] + phi[i]
+                c_, s_ = np.cos(thf), np.sin(thf)
+                f[i] = [c_ * f[i, 0] + s_ * f[i, 1], -s_ * f[i, 0] + c_ * f[i, 1]]
             if pos:
                 y = np.array([px + rw[i, 0], py + rw[i, 1]]) + rng.normal(0, pos, 2)
             else:
@@ -119,9 +140,24 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                                      + "\n".join(rows) + "\n")  # fmt: skip
     edges = [[i, (i + 1) % n] for i in range(n)] if n > 1 else []
     (out / "run.toml").write_text(f"n = {n}\nedges = {json.dumps(edges)}\ndt = {1 / rate}\n")
-    effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay}
+    effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay,
+               "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
+               "robot_frame_forces": robot_frame}
     return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change,
             "force_noise": fnoise * frms * np.sqrt(n)}
+
+
+def _named(k: str, e: dict) -> str:
+    """An effect as named: a scalar +- its ci95, or a per-agent effect's agents off the reference."""
+    if e.get("agents") is not None:
+        return f"{k} " + ", ".join(f"agent {i}: {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"])
+    if e["value"] is None:
+        return k
+    return f"{k} {e['value']:.4g} +- {e['ci95']:.2g}"
+
+
+def _truth(v) -> str:
+    return " (truth: the robots' frames)" if v is True else f" (truth {v:g})"
 
 
 def row(name: str, truth: dict, d: dict, wall: float) -> str:
@@ -140,8 +176,8 @@ def row(name: str, truth: dict, d: dict, wall: float) -> str:
                 + f" | {sides} | | | | {d['model']['hold']} ({d['model'].get('hold_source', '-')}) | {wall:.0f} |")
     named = {e["name"]: e for e in d["effects"]}
     right = set(named) == set(truth["effects"]) and not d["unexplained"]
-    vals = "; ".join(f"{k} {e['value']:.4g} +- {e['ci95']:.2g}" + (f" (truth {truth['effects'][k]:g})"
-                     if k in truth["effects"] else "") for k, e in named.items())  # fmt: skip
+    vals = "; ".join(_named(k, e) + (_truth(truth["effects"][k]) if k in truth["effects"] else "")
+                     for k, e in named.items())  # fmt: skip
     rf = d.get("random_force")
     if rf:
         vals += ("; " if vals else "") + f"random force {rf['force_x_N']:.3g}, {rf['force_y_N']:.3g} N" + (

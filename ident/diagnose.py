@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from ident.change import diagnose_sides
-from ident.model import EFFECTS, VECTOR_EFFECTS
+from ident.fit import states_of, window_valid
+from ident.frames import frame_check, to_world
+from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
 from ident.report import (
@@ -31,10 +33,13 @@ from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
 
 CANDIDATES: dict[str, tuple[int, str, str]] = {
-    name: (2 if name in VECTOR_EFFECTS else 1, unit, sig) for name, (unit, sig) in EFFECTS.items()
+    name: (2 if name in VECTOR_EFFECTS else -1 if name in PER_AGENT else 1, unit, sig)
+    for name, (unit, sig) in EFFECTS.items()
 }
-"""name -> (number of parameters on a planar load, unit, the signature shown in the cross-correlation)."""
+"""name -> (number of parameters on a planar load, -1 for n - 1: one per agent but the reference; unit, the
+signature shown in the cross-correlation)."""
 MIN_STAMPS = 50
+FRAME_WINDOW_S = 1.0  # the robot-frame check's windows (s)
 HALF_SAMPLE_TOL = 0.2  # a delay within 2 ci95 or this share of half a sample period of it is the hold's
 
 
@@ -54,12 +59,20 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                  validate: str | Path | None = None) -> Diagnosis:  # fmt: skip
     """Read a recording directory and diagnose it; with ``validate`` (another recording directory) also
     report the models' errors on it (``Diagnosis.validation``)."""
-    rec = read_recording(path)
+    rec = raw = read_recording(path)
     other = read_recording(validate) if validate is not None else None
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        rec, frames = _robot_frames(rec, options or DiagnoseOptions(), progress)
         result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
+        if frames is not None and frames["robot_frame"]:
+            # the kinematics' angle is the start's (a few % of the rotation off): the fitted model's angle
+            # turns the forces again, and the recording is diagnosed once more
+            angle = fitted_angle(result)
+            if angle is not None:
+                rec, frames = _robot_frames(raw, options or DiagnoseOptions(), progress, angle)
+                result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
         held = _half_sample_delay(result, rec)
         if held is not None:
             if progress is not None:
@@ -75,9 +88,35 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                        "run.toml if the wrench is smooth and the delay is real")
                 result = alt
     result.model["hold_source"] = rec.hold_source
+    if frames is not None:
+        result.frames = frames
+        if frames["robot_frame"]:
+            n = len(frames["phi_deg"])
+            result.effects.insert(0, {"name": "robot_frame_forces", "value": frames["phi_deg"], "unit": "deg",
+                                      "ci95": frames["phi_ci95_deg"], "agents": list(range(n)), "reference": None,
+                                      "kind": "logger"})  # fmt: skip
+            result.warnings.insert(0, "robot_frame_forces: the forces are logged in each robot's own frame, "
+                                      "turning with the load (equation error "
+                                      f"{frames['rss_world'] / frames['rss_robot']:.3g} x lower with them turned "
+                                      f"by the load's angle; t {frames['t']:.3g} over {frames['windows']} windows, "
+                                      f"p {frames['p']:.2g}): turned to the world frame before the fit, each by the "
+                                      "load's angle (the kinematics', then the fitted model's) plus its mounting "
+                                      "angle (value, deg)")
     result.change = diagnose_sides(rec, result, options, progress)
     ch = result.change
     if ch and ch["found"]:
+        if result.effects:
+            # named on a structured residual (the 90 % rule, or a random force's walk) by one model over a
+            # recording that two models explain: each side's diagnosis names its own (a per-agent gain
+            # follows a change of m in part where the agents push differently before and after it)
+            result.warnings.append(f"{', '.join(e['name'] for e in result.effects)}: named by one model over the "
+                                   "whole recording, whose residual stays structured; superseded by the change: "
+                                   "each side names its own effects (see change)")  # fmt: skip
+            if result.random_force is not None:
+                walk = "the residual drifts as a random walk"
+                result.warnings = [w for w in result.warnings if not w.startswith(walk)]
+            result.effects, result.augmented, result.random_force = [], result.nominal, None
+            result.fits["augmented"] = result.fits["nominal"]
         result.unexplained = False
         result.warnings = [w for w in result.warnings if not w.startswith("unexplained:")]
         result.warnings.append(f"the residual of one model over the whole recording is structured, and a change of "
@@ -93,6 +132,40 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         except ValueError as exc:
             raise DiagnoseError(f"{validate}: cannot predict it with this model: {exc}") from None
     return result
+
+
+def fitted_angle(result: Diagnosis) -> tuple[np.ndarray, np.ndarray] | None:
+    """The final model's angle and rate at every stamp of the recording, or None when the fit left windows out
+    (a long recording fitted in part)."""
+    pb, fit = result.problem, result.fits.get("augmented")
+    if pb is None or fit is None or not fit.lay.rotation:
+        return None
+    valid = window_valid(pb)
+    st = states_of(pb, fit)[valid]
+    if st.shape[0] != pb.win.u_t.size:
+        return None
+    return st[:, 3], st[:, 2]
+
+
+def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) -> tuple[Recording, dict | None]:
+    """The robot-frame check (:mod:`ident.frames`) at the family-wise level of the selection; the recording
+    turned to the world frame when its forces are in the robots' frames, else as it is."""
+    # windows of 1 s are the check's units (its t-test has one degree of freedom per window less one): the
+    # fit's 2.5 s windows leave a 10 s recording 3, where no t-test reaches the selection's level
+    dtm = float(np.median(np.diff(rec.t)))
+    fc = frame_check(rec, min(FRAME_WINDOW_S, opt.fit.window_stamps * dtm), opt.fit.gap_factor, angle)
+    if fc is None:
+        return rec, None
+    found = bool(fc.p < opt.alpha)
+    out = {"robot_frame": found, "rss_world": fc.rss_world, "rss_robot": fc.rss_robot, "t": fc.t, "p": fc.p,
+           "windows": fc.windows, "phi_deg": np.degrees(fc.phi).tolist(),
+           "phi_ci95_deg": np.degrees(fc.phi_ci95).tolist()}  # fmt: skip
+    if not found:
+        return rec, out
+    if progress is not None:
+        progress(f"forces logged in the robots' own frames (equation error {fc.rss_world / fc.rss_robot:.3g} x lower "
+                 f"turned with the load, p {fc.p:.2g}): turned to the world frame")
+    return to_world(rec, fc.theta, fc.phi), out
 
 
 def sample_period(rec: Recording) -> float:

@@ -275,8 +275,9 @@ def _scales(lay: Layout, g: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.n
     if lay.rotation:
         sg[: lay.n_geom] = np.maximum(np.abs(g[: lay.n_geom]), 0.1)
     sg[lay.ia] = max(abs(g[lay.ia]), 1e-5)
-    if "measurement_delay" in lay.effects:
-        sg[lay.slot("measurement_delay")] = np.maximum(np.abs(g[lay.slot("measurement_delay")]), 0.01)
+    for name in ("measurement_delay", "agent_actuator_gain", "agent_clock_offset"):
+        if name in lay.effects:
+            sg[lay.slot(name)] = np.maximum(np.abs(g[lay.slot(name)]), 0.01)
     sx = np.maximum(np.abs(x).max(axis=0) if x.size else np.ones(lay.K), 1e-3)
     return sg, sx
 

@@ -14,7 +14,9 @@ centred-difference slopes (``cubic``, the default for a recording that does not 
 the straight line (first-order hold, ``foh``), or held (zero-order hold, ``zoh``) when the recording
 says its actuators hold it. The ODE is integrated by classical RK4 with substeps no longer than ``max_step`` between
 stamps (stamps may be irregular). A measurement delay d is the same model driven by the input
-d earlier, since every window starts from a free state. See docs/diagnose.md ("Model").
+d earlier, since every window starts from a free state. Per agent (``PER_AGENT``): agent i's force is
+scaled by its gain g_i, and an agent whose rows are stamped d_i late has its force taken d_i later and its
+velocity predicted d_i earlier. See docs/diagnose.md ("Model").
 """
 
 from __future__ import annotations
@@ -31,9 +33,15 @@ EFFECTS: dict[str, tuple[str, str]] = {
     "force_bias": ("N", "constant force (ramp in v_C)"),
     "torque_bias": ("N m", "constant torque (ramp in omega)"),
     "velocity_bias": ("m/s", "constant velocity offset"),
+    "agent_actuator_gain": ("-", "one agent's force scaled (its share of the acceleration)"),
+    "agent_clock_offset": ("s", "one agent's rows shifted in time (its force and its velocity)"),
 }
 """Effect name -> (unit, the signature it leaves in the residual)."""
 VECTOR_EFFECTS = ("force_bias", "velocity_bias")
+PER_AGENT = ("agent_actuator_gain", "agent_clock_offset")
+"""Effects with one value per agent relative to a reference agent (``Layout.ref``): a gain common to the
+team is m/g and J/g, a clock offset common to the team is no offset at all, so only n - 1 are identifiable.
+The parameters are the other agents' deviations: gain - 1, offset (s; the agent's rows stamped that late)."""
 NONNEGATIVE = ("viscous_friction", "coulomb_friction", "rotational_damping", "measurement_delay")
 
 
@@ -85,8 +93,11 @@ class Layout:
     axes: tuple[bool, bool]
     positions: bool
     effects: tuple[str, ...] = ()
+    ref: int = 0  # the per-agent effects' reference agent (its gain 1, its clock the model's)
 
     def q(self, name: str) -> int:
+        if name in PER_AGENT:
+            return self.n - 1
         return int(sum(self.axes)) if name in VECTOR_EFFECTS else 1
 
     @property
@@ -124,7 +135,16 @@ class Layout:
         return na + (2 if self.rotation else 0) + (na if self.positions else 0)
 
     def with_effects(self, effects) -> Layout:
-        return Layout(self.n, self.rotation, self.axes, self.positions, tuple(e for e in EFFECTS if e in effects))
+        return Layout(self.n, self.rotation, self.axes, self.positions, tuple(e for e in EFFECTS if e in effects),
+                      self.ref)
+
+    def per_agent(self, g: np.ndarray, name: str) -> np.ndarray | None:
+        """(B, n) effect ``name``'s deviation per agent from ``g`` (B, G), 0 at the reference; None if absent."""
+        if name not in self.effects:
+            return None
+        out = np.zeros(g.shape[:-1] + (self.n,))
+        out[..., np.arange(self.n) != self.ref] = g[..., self.slot(name)]
+        return out
 
     def lower(self) -> np.ndarray:
         lo = np.full(self.G, -np.inf)
@@ -146,9 +166,14 @@ def expand(layout: Layout, g: np.ndarray, src: Layout, init: dict | None = None)
     return out
 
 
-def _rk_inputs(w: Windows, r: np.ndarray, delay: np.ndarray) -> tuple[np.ndarray, ...]:
+def _rk_inputs(w: Windows, r: np.ndarray, delay: np.ndarray, gain: np.ndarray | None = None,
+               clock: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Input channels at the stamps for each batch member: (B, S, L) each of Fx, Fy, tau, P, Q with
-    torque = tau + cos(theta) P + sin(theta) Q; shifted by each member's delay (linear interpolation)."""
+    torque = tau + cos(theta) P + sin(theta) Q; shifted by each member's delay (linear interpolation);
+    ``gain`` (B, n) scales each agent's force, ``clock`` (B, n) shifts it (agent i's force at model time t
+    is the one logged at t + clock_i)."""
+    if gain is not None or clock is not None:
+        return _agent_inputs(w, r, delay, gain, clock)
     B = r.shape[0]
     n = w.n
     if np.any(delay != 0):
@@ -180,6 +205,60 @@ def _rk_inputs(w: Windows, r: np.ndarray, delay: np.ndarray) -> tuple[np.ndarray
             P[k] = fy @ rx - fx @ ry
             Q[k] = -(fx @ rx + fy @ ry)
     return Fx, Fy, tau, P, Q
+
+
+def _agent_inputs(w: Windows, r: np.ndarray, delay: np.ndarray, gain: np.ndarray | None,
+                  clock: np.ndarray | None) -> tuple[np.ndarray, ...]:
+    """:func:`_rk_inputs` with per-agent gains and clocks: each agent's force taken on its own."""
+    B, n = r.shape[0], w.n
+    Fx = np.empty((B, w.S, w.L))
+    Fy, tau = np.empty_like(Fx), np.empty_like(Fx)
+    P, Q = np.zeros_like(Fx), np.zeros_like(Fx)
+    for k in range(B):
+        lag = delay[k] - (clock[k] if clock is not None else np.zeros(n))  # (n,): agent i's input from t - lag_i
+        if np.any(lag != 0):
+            fx = np.stack([np.interp(w.t - lag[i], w.u_t, w.u[:, 2 + i]) for i in range(n)], axis=-1)
+            fy = np.stack([np.interp(w.t - lag[i], w.u_t, w.u[:, 2 + n + i]) for i in range(n)], axis=-1)
+        else:
+            fx, fy = w.fx, w.fy
+        # the logged torque column is the team's sum: delayed with the team, neither scaled nor shifted per agent
+        tau[k] = np.interp(w.t - delay[k], w.u_t, w.u[:, 2 + 2 * n]) if delay[k] else w.tau
+        if gain is not None:
+            fx, fy = fx * gain[k], fy * gain[k]
+        Fx[k], Fy[k] = fx.sum(axis=-1), fy.sum(axis=-1)
+        if w.rotation:
+            rx, ry = r[k, :, 0], r[k, :, 1]
+            P[k] = fy @ rx - fx @ ry
+            Q[k] = -(fx @ rx + fy @ ry)
+    return Fx, Fy, tau, P, Q
+
+
+def _shifted_states(t: np.ndarray, XS: np.ndarray, DS: np.ndarray, clock: np.ndarray) -> np.ndarray:
+    """(B, S, L, n, 6) the state at each stamp minus each agent's clock offset: the cubic Hermite through the
+    simulated states ``XS`` and their derivatives ``DS`` (B, S, L, 6) at the stamps, on the interval holding
+    the time (beyond a window's ends, its first or last interval's cubic, extended)."""
+    B, S, L, _ = XS.shape
+    n = clock.shape[1]
+    tau = t[None, :, :, None] - clock[:, None, None, :]  # (B, S, L, n)
+    inc = np.diff(t, axis=1) > 0  # padding repeats the last stamp: zero-length intervals
+    jmax = np.array([np.flatnonzero(inc[s]).max() if inc[s].any() else 0 for s in range(S)])
+    idx = np.empty(tau.shape, int)
+    for s in range(S):
+        idx[:, s] = np.searchsorted(t[s, : jmax[s] + 2], tau[:, s], side="right") - 1
+    idx = np.clip(idx, 0, jmax[None, :, None, None])
+    t0 = t[np.arange(S)[None, :, None, None], idx]
+    h = t[np.arange(S)[None, :, None, None], idx + 1] - t0
+    h = np.where(h > 0, h, 1.0)
+    u = ((tau - t0) / h)[..., None]
+    flat = idx.reshape(B, S, L * n, 1)
+
+    def at(A, off):
+        return np.take_along_axis(A, flat + off, axis=2).reshape(B, S, L, n, 6)
+
+    u2, u3 = u * u, u * u * u
+    hh = h[..., None]
+    return ((2 * u3 - 3 * u2 + 1) * at(XS, 0) + (u3 - 2 * u2 + u) * hh * at(DS, 0)
+            + (3 * u2 - 2 * u3) * at(XS, 1) + (u3 - u2) * hh * at(DS, 1))  # fmt: skip
 
 
 def input_slopes(t: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -251,7 +330,9 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
     if "velocity_bias" in lay.effects:
         vb[:, iax] = g[:, lay.slot("velocity_bias")]
     delay = d[:, 0] if d is not None else np.zeros(B)
-    U = np.stack(_rk_inputs(w, r, delay), axis=-1)  # (B, S, L, 5): Fx, Fy, tau, P, Q
+    dgain = lay.per_agent(g, "agent_actuator_gain")
+    clock = lay.per_agent(g, "agent_clock_offset")
+    U = np.stack(_rk_inputs(w, r, delay, None if dgain is None else 1.0 + dgain, clock), axis=-1)  # (B, S, L, 5)
     # state (B, S, 6): vx, vy, omega, theta, px, py
     X = np.zeros((B, S, 6))
     X[..., iax] = x0[..., :na]
@@ -294,10 +375,13 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
         return out
 
     XS = np.empty((B, S, L, 6))
+    DS = np.empty((B, S, L, 6)) if clock is not None else None  # the state's derivative at the stamps
     M = input_slopes(w.t, U) if w.hold == "cubic" else None
     for j in range(L):
         XS[:, :, j] = X
         if j == L - 1:
+            if DS is not None:
+                DS[:, :, j] = deriv(X, U[:, :, j])
             break
         H = w.t[:, j + 1] - w.t[:, j]  # (S,)
         nsub = max(1, int(np.ceil(H.max() / max_step - 1e-9)))
@@ -307,6 +391,8 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
         for s_ in range(nsub):
             U0, Uh, U1 = seg.at(s_ / nsub), seg.at((s_ + 0.5) / nsub), seg.at((s_ + 1) / nsub)
             k1 = deriv(X, U0)
+            if DS is not None and s_ == 0:
+                DS[:, :, j] = k1
             k2 = deriv(X + 0.5 * h * k1, Uh)
             k3 = deriv(X + 0.5 * h * k2, Uh)
             k4 = deriv(X + h * k3, U1)
@@ -315,18 +401,29 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
     PX = XS[..., 4] if lay.positions else None
     PY = XS[..., 5] if lay.positions else None
     vel = pos = None
+    if clock is not None:  # each agent's rows are at its own clock's time: the state there, per agent
+        XA = _shifted_states(w.t, XS, DS, clock)  # (B, S, L, n, 6)
+        VX, VY, OM, TH = XA[..., 0], XA[..., 1], XA[..., 2], XA[..., 3]
+        VX1, VY1 = VX, VY
+        PX = XA[..., 4] if lay.positions else None
+        PY = XA[..., 5] if lay.positions else None
+    else:
+        VX1, VY1 = VX[..., None], VY[..., None]
+        if lay.positions:
+            PX, PY = PX[..., None], PY[..., None]
+        TH, OM = TH[..., None], OM[..., None]
     if lay.rotation:
-        c, s = np.cos(TH)[..., None], np.sin(TH)[..., None]  # (B, S, L, 1)
+        c, s = np.cos(TH), np.sin(TH)  # (B, S, L, 1) or per agent (B, S, L, n)
         rx, ry = r[:, None, None, :, 0], r[:, None, None, :, 1]
         Rx = c * rx - s * ry
         Ry = s * rx + c * ry
     if w.vel is not None:
         if lay.rotation:
-            ux = VX[..., None] - OM[..., None] * Ry
-            uy = VY[..., None] + OM[..., None] * Rx
+            ux = VX1 - OM * Ry
+            uy = VY1 + OM * Rx
         else:
-            ux = np.repeat(VX[..., None], n, axis=-1)
-            uy = np.repeat(VY[..., None], n, axis=-1)
+            ux = np.broadcast_to(VX1, VX1.shape[:-1] + (n,)).copy()
+            uy = np.broadcast_to(VY1, VY1.shape[:-1] + (n,)).copy()
         if interval_mean:
             qx = XS[..., 4][..., None] + (Rx if lay.rotation else 0.0)
             qy = XS[..., 5][..., None] + (Ry if lay.rotation else 0.0)
@@ -337,9 +434,9 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
         vel = np.stack((ux + vb[:, None, None, None, :1][..., 0], uy + vb[:, None, None, None, 1:][..., 0]), axis=-1)
     if w.pos is not None and PX is not None:
         if lay.rotation:
-            qx, qy = PX[..., None] + Rx, PY[..., None] + Ry
+            qx, qy = PX + Rx, PY + Ry
         else:
-            qx = np.repeat(PX[..., None], n, axis=-1)
-            qy = np.repeat(PY[..., None], n, axis=-1)
+            qx = np.broadcast_to(PX, PX.shape[:-1] + (n,)).copy()
+            qy = np.broadcast_to(PY, PY.shape[:-1] + (n,)).copy()
         pos = np.stack((qx, qy), axis=-1)
     return vel, pos, XS

@@ -74,6 +74,7 @@ class Diagnosis:
     identifiable: dict[str, bool] = field(default_factory=dict)
     model: dict[str, Any] = field(default_factory=dict)
     validation: dict[str, Any] | None = None
+    frames: dict[str, Any] | None = None  # ident/frames.py: the robot-frame check
     change: dict[str, Any] | None = None  # ident/change.py: a change of the load, and each side's diagnosis
     random_force: dict[str, Any] | None = None  # ident/random_force.py: the residual's walk, in N and N m
     fits: dict[str, Any] = field(default_factory=dict, repr=False)
@@ -106,6 +107,7 @@ class Diagnosis:
         if self.validation is not None:
             out["validation"] = self.validation
         out["change"] = _jsonable(self.change)
+        out["frames"] = _jsonable(self.frames)
         return out
 
 
@@ -135,7 +137,7 @@ def format_diagnosis(r: Diagnosis) -> str:
                      f"whiteness p {m.whiteness_p:.3g}, held-out {m.heldout_rms:.4g}{err}")  # fmt: skip
     if r.effects:
         for e in r.effects:
-            lines.append(f"effect    {e['name']}: {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}")
+            lines.append(f"effect    {e['name']}: {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}{_agents(e)}")
     else:
         lines.append("effect    none named")
     lines.append(f"unexplained: {str(r.unexplained).lower()}")
@@ -170,6 +172,17 @@ def format_diagnosis(r: Diagnosis) -> str:
                      + (" (the other recording holds a force or effect the models lack)" if v["flagged"] else ""))
     lines += [f"warning   {w}" for w in r.warnings]
     return "\n".join(lines)
+
+
+def _agents(e: dict[str, Any]) -> str:
+    """A per-agent effect's reading: which agents are off the reference agent, and by how much."""
+    if e.get("agents") is None:
+        return ""
+    if e.get("reference") is None:
+        return " (per agent: each robot's mounting angle, body frame at the first stamp)"
+    off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]) or "none"
+    why = "the team's median" if len(e["value"]) > 2 else "two agents: which of them is off is not identifiable"
+    return f" (per agent, relative to agent {e['reference']}, {why}; outside its 95 % interval: {off})"
 
 
 def _fmt(v: Any) -> str:

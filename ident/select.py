@@ -35,7 +35,7 @@ from ident.fit import (
     subset,
     window_valid,
 )
-from ident.model import EFFECTS, VECTOR_EFFECTS, Layout, expand
+from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS, Layout, expand
 from ident.prepare import (
     RUN,
     agent_floors,
@@ -211,11 +211,21 @@ def _reference(name: str, m: float, J: float, dt: float) -> float:
         "force_bias": 0.005 * mg,
         "torque_bias": 0.005 * mg * 0.2,  # half a percent of the weight at a 0.2 m arm
         "velocity_bias": 0.02,
+        "agent_actuator_gain": 0.05,  # one actuator 5 % off the others
+        "agent_clock_offset": max(0.02, 2 * dt),  # as the delay: a logger's clock two samples or 20 ms off
     }[name]
 
 
-def _value(x: np.ndarray, lay: Layout, name: str) -> float | list:
-    """A scalar, or for a vector effect [x, y] (None on an idle axis: not identifiable there)."""
+def _value(x: np.ndarray, lay: Layout, name: str, ci: bool = False) -> float | list:
+    """A scalar, or for a vector effect [x, y] (None on an idle axis: not identifiable there), or for a
+    per-agent effect one value per agent (the reference agent's exact: gain 1, clock offset 0; ``ci``:
+    the 95 % half-widths, 0 at the reference)."""
+    if name in PER_AGENT:
+        full = np.zeros(lay.n)
+        full[np.arange(lay.n) != lay.ref] = x
+        if name == "agent_actuator_gain" and not ci:
+            full += 1.0
+        return full.tolist()
     if name not in VECTOR_EFFECTS:
         return float(x[0])
     out: list = [None, None]
@@ -225,6 +235,64 @@ def _value(x: np.ndarray, lay: Layout, name: str) -> float | list:
             out[c] = float(x[k])
             k += 1
     return out
+
+
+def _agents_off(val: list, ci: list, name: str) -> list[int]:
+    """The agents whose per-agent value's 95 % interval excludes the reference's (gain 1, offset 0)."""
+    ref = 1.0 if name == "agent_actuator_gain" else 0.0
+    return [i for i, (v, h) in enumerate(zip(val, ci)) if abs(v - ref) > h]
+
+
+FORCE_LIKE = ("viscous_friction", "coulomb_friction", "rotational_damping", "force_bias", "torque_bias")
+
+
+def _regauge(pb: Problem, fit: Fit, say: Callable[[str], None]) -> Fit:
+    """``fit`` with the per-agent effects relative to the agent at the team's median (of the gains if named,
+    else of the clock offsets): when one agent is off, the others agree and the median is one of them, so m,
+    J and the forces are those of the majority's actuators and clock (a team-wide gain is m/g and J/g, a
+    team-wide clock offset no offset: the reference picks which agents are called right, nothing else).
+    n = 2 has no majority: agent 0 stays the reference. The same model re-parametrised, refitted from the
+    exact transform (the logged torque column is not per agent: refitted, not copied)."""
+    lay = fit.lay
+    if lay.n < 3:
+        return fit
+    key = "agent_actuator_gain" if "agent_actuator_gain" in lay.effects else "agent_clock_offset"
+    full = lay.per_agent(fit.g, key)
+    order = np.argsort(full)
+    ref = int(order[(lay.n - 1) // 2])
+    if ref == lay.ref:
+        return fit
+    lay2 = Layout(lay.n, lay.rotation, lay.axes, lay.positions, lay.effects, ref)
+    g = fit.g.copy()
+    others = np.arange(lay.n) != ref
+    if "agent_actuator_gain" in lay.effects:
+        gain = 1.0 + lay.per_agent(fit.g, "agent_actuator_gain")
+        k = gain[ref]
+        g[lay2.slot("agent_actuator_gain")] = gain[others] / k - 1.0
+        g[lay.ia] *= k
+        if lay.rotation:
+            g[lay.ib] *= k
+        for e in FORCE_LIKE:
+            if e in lay.effects:
+                g[lay.slot(e)] /= k
+    if "agent_clock_offset" in lay.effects:
+        off = lay.per_agent(fit.g, "agent_clock_offset")
+        g[lay2.slot("agent_clock_offset")] = off[others] - off[ref]
+    say(f"per-agent effects relative to agent {ref} (the team's median)")
+    return lm_fit(pb, lay2, g, fit.x)
+
+
+def _retimed(rec: Recording, offset: np.ndarray) -> Recording:
+    """``rec`` with each agent's velocities moved to the time they were measured at: its row at stamp t holds
+    the velocity at t - offset_i, so the velocity at t is its series read at t + offset_i (linear)."""
+    vel = rec.vel.copy()
+    for i, d in enumerate(offset):
+        for c in range(2):
+            y = rec.vel[:, i, c]
+            ok = ~np.isnan(y)
+            if d and ok.sum() >= 2:
+                vel[:, i, c] = np.where(ok, np.interp(rec.t + d, rec.t[ok], y[ok], left=np.nan, right=np.nan), np.nan)
+    return replace(rec, vel=vel)
 
 
 def _rms(pb: Problem, fit_res: np.ndarray) -> dict[str, float]:
@@ -309,7 +377,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         warns.append(f"axis {'y' if base.axes[0] else 'x'}: no force and no motion: left out of the model "
                      "(its components of force_bias and velocity_bias are not identifiable)")  # fmt: skip
     cands = [c for c in opt.candidates if (c not in ("rotational_damping", "torque_bias") or base.rotation)
-             and (c != "velocity_bias" or rec.vel is not None)]  # fmt: skip
+             and (c != "velocity_bias" or rec.vel is not None) and (c not in PER_AGENT or rec.n >= 2)]  # fmt: skip
     say("nominal model: fitting")
     nominal = fit_robust(pb, base, g0, x0)
     modes0 = residual_modes(pb, nominal)
@@ -390,7 +458,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             st = states_of(pb, f)
             wp = whiteness(pb, f, opt, theta=st[..., 3])
             val, ci = f.param(c)
-            table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, lay, c), "ci95": _value(ci, lay, c),
+            table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, f.lay, c),
+                        "ci95": _value(ci, f.lay, c, ci=True),
                         "F": F, "p": pF, "delta_bic": f.bic - current.bic, "whiteness_p": wp,
                         "on_top_of": list(current.lay.effects)}  # fmt: skip
             if wp <= opt.alpha_white and pF < alpha_k:
@@ -427,6 +496,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         accepted.append(best)
         remaining.remove(best)
         current = fb_
+        if best in PER_AGENT:
+            current = _regauge(pb, current, say)
         if len(accepted) < opt.max_effects:
             back = {c: score(pb, current, c) for c in hidden}
             back = {c: sc for c, sc in back.items() if sc.collinear <= 1 - 1e-6}
@@ -489,7 +560,17 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     for c in named:
         val, ci = final.param(c)
         effects.append({"name": c, "value": _value(val, final.lay, c), "unit": EFFECTS[c][0],
-                        "ci95": _value(ci, final.lay, c)})  # fmt: skip
+                        "ci95": _value(ci, final.lay, c, ci=True)})  # fmt: skip
+        if c in PER_AGENT:
+            effects[-1]["reference"] = final.lay.ref
+            effects[-1]["agents"] = _agents_off(effects[-1]["value"], effects[-1]["ci95"], c)
+            if c == "agent_clock_offset" and rec.vel is not None and math.isfinite(sv):
+                sv2 = noise_floor(_retimed(rec, np.asarray(effects[-1]["value"])))[0]
+                per_agent["velocity_retimed"] = sv2
+                warns.append(f"agent_clock_offset: the noise floor ({sv:.3g} m/s) is read from the agents' relative "
+                             f"velocities at common stamps, where an agent's offset counts as noise; with each "
+                             f"agent's velocities re-timed by its offset it reads {sv2:.3g} m/s, and the residual "
+                             f"is {math.sqrt(final.rss / final.N) * sv / sv2:.3g} x that")  # fmt: skip
 
     def report(f: Fit, pw: float, modes: np.ndarray) -> ModelReport:
         say(f"held-out error of {list(f.lay.effects) or 'nominal'}: fitting the first {1 - opt.holdout:.0%}")
@@ -514,6 +595,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             rep.J_rel_err = mj["J"] / rec.truth["J"] - 1 if base.rotation else None
         return rep
 
+    floors = {k if k.endswith("retimed") else f"{k}_per_agent": v for k, v in per_agent.items()}
     nominal_rep = report(nominal, p_white0, modes0)
     aug_rep = nominal_rep if final is nominal else report(final, white, modes1)
     block = _block(pb, opt)
@@ -521,8 +603,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         nominal=nominal_rep, augmented=aug_rep, effects=effects, unexplained=unexplained, warnings=warns,
         candidates=list(table.values()), signatures=signatures, ambiguous=ambiguous,
         noise_sigma=sv if math.isfinite(sv) else sp, wall_s=clock() - t_start if clock is not None else 0.0,
-        truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp,
-                                                                   **{f"{k}_per_agent": v for k, v in per_agent.items()}},
+        truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp, **floors},
         identifiable={"m": True, "J": base.rotation, "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip
