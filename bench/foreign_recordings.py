@@ -144,7 +144,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
                "robot_frame_forces": robot_frame}
     return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change,
-            "force_noise": fnoise * frms * np.sqrt(n)}
+            "force_noise": fnoise * frms * np.sqrt(n), "mounting_deg": np.degrees(phi).tolist()}
 
 
 def _named(k: str, e: dict) -> str:
