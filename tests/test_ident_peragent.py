@@ -23,6 +23,16 @@ def _named(d) -> dict:
     return {e["name"]: e for e in d.effects}
 
 
+def _only(tmp_path, effect: str, dur: float = 10.0, **shape) -> tuple[dict, object, dict]:
+    """(truth, diagnosis, the effect's entry) of a ``dur`` s, four-agent recording of the plant with
+    ``shape``; the effect named alone, the residual explained."""
+    truth = plant.record(tmp_path, n=4, dur=dur, **shape)
+    d = diagnose_dir(tmp_path)
+    named = _named(d)
+    assert set(named) == {effect} and not d.unexplained, named
+    return truth, d, named[effect]
+
+
 def _mj_within(d, truth) -> None:
     """m within 1 %, J within twice its 95 % half-width (10 s of a slowly turning load: J is wide)."""
     a = d.augmented
@@ -31,11 +41,7 @@ def _mj_within(d, truth) -> None:
 
 
 def test_one_actuator_delivering_80_percent_is_named_with_its_agent(tmp_path):
-    truth = plant.record(tmp_path, n=4, dur=10.0, gain=(1, 0.8))
-    d = diagnose_dir(tmp_path)
-    named = _named(d)
-    assert set(named) == {"agent_actuator_gain"} and not d.unexplained
-    e = named["agent_actuator_gain"]
+    truth, d, e = _only(tmp_path, "agent_actuator_gain", gain=(1, 0.8))
     assert e["agents"] == [1] and e["reference"] != 1
     # within 3 of its 95 % half-widths (0.007 here), and that half-width small against the fault
     assert abs(e["value"][1] - 0.8) < 3 * e["ci95"][1] and e["ci95"][1] < 0.02
@@ -44,11 +50,7 @@ def test_one_actuator_delivering_80_percent_is_named_with_its_agent(tmp_path):
 
 
 def test_one_logger_clock_50ms_late_is_named_with_its_agent(tmp_path):
-    truth = plant.record(tmp_path, n=4, dur=10.0, clock=(2, 0.05))
-    d = diagnose_dir(tmp_path)
-    named = _named(d)
-    assert set(named) == {"agent_clock_offset"} and not d.unexplained
-    e = named["agent_clock_offset"]
+    truth, d, e = _only(tmp_path, "agent_clock_offset", clock=(2, 0.05))
     assert e["agents"] == [2]
     assert abs(e["value"][2] - 0.05) < max(3 * e["ci95"][2], 0.002)
     # the kinematic floor counts the offset as noise; re-read with the velocities re-timed it is the sensor's
@@ -57,15 +59,11 @@ def test_one_logger_clock_50ms_late_is_named_with_its_agent(tmp_path):
 
 
 def test_forces_logged_in_each_robots_frame_are_turned_to_the_world(tmp_path):
-    truth = plant.record(tmp_path, n=4, dur=8.0, robot_frame=True)
-    d = diagnose_dir(tmp_path)
-    named = _named(d)
-    assert "robot_frame_forces" in named and d.frames["robot_frame"] and not d.unexplained
-    assert set(named) == {"robot_frame_forces"}
+    truth, d, e = _only(tmp_path, "robot_frame_forces", dur=8.0, robot_frame=True)
+    assert d.frames["robot_frame"]
     # the mounting angles (body frame at the first stamp) differ as the robots' do: within each one's 95 %
     # half-width (or a degree)
-    got, ci, true = (np.asarray(v, float) for v in (named["robot_frame_forces"]["value"],
-                                                     named["robot_frame_forces"]["ci95"], truth["mounting_deg"]))
+    got, ci, true = (np.asarray(v, float) for v in (e["value"], e["ci95"], truth["mounting_deg"]))
     diff = np.angle(np.exp(1j * np.radians((got - got[0]) - (true - true[0]))), deg=True)
     assert np.all(np.abs(diff) < np.maximum(ci + ci[0], 1.0)), (diff, ci)
     _mj_within(d, truth)
