@@ -132,7 +132,8 @@ def format_diagnosis(r: Diagnosis) -> str:
             err = f"  [vs truth: m {100 * m.m_rel_err:+.2f} %" + (
                 f", J {100 * m.J_rel_err:+.2f} %]" if m.J_rel_err is not None else "]")
         J = f"J {m.J:.4g} +- {m.J_ci95:.2g} kg m^2" if math.isfinite(m.J) else "J not identifiable"
-        lines.append(f"{label:9s} effects {list(m.effects) or '-'}: m {m.m:.4g} +- {m.m_ci95:.2g} kg, {J}, "
+        M = f"m {m.m:.4g} +- {m.m_ci95:.2g} kg" if math.isfinite(m.m) else "m not resolved"
+        lines.append(f"{label:9s} effects {list(m.effects) or '-'}: {M}, {J}, "
                      f"residual {m.residual_rms:.4g} ({m.residual_over_floor:.3g} x noise floor), "
                      f"whiteness p {m.whiteness_p:.3g}, held-out {m.heldout_rms:.4g}{err}")  # fmt: skip
     if r.effects:

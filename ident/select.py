@@ -596,6 +596,20 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         return rep
 
     floors = {k if k.endswith("retimed") else f"{k}_per_agent": v for k, v in per_agent.items()}
+    # 1/m and 1/J are the fitted parameters: one not above its own 95 % half-width leaves m (J) unresolved
+    # (a load that hardly moves under the applied force: friction holds it, or the push is too weak)
+    resolved = {"m": False, "J": False}
+    for name, on in (("m", True), ("J", base.rotation)):
+        if not on:
+            continue
+        idx = final.lay.ia if name == "m" else final.lay.ib
+        inv, half = float(final.g[idx]), Z95 * math.sqrt(max(float(final.cov[idx, idx]), 0.0))
+        resolved[name] = inv > half
+        if not resolved[name]:
+            what = ("translation", "force", "kg") if name == "m" else ("rotation", "torque", "kg m^2")
+            warns.append(f"{name} not resolved: the fit's 1/{name} is {inv:.3g} +- {half:.2g} 1/{what[2]} (95 %), not "
+                         f"above zero: the {what[0]} hardly answers the applied {what[1]} (friction holding the "
+                         "load, or too weak a push)")
     nominal_rep = report(nominal, p_white0, modes0)
     aug_rep = nominal_rep if final is nominal else report(final, white, modes1)
     block = _block(pb, opt)
@@ -604,7 +618,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         candidates=list(table.values()), signatures=signatures, ambiguous=ambiguous,
         noise_sigma=sv if math.isfinite(sv) else sp, wall_s=clock() - t_start if clock is not None else 0.0,
         truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp, **floors},
-        identifiable={"m": True, "J": base.rotation, "geometry": base.rotation},
+        identifiable={"m": resolved["m"], "J": resolved["J"], "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip
         fits={"nominal": nominal, "augmented": final}, problem=pb,

@@ -6,17 +6,10 @@ with ident/), loaded by its path.
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 
 from ident.diagnose import diagnose_dir
-
-_spec = importlib.util.spec_from_file_location(
-    "foreign_recordings", Path(__file__).resolve().parents[1] / "bench" / "foreign_recordings.py")
-plant = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(plant)
+from tests.foreign_plant import plant
 
 
 def _named(d) -> dict:
