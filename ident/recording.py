@@ -386,7 +386,10 @@ def _check_absent(path: Path, absent: list[str], cols: dict[str, np.ndarray], n:
     if "tau" in absent and n > 1:
         need.append("tau")
     if need:
-        raise RecordingError(f"{path}:1: header lacks column(s) {','.join(need)} (the motion they act on is measured)")
+        hint = ("; a robot on a point contact applies no torque of its own: write tau as 0 (the force's moment is "
+                "the model's, from the contact's position)") if need == ["tau"] else ""
+        raise RecordingError(f"{path}:1: header lacks column(s) {','.join(need)} (the motion they act on is "
+                             f"measured){hint}")
     return [f"{path}: no column {c}: taken as 0" for c in WRENCH if c in absent]
 
 

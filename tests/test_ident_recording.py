@@ -117,6 +117,8 @@ def test_round_trip(tmp_path):
 @pytest.mark.parametrize("header, rows, toml, match", [
     ("t,agent,vx,vy,fx,tau", ["0.0,0,0,0,0,0"], None, r"samples.csv:1: header lacks column\(s\) fy"),
     ("t,agent,fx,fy,tau", ["0.0,0,0,0,0"], None, r"samples.csv:1: header lacks measured columns"),
+    ("t,agent,vx,vy,fx,fy", ["0.0,0,0,0,0,0"], None,
+     r"samples.csv:1: header lacks column\(s\) tau .*point contact applies no torque of its own: write tau as 0"),
     (None, ["0.0,0,0,0,0,0,0", "0.0,1,0,abc,0,0,0"], None, r"samples.csv:3: column 'vy': 'abc' is not a number"),
     (None, ["0.0,0,0,0,0,0,0", "0.0,7,0,0,0,0,0"], None, r"samples.csv:3: column 'agent': agent 7 out of range 0..1"),
     (None, ["0.0,0,0,0,0,0,0", "", "0.0,0,1,0,0,0,0"], None,
