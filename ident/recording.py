@@ -24,6 +24,7 @@ TRUTH_CSV = "truth.csv"
 WRENCH = ("fx", "fy", "tau")
 HOLDS = ("cubic", "foh", "zoh")
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+FAST = 50.0  # m/s: a contact speed above this is read as a unit mistake (a warning, nothing else)
 
 
 class RecordingError(ValueError):
@@ -295,6 +296,12 @@ def read_recording(path: str | Path) -> Recording:
                                 dt=float(cfg["dt"]) if "dt" in cfg else None, truth=truth)  # fmt: skip
     rec.hold_source = source
     rec.warnings[:0] = warns
+    if vel is not None and np.isfinite(vel).any():
+        top = float(np.nanmax(np.abs(vel)))
+        if top > FAST:
+            # a team pushing a load moves at walking speeds: a speed of this order is a unit (mm/s logged as m/s)
+            rec.warnings.append(f"a contact speed of {top:.3g} m/s in samples.csv: the velocities are read in m/s "
+                                "(the format's unit); a logger writing mm/s or cm/s makes m and J that factor off")
     if rec.dt is not None:
         med = float(np.median(np.diff(stamps)))
         if abs(med - rec.dt) > 0.01 * rec.dt:

@@ -246,3 +246,14 @@ def test_agents_logging_on_their_own_clocks_are_diagnosed(tmp_path):
     assert d.augmented.J == pytest.approx(truth["J"], rel=0.03)
     assert named["rotational_damping"] == pytest.approx(truth["effects"]["rotational_damping"], rel=0.05)
     assert d.noise_floor["velocity"] == pytest.approx(0.01, rel=0.1)
+
+
+def test_velocities_in_mm_per_s_are_warned_about(tmp_path):
+    """A logger writing mm/s: contact speeds of hundreds of "m/s"; read as written, with a warning that names
+    the unit (a team pushing a load moves at walking speeds)."""
+    rows = [f"{0.01 * k!r},{i},{300.0 + k},{-200.0},1,0,0" for k in range(20) for i in (0, 1)]
+    rec = read_recording(write(tmp_path, rows))
+    assert any("a contact speed of 319 m/s" in w and "mm/s" in w for w in rec.warnings), rec.warnings
+    rows = [f"{0.01 * k!r},{i},{0.3 + 0.01 * k},-0.2,1,0,0" for k in range(20) for i in (0, 1)]
+    (tmp_path / "ok").mkdir()
+    assert not any("contact speed" in w for w in read_recording(write(tmp_path / "ok", rows)).warnings)
