@@ -607,9 +607,11 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         resolved[name] = inv > half
         if not resolved[name]:
             what = ("translation", "force", "kg") if name == "m" else ("rotation", "torque", "kg m^2")
+            over = math.sqrt(final.rss / final.N)  # the residual over the noise floor
+            why = (f"the {what[0]} hardly answers the applied {what[1]} (friction holding the load, or too weak a "
+                   "push)") if over < 2.0 else f"the model does not fit these data (residual {over:.3g} x the floor)"
             warns.append(f"{name} not resolved: the fit's 1/{name} is {inv:.3g} +- {half:.2g} 1/{what[2]} (95 %), not "
-                         f"above zero: the {what[0]} hardly answers the applied {what[1]} (friction holding the "
-                         "load, or too weak a push)")
+                         f"above zero: {why}")
     nominal_rep = report(nominal, p_white0, modes0)
     aug_rep = nominal_rep if final is nominal else report(final, white, modes1)
     block = _block(pb, opt)
