@@ -51,6 +51,7 @@ CASES: dict[str, dict] = {
     "one_actuator_80pct": {"b": 8.0, "gain": (2, 0.8)},
     "one_clock_50ms": {"b": 8.0, "clock": (1, 0.05)},
     "robot_frame_forces": {"b": 8.0, "robot_frame": True},
+    "spin_10rad_s": {"b": 8.0, "spin": 10.0},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -60,7 +61,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            hold_hz: float | None = None, glitches: float = 0.0, pos: float = 0.0, wrench_hz: float | None = None,
            dropout: tuple[int, float, float] | None = None, change: tuple[float, float] | None = None,
            fnoise: float = 0.0, vbias: tuple[float, float] = (0.0, 0.0), gain: tuple[int, float] | None = None,
-           clock: tuple[int, float] | None = None, robot_frame: bool = False) -> dict:  # fmt: skip
+           clock: tuple[int, float] | None = None, robot_frame: bool = False, spin: float = 0.0) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -69,7 +70,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     ``gain`` (agent, k): that agent's actuator delivers k x the force it logs; ``clock`` (agent, s): that agent's
     logger stamps its rows s late (the row at stamp t holds what happened at t - s); ``robot_frame``: each
     robot logs its force in its own frame, fixed to the load and facing the load's centre (logged
-    f_i = R(theta + phi_i)^T f_i, phi_i the contact's polar angle + pi)."""
+    f_i = R(theta + phi_i)^T f_i, phi_i the contact's polar angle + pi); ``spin``: the load's rate (rad/s) at
+    the start of the integration, 1 s before the recording."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
@@ -109,7 +111,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
 
     t = np.arange(0, dur, 1 / rate)
     frms = float(np.sqrt((amp**2 / 2).sum(-1).mean()))  # RMS of one agent's force component
-    sol = solve_ivp(rhs, (-1.0, dur + 0.1), np.zeros(6), dense_output=True, rtol=1e-10, atol=1e-12,
+    y0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, spin])  # x, y, theta, vx, vy, omega
+    sol = solve_ivp(rhs, (-1.0, dur + 0.1), y0, dense_output=True, rtol=1e-10, atol=1e-12,
                     max_step=0.5 / hold_hz if hold_hz else 0.01)  # fmt: skip
     rows = []
     for tk in t:

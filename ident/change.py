@@ -80,7 +80,8 @@ def find_change(pb: Problem, fit: Fit, alpha: float) -> dict[str, Any]:
     before = lm_fit(subset(pb, head), fit.lay, fit.g, fit.x[head])
     after = lm_fit(subset(pb, tail), fit.lay, fit.g, fit.x[tail])
     F, p = stats.nested_f(fit.rss, before.rss + after.rss, fit.lay.G, fit.N, fit.P + fit.lay.G)
-    share = (fit.rss - before.rss - after.rss) / max(fit.rss - fit.N, 1e-300)
+    # the share of the residual's excess over the noise floor the split removes (none to share at the floor)
+    share = (fit.rss - before.rss - after.rss) / (fit.rss - fit.N) if fit.rss > fit.N else math.nan
     level = alpha / ks.size
     t0 = pb.t0
     info.update({"k": k, "t": float(t0[k]), "lm": float(lm[k]), "F": F, "p": p, "level": level, "split_share": share})

@@ -523,7 +523,15 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
         has = ~np.isnan(h)
         # noise of h per component is sigma (zb has unit norm); of the windowed sum of h^2, about
         # 2 |h| sigma per term. Noisy data get longer windows, until a quarter of the stamps are
-        # significant (or the window is 8x the default)
+        # significant (or the window is 8x the default). h^2 turns at 2 omega: a window over which it turns
+        # more than a quarter turn sums it away, so a fast spin shortens the first window to pi / (4 |omega|)
+        # (|omega| from h's own turn between stamps where h stands above its noise)
+        big = has[1:] & has[:-1] & (np.abs(np.nan_to_num(h[1:])) > min_snr * sigma) \
+            & (np.abs(np.nan_to_num(h[:-1])) > min_snr * sigma)
+        if big.sum() >= 20:
+            spin = float(np.median(np.abs(np.angle(h[1:][big] * np.conj(h[:-1][big]))) / np.diff(t)[big]))
+            if spin > 0.0:
+                width_s = min(width_s, math.pi / (4.0 * spin))
         for width in width_s * 2.0 ** np.arange(4):
             s2, cnt = _moving_sum(t, h * h, width)
             s1, _ = _moving_sum(t, np.abs(h) ** 2, width)
