@@ -256,17 +256,24 @@ class Fit:
         sl = self.lay.slot(name)
         return self.g[sl], Z95 * np.sqrt(np.clip(np.diag(self.cov)[sl], 0, None))
 
+    @property
+    def over_floor(self) -> float:
+        """The residual's RMS over the noise floor (the residuals are weighted by it)."""
+        return math.sqrt(self.rss / self.N)
+
+    def inverse(self, name: str) -> tuple[float, float]:
+        """The fitted 1/m (``name`` "m") or 1/J ("J") and its 95 % half-width."""
+        i = self.lay.ia if name == "m" else self.lay.ib
+        return float(self.g[i]), Z95 * math.sqrt(max(float(self.cov[i, i]), 0.0))
+
     def mj(self) -> dict[str, float]:
-        lay = self.lay
-        a = self.g[lay.ia]
-        sa = math.sqrt(max(self.cov[lay.ia, lay.ia], 0.0))
-        out = {"m": 1 / a if a > 0 else math.nan, "m_ci95": Z95 * sa / a**2 if a > 0 else math.nan,
+        a, ha = self.inverse("m")
+        out = {"m": 1 / a if a > 0 else math.nan, "m_ci95": ha / a**2 if a > 0 else math.nan,
                "J": math.nan, "J_ci95": math.nan}  # fmt: skip
-        if lay.rotation:
-            b = self.g[lay.ib]
-            sb = math.sqrt(max(self.cov[lay.ib, lay.ib], 0.0))
+        if self.lay.rotation:
+            b, hb = self.inverse("J")
             out["J"] = 1 / b if b > 0 else math.nan
-            out["J_ci95"] = Z95 * sb / b**2 if b > 0 else math.nan
+            out["J_ci95"] = hb / b**2 if b > 0 else math.nan
         return out
 
 

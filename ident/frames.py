@@ -89,8 +89,10 @@ def frame_check(rec: Recording, window_s: float, gap_factor: float = 5.0,
     t = rec.t
     wid = np.floor((t - t[0]) / window_s).astype(int)
     S = int(wid.max()) + 1
-    out = {}
-    for robot in (False, True):
+
+    def fit(robot: bool):
+        """Each used window's sum of squared equation error, its normal equations, the coefficients, the
+        windows used; None with fewer than 3 windows of ``min_rows`` rows."""
         A, y, ok = _design(filled, theta, omega, wid, robot)
         ok &= good
         rows = np.bincount(wid, weights=ok.astype(float), minlength=S)
@@ -104,23 +106,26 @@ def frame_check(rec: Recording, window_s: float, gap_factor: float = 5.0,
         bs = _window_sums(A.conj() * y[:, None], wid, S)[used]
         coef = np.linalg.lstsq(Gs.sum(0), bs.sum(0), rcond=None)[0]
         e = np.where(ok, y - A @ coef, 0)
-        per = np.bincount(wid, weights=np.abs(e) ** 2, minlength=S)[used]
-        # the mounting angles left out one window at a time: the equation error is correlated within a
-        # window, so the windows are the independent units of its spread
-        n = rec.n
-        jack = np.array([np.angle(np.linalg.lstsq(Gs.sum(0) - Gs[k], bs.sum(0) - bs[k], rcond=None)[0][:n]
-                                  * np.conj(coef[:n])) for k in range(used.size)])  # fmt: skip
-        m = used.size
-        se = np.sqrt((m - 1) / m * ((jack - jack.mean(axis=0)) ** 2).sum(axis=0))
-        out[robot] = (per, np.angle(coef[:n]), sst.t.ppf(0.975, m - 1) * se)
-    m = out[True][0].size
+        return np.bincount(wid, weights=np.abs(e) ** 2, minlength=S)[used], Gs, bs, coef
+
+    world, robot = fit(False), fit(True)
+    if world is None or robot is None:
+        return None
+    per_world, (per_robot, Gs, bs, coef) = world[0], robot
+    # the mounting angles, left out one window at a time: the equation error is correlated within a window,
+    # so the windows are the units of its spread
+    n = rec.n
+    m = per_robot.size
+    jack = np.array([np.angle(np.linalg.lstsq(Gs.sum(0) - Gs[k], bs.sum(0) - bs[k], rcond=None)[0][:n]
+                              * np.conj(coef[:n])) for k in range(m)])  # fmt: skip
+    se = np.sqrt((m - 1) / m * ((jack - jack.mean(axis=0)) ** 2).sum(axis=0))
+    phi, phi_ci95 = np.angle(coef[:n]), sst.t.ppf(0.975, m - 1) * se
     # each window's log ratio: the windows differ in excitation, so the ratio, not the difference, is alike
-    d = np.log(np.maximum(out[False][0], 1e-300) / np.maximum(out[True][0], 1e-300))  # > 0: robot frames fit better
+    d = np.log(np.maximum(per_world, 1e-300) / np.maximum(per_robot, 1e-300))  # > 0: robot frames fit better
     sd = float(d.std(ddof=1))
     tt = float(d.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if d.mean() > 0 else -math.inf)
     p = float(sst.t.sf(tt, m - 1))
-    return FrameCheck(float(out[False][0].sum()), float(out[True][0].sum()), tt, p, m, out[True][1], out[True][2],
-                      theta)
+    return FrameCheck(float(per_world.sum()), float(per_robot.sum()), tt, p, m, phi, phi_ci95, theta)
 
 
 def to_world(rec: Recording, theta: np.ndarray, phi: np.ndarray) -> Recording:

@@ -557,6 +557,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     for c in table:
         table[c]["accepted"] = c in named
     effects = []
+    retimed: dict[str, float] = {}  # the velocity floor re-read with the clock offsets named
     for c in named:
         val, ci = final.param(c)
         effects.append({"name": c, "value": _value(val, final.lay, c), "unit": EFFECTS[c][0],
@@ -566,11 +567,11 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             effects[-1]["agents"] = _agents_off(effects[-1]["value"], effects[-1]["ci95"], c)
             if c == "agent_clock_offset" and rec.vel is not None and math.isfinite(sv):
                 sv2 = noise_floor(_retimed(rec, np.asarray(effects[-1]["value"])))[0]
-                per_agent["velocity_retimed"] = sv2
+                retimed["velocity_retimed"] = sv2
                 warns.append(f"agent_clock_offset: the noise floor ({sv:.3g} m/s) is read from the agents' relative "
                              f"velocities at common stamps, where an agent's offset counts as noise; with each "
                              f"agent's velocities re-timed by its offset it reads {sv2:.3g} m/s, and the residual "
-                             f"is {math.sqrt(final.rss / final.N) * sv / sv2:.3g} x that")  # fmt: skip
+                             f"is {final.over_floor * sv / sv2:.3g} x that")  # fmt: skip
 
     def report(f: Fit, pw: float, modes: np.ndarray) -> ModelReport:
         say(f"held-out error of {list(f.lay.effects) or 'nominal'}: fitting the first {1 - opt.holdout:.0%}")
@@ -589,25 +590,24 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         zc = tuple(f.g[: 2 * rec.n].reshape(rec.n, 2).mean(axis=0).tolist()) if f.lay.rotation else (math.nan, math.nan)
         rep = ModelReport(f.lay.effects, mj["m"], mj["m_ci95"], mj["J"], mj["J_ci95"], zc,
                           next(iter(rms.values())), pw, held, f.bic, residual_rms_pos=rms.get("pos"),
-                          residual_over_floor=math.sqrt(f.rss / f.N), modes=modes)  # fmt: skip
+                          residual_over_floor=f.over_floor, modes=modes)  # fmt: skip
         if rec.truth:
             rep.m_rel_err = mj["m"] / rec.truth["m"] - 1
             rep.J_rel_err = mj["J"] / rec.truth["J"] - 1 if base.rotation else None
         return rep
 
-    floors = {k if k.endswith("retimed") else f"{k}_per_agent": v for k, v in per_agent.items()}
+    floors = {**{f"{k}_per_agent": v for k, v in per_agent.items()}, **retimed}
     # 1/m and 1/J are the fitted parameters: one not above its own 95 % half-width leaves m (J) unresolved
     # (a load that hardly moves under the applied force: friction holds it, or the push is too weak)
     resolved = {"m": False, "J": False}
     for name, on in (("m", True), ("J", base.rotation)):
         if not on:
             continue
-        idx = final.lay.ia if name == "m" else final.lay.ib
-        inv, half = float(final.g[idx]), Z95 * math.sqrt(max(float(final.cov[idx, idx]), 0.0))
+        inv, half = final.inverse(name)
         resolved[name] = inv > half
         if not resolved[name]:
             what = ("translation", "force", "kg") if name == "m" else ("rotation", "torque", "kg m^2")
-            over = math.sqrt(final.rss / final.N)  # the residual over the noise floor
+            over = final.over_floor
             why = (f"the {what[0]} hardly answers the applied {what[1]} (friction holding the load, or too weak a "
                    "push)") if over < 2.0 else f"the model does not fit these data (residual {over:.3g} x the floor)"
             warns.append(f"{name} not resolved: the fit's 1/{name} is {inv:.3g} +- {half:.2g} 1/{what[2]} (95 %), not "
