@@ -24,7 +24,7 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
-from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, OnlineDetection
+from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
 from agents.effect_decision import decode as decode_decision
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
@@ -133,6 +133,9 @@ class DynamicPhase:
         self.reseeds = 0  # restarts by the lock check
         self.kf_tick = -1  # tick of the last such restart: excitation before it is not in the weights
         self.shadow: RigidEKF | None = None  # the filter a restart on trial replaced (see _reseed)
+        # online detection with the slope a candidate: the filter that has carried the slope's rates from the m
+        # stage's start, handed over if the team switches the slope on (see _twin_decision)
+        self.twin: RigidEKF | None = None
         self.shadow_nis = 2.0
         self.trial_tick = -1
         self.lock_fails = 0  # restarts in a row that did no better than the filter they replaced
@@ -215,8 +218,12 @@ class DynamicPhase:
         return self.cc - cbar, self.cw - wbar
 
     # ------------------------------------------------------------------ helpers
+    def _filters(self) -> tuple[RigidEKF, ...]:
+        """The filters that see every step: the agent's, the one a restart on trial replaced, the slope's twin."""
+        return (self.kf, *(f for f in (self.shadow, self.twin) if f is not None))
+
     def _enter(self, stage: int, tick: int) -> None:
-        filters = (self.kf,) if self.shadow is None else (self.kf, self.shadow)  # a restart on trial: both
+        filters = self._filters()
         if stage >= M_EXCITE and self.spec.estimate_effects and not self.released:
             self.released = True  # the excitation starts (or we jumped past it): see release_effects
             for kf in filters:
@@ -229,8 +236,15 @@ class DynamicPhase:
             self.m_start = tick
             if self.detect is not None:
                 self.detect.push_reverses(tick + self.m_switch)
+                if self.kf.ready and self.twin is None and self.detect.undecided(SLOPE):
+                    # a slope switched on later restarts 1/m, which then rests on what is left of the stage; the
+                    # twin has estimated the slope beside 1/m from the stage's start, as a declared slope is
+                    self.twin = copy.copy(self.kf)  # its arrays are replaced on every step, never changed in place
+                    self.twin.release_effect(SLOPE)
         elif stage == J_EXCITE:
             self.j_start = tick
+        elif stage == DONE:
+            self.twin = None  # m and J are done
         self.barrier.reset()
         self.conv_since = -1
         for kf in filters:
@@ -316,6 +330,7 @@ class DynamicPhase:
         kf = self.kf
         self.shadow = copy.copy(kf)  # its arrays are replaced on every step, never changed in place
         self.shadow_nis = self.nis_avg
+        self.twin = None  # it shares the lost filter's lock: a slope switched later is released in the restart
         kf.start(v, q0, om0)
         if self.monitor is not None:
             self.monitor.reset()
@@ -328,6 +343,20 @@ class DynamicPhase:
         self.nis_avg = self.lock_thr
         self.trial_tick = tick
         self.lock_from = tick + self.lock_hold
+
+    def _twin_decision(self, dec: int) -> None:
+        """The slope's twin after the team's decision ``dec`` (-1: none; effect_decision's codes): the slope
+        switched on, the twin becomes the agent's filter; ruled out or decided, it is dropped; any other
+        effect's switch or withdrawal was applied to it too (docs/online-detection.md, "The slope's twin")."""
+        if self.twin is None:
+            return
+        if dec == SLOPE:
+            self.kf = self.twin
+            if self.monitor is not None:
+                self.monitor.reset()
+            self.detect.filter_replaced()
+        if not self.detect.undecided(SLOPE):
+            self.twin = None
 
     def _judge(self, tick: int) -> None:
         """End of a restart's trial (see :meth:`_reseed`)."""
@@ -397,8 +426,9 @@ class DynamicPhase:
     ) -> tuple[float, float, float]:
         self._advance_stage(tick, v, omega_hat, phi, zi, trusted, om_init)
         if self.detect is not None:
-            self.detect.step_filters(tick, self.avg.u, self.avg.x, (self.kf,) if self.shadow is None else
-                                     (self.kf, self.shadow))
+            self._twin_decision(self.detect.step_filters(
+                tick, self.avg.u, self.avg.x, (self.kf,) if self.shadow is None else (self.kf, self.shadow),
+                self.twin))
         stage = self.stage
         rot = self._body_frame(tick, phi)
         q, zc, held = self._filter_update(tick, v, u, u_den, omega_hat, zi, rot)
@@ -484,6 +514,8 @@ class DynamicPhase:
             if mon is not None:
                 vc0, om0, q0 = kf.vc, kf.omega, kf.q  # the prediction's: known before the innovation
             kf.update(v, u, u_var, u_dc, u_dw)
+            if self.twin is not None:
+                self.twin.update(v, u, u_var, u_dc, u_dw)
             if mon is not None:
                 e0, e1, s00, s01, s11 = kf.innov
                 mon.observe(complex(e0, e1), s00, s01, s11, vc0, om0, q0, self.last_f)
@@ -613,8 +645,9 @@ class DynamicPhase:
                 elif j_sign is not None:
                     ferr = -n * fbar
             kf.predict(n * fbar, torque, dt, ferr)
-            if self.shadow is not None:
-                self.shadow.predict(n * fbar, torque, dt, ferr)
+            for f in (self.shadow, self.twin):
+                if f is not None:
+                    f.predict(n * fbar, torque, dt, ferr)
             iota = kf.iota
             # only once 1/J is known to 10 % (or, with j_feedforward, through the whole J stage: its torque
             # is exact and 1/J keeps its pre-stage value when it is forgotten)

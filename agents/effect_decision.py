@@ -73,7 +73,13 @@ only on windows that start once the m stage's common force has first reversed
 takes up part of any constant force along the push, Coulomb friction's included; the window holding the first
 reversal still carries that transient (a Coulomb plant's slope beyond Coulomb friction's score reached 3.55
 there). A window that does not judge the slope still rules a candidate out (its score significantly negative),
-and structure the slope would explain is not counted ``unexplained``.
+and structure the slope would explain is not counted ``unexplained``. A constant force also keeps its
+direction from window to window (:func:`reversal_z`): the window just before, read along the force this
+window estimates, must not be significantly negative, or the slope is ruled out (before a switch) or
+withdrawn (after it, its rates' snapshots read so); without a judged window just before, a proposed slope
+waits a window. A slope switched on replaces each agent's filter by its twin, which has estimated the slope
+beside 1/m from the m stage's start (DynamicPhase): a filter that released it only at the switch would
+restart 1/m and rest on what is left of the stage.
 
 Pure: no clock, socket or RNG. See docs/online-detection.md.
 """
@@ -92,6 +98,7 @@ from agents.rigid_filter import EFFECT_PARAMS, EFFECTS, N_EFF, N_PAR, RigidEKF
 
 ALL = (1 << N_EFF) - 1  # every candidate's bit
 VECTOR = sum(1 << k for k, ps in enumerate(EFFECT_PARAMS) if len(ps) > 1)  # candidates without a sign (force_bias)
+SLOPE = EFFECTS.index("force_bias")  # the candidate a twin filter carries from the m stage's start (DynamicPhase)
 # the rates' pairs (p <= q) in the order of their information channels
 PAIRS = tuple((j, k) for j in range(N_PAR) for k in range(j, N_PAR))
 VCH = {p: N_PAR + i for i, p in enumerate(PAIRS)} | {(k, j): N_PAR + i for i, (j, k) in enumerate(PAIRS)}
@@ -195,6 +202,27 @@ def window_level(alpha: float, cands: int = N_EFF) -> float:
     """The one-sided level of every test of a window: ``alpha`` over (1 + the number of candidates ``cands``),
     the persistence test and each candidate's, whatever has been switched (module docstring)."""
     return alpha / (1 + cands)
+
+
+def reversal_z(prev: Sequence[float], means: Sequence[float], n: int, k: int) -> float:
+    """The previous judged window's statistic along the direction this window estimates for the vector
+    candidate k (a constant force): with a = V_kk^-1 S_k of this window's team means ``means`` (a score's
+    one-step estimate, or a switched rate's weighted mean), the previous window's ``prev`` read along a:
+    sqrt(n) a.S' / sqrt(a^T V' a), N(0, 1) where the previous window holds no force along a. A constant
+    force keeps its direction from window to window, so this is positive wherever the window's is
+    significant; below the level's lower quantile the force has turned round between the windows
+    (a periodic force, half a period per window). Either window may carry scores or a switched rate's
+    (P^-1 r, P^-1): the sign along a means the same in both. NaN where either window's information is
+    not positive definite."""
+    ps = list(EFFECT_PARAMS[k])
+    S, V = _gram(means)
+    Sp, Vp = _gram(prev)
+    vkk = V[np.ix_(ps, ps)]
+    if not np.linalg.eigvalsh(vkk)[0] > 0.0 or not np.linalg.eigvalsh(Vp[np.ix_(ps, ps)])[0] > 0.0:
+        return math.nan
+    a = np.linalg.solve(vkk, S[ps])
+    den = float(a @ Vp[np.ix_(ps, ps)] @ a)
+    return math.sqrt(n) * float(a @ Sp[ps]) / math.sqrt(den) if den > 0.0 else math.nan
 
 
 def contradicted_by(means: Sequence[float], n: int, k: int, scored: int, alpha: float,
@@ -397,7 +425,7 @@ class OnlineDetection:
 
     __slots__ = ("window", "horizon", "alpha", "n", "ch0", "ev", "flood", "on", "switched", "withdrawn",
                  "last_tick", "last_z", "unexplained", "zp", "zs", "settle_from", "score_from", "late",
-                 "mixed", "cand", "ncand", "vector_from")
+                 "mixed", "cand", "ncand", "vector_from", "prev")
 
     def __init__(self, n: int, window: int, lags: int, alpha: float, horizon: int, ch0: int, on: int = 0,
                  cand: int = ALL) -> None:
@@ -425,6 +453,7 @@ class OnlineDetection:
         self.late = 0
         self.mixed = False  # the window being filled spans a change of regime (see regime_change)
         self.vector_from = 0  # windows starting before this tick do not judge the slope (see push_reverses)
+        self.prev: tuple[int, list[float]] | None = None  # the last judged window holding a vector's data: tick, means
 
     def push_reverses(self, tick: int) -> None:
         """The m stage started and its common force first reverses at ``tick``: the slope is judged only on
@@ -485,6 +514,9 @@ class OnlineDetection:
             scores = (tick + 1 - 2 * w) >= self.score_from  # the window started after the last switch settled
             if scores or (held and (tick + 1 - w) >= self.settle_from):  # ... or at least its close did
                 zp, zs, zv = pooled(x[c:c + N_POOL], self.n, held, self.on | self.withdrawn)
+                prev = self.prev[1] if self.prev is not None and self.prev[0] == tick - w else None
+                if any(z == z for k, z in enumerate(zs) if (VECTOR >> k) & 1):
+                    self.prev = (tick, list(x[c:c + N_POOL]))
                 if scores:
                     self.zp, self.zs = zp, zs
                 else:  # only the switched rates are judged
@@ -507,6 +539,7 @@ class OnlineDetection:
                     zc, j = contradicted_by(x[c:c + N_POOL], self.n, k, ALL & ~self.on, self.alpha, cands=self.ncand)
                     if j >= 0:
                         k, z = N_EFF + k, zc
+                k, z = self._turned(k, z, prev, x[c:c + N_POOL], held)
                 if k >= 0:
                     self.flood.merge((tick + self.horizon, k, z))
                 # a withdrawal's window is counted where it is applied: by every agent, whatever its own view
@@ -540,6 +573,24 @@ class OnlineDetection:
         self.score_from = due[0] + (3 * w if due[1] < N_EFF else w)
         return due[1]
 
+    def _turned(self, k: int, z: float, prev: Sequence[float] | None, means: Sequence[float],
+                held: int) -> tuple[int, float]:
+        """The window's decision (k, z) with the vector candidates' check across windows: a constant force
+        keeps its direction, so the window just before, ``prev`` (None if it was not judged), read along the
+        direction this window estimates (:func:`reversal_z`) must not be significantly negative. A switched
+        slope that turned round is withdrawn; a proposed one is ruled out instead, and without the window
+        before to check it waits for the next (docs/online-detection.md, "The slope holds its direction")."""
+        level = window_level(self.alpha, self.ncand)
+        for j in range(N_EFF):
+            if not ((VECTOR & self.cand) >> j) & 1 or not ((held >> j) & 1 or k == j):
+                continue
+            zr = reversal_z(prev, means, self.n, j) if prev is not None else math.nan
+            if normal_sf(-zr) < level and (k < N_EFF or zr < z):
+                k, z = N_EFF + j, zr
+            elif k == j and zr != zr:
+                k, z = -1, math.nan
+        return k, z
+
     def _offer_rate(self, u: list[float], k: int, rate: tuple | None) -> None:
         """A switched effect's rates r and their covariance P (the filter's, a snapshot) on its rates' pool
         channels as (P^-1 r, P^-1); zeros (it weighs nothing) when there is none or P is not positive definite."""
@@ -565,25 +616,37 @@ class OnlineDetection:
         neg = [(z, j) for j, z in enumerate(zs) if not (skip >> j) & 1 and z == z and normal_sf(-z) < level]
         return min(neg)[1] if neg else -1
 
-    def step_filters(self, tick: int, u: list[float], x: Sequence[float], filters: Sequence[RigidEKF]) -> None:
+    def step_filters(self, tick: int, u: list[float], x: Sequence[float], filters: Sequence[RigidEKF],
+                     twin: RigidEKF | None = None) -> int:
         """:meth:`begin_tick` with the first filter's rates; the decision due is applied to every filter given
         (the agent's, and the one a restart on trial replaced): the effect's rate moves from here on, or is
-        pinned again."""
+        pinned again. ``twin``: a filter that has carried the slope's rates free from the m stage's start; any
+        other decision is applied to it too. Returns the decision (-1: none)."""
         kf = filters[0]
         rates = ([kf.rate(k) for k in range(N_EFF)] if kf.ready and kf.aug is not None and tick % self.window == 0
                  else None)
         dec = self.begin_tick(tick, u, x, rates)
-        for f in filters if dec >= 0 else ():
+        for f in (*filters, *(() if twin is None or dec == SLOPE else (twin,))) if dec >= 0 else ():
             if dec < N_EFF:
                 f.release_effect(dec)
             else:
                 f.withdraw_effect(dec - N_EFF)
+        return dec
+
+    def undecided(self, k: int) -> bool:
+        """Is effect k a candidate the team has neither switched on nor ruled out (nor declared)?"""
+        return bool((self.cand >> k) & 1) and not ((self.on | self.withdrawn) >> k) & 1
+
+    def filter_replaced(self) -> None:
+        """The agent's filter was replaced by another that has run beside it: no lag products across the two,
+        the window not offered."""
+        self.ev.restart()
+        self.regime_change()
 
     def restart_filter(self, kf: RigidEKF) -> None:
         """The agent's filter restarted (the lock check): no lag products across it, the window not offered,
         and the effects the team switched on released in it again."""
-        self.ev.restart()
-        self.regime_change()
+        self.filter_replaced()
         for k in range(N_EFF):
             if (self.switched >> k) & 1:
                 kf.release_effect(k)

@@ -313,16 +313,17 @@ class DynamicsSpec(_Strict):
                            "docs/online-detection.md): every filter carries beta = b/m, gamma = c/J, kappa = F_c/m "
                            "(and a slope's a = f/m) pinned at 0, the agents pool the score of each over windows of "
                            "monitor_window_s by consensus and switch on, on an agreed tick, the one significant "
-                           "at monitor_alpha / 4 (one-sided; / 5 with online_force_bias) whose own score is the "
+                           "at monitor_alpha / 5 (one-sided; / 4 without online_force_bias) whose own score is the "
                            "largest; false: only estimate_effects, decided beforehand",
     )
     online_force_bias: bool = Field(
-        False, description="online detection: a constant external force (force_bias, a slope) is a candidate too "
-                           "(level monitor_alpha / 5; judged on windows that start after the m stage's push first "
-                           "reverses; beside a significant scalar candidate it needs its score beyond that one's "
-                           "significant too); off by default: a periodic force with 20 % loss and 100 ms delay had "
-                           "it switched on in the J stage, where a 5 s window holds half a period, and a slope "
-                           "switched 10 s into the m stage leaves m 1.2-1.7 % off (docs/online-detection.md)",
+        True, description="online detection: a constant external force (force_bias, a slope) is a candidate too "
+                          "(level monitor_alpha / 5; judged on windows that start after the m stage's push first "
+                          "reverses; beside a significant scalar candidate it needs its score beyond that one's "
+                          "significant too; ruled out or withdrawn where the window before read along its force "
+                          "is significantly negative); every agent runs a twin filter with the slope free from the "
+                          "m stage's start, its filter if the slope is switched on (docs/online-detection.md); "
+                          "false: the three scalar candidates at monitor_alpha / 4, no twin",
     )
     effect_walk: float = Field(
         3e-3, ge=0, description="Kalman filter: random walk of the estimated effects' rates b/m, c/J "

@@ -24,6 +24,7 @@ from agents.effect_decision import (
     judge,
     normal_sf,
     pooled,
+    reversal_z,
 )
 from agents.rigid_filter import EFFECT_PARAMS
 
@@ -227,10 +228,11 @@ def _team_means(s: dict[int, float], v: dict[tuple[int, int], float], zp_sum: fl
     return x
 
 
-def _decisions(d: OnlineDetection, means: list[float], ticks: range) -> list[tuple[int, int]]:
+def _decisions(d: OnlineDetection, means, ticks: range) -> list[tuple[int, int]]:
+    """The decisions applied over ``ticks``; ``means``: the team means, or a function of the tick giving them."""
     out = []
     for tick in ticks:
-        k = d.begin_tick(tick, [0.0] * N_POOL, means, [(0.0, 0.0)] * N_EFF)
+        k = d.begin_tick(tick, [0.0] * N_POOL, means(tick) if callable(means) else means, [(0.0, 0.0)] * N_EFF)
         if k >= 0:
             out.append((tick, k))
     return out
@@ -243,14 +245,15 @@ def test_the_slope_is_judged_only_on_windows_after_the_push_first_reverses():
     """A slope significant in every window: with the push's first reversal at 3W, the windows starting at 0,
     W and 2W do not judge it (until the push reverses, 1/m F and a constant force along the push are one
     signature) and the first starting at 3W switches it, judged at that window's successor's last tick; without
-    a reversal announced the first window does. The windows that wait are structured (persistence z 7) but not
-    ``unexplained``: the slope not yet judged explains them."""
+    a reversal announced the second window does (the first has no window before it to check the force's
+    direction against). The windows that wait are structured (persistence z 7) but not ``unexplained``: the
+    slope not yet judged explains them."""
     ax, ay = EFFECT_PARAMS[SLOPE]
     means = _team_means({ax: 4.0, ay: 1.0}, {}, zp_sum=5.0)
     d = OnlineDetection(2, W, LAGS, 0.01, H, 0)
     d.push_reverses(3 * W)
     assert _decisions(d, means, range(6 * W)) == [(5 * W - 1 + H, SLOPE)] and d.unexplained == 0
-    assert _decisions(OnlineDetection(2, W, LAGS, 0.01, H, 0), means, range(6 * W)) == [(2 * W - 1 + H, SLOPE)]
+    assert _decisions(OnlineDetection(2, W, LAGS, 0.01, H, 0), means, range(6 * W)) == [(3 * W - 1 + H, SLOPE)]
 
 
 def test_a_window_that_does_not_judge_the_slope_still_rules_out():
@@ -265,3 +268,42 @@ def test_a_window_that_does_not_judge_the_slope_still_rules_out():
     d.push_reverses(W)
     assert _decisions(d, means, range(4 * W)) == [(3 * W - 1 + H, SLOPE)]
     assert d.withdrawn == 1 << COUL and d.unexplained == 1 and d.on == 1 << SLOPE
+
+
+def test_reversal_z_reads_the_window_before_along_this_windows_force():
+    """The same force in both windows: the window before's own z along it; the force turned round: minus
+    that; turned a right angle: 0; NaN without information."""
+    ax, ay = EFFECT_PARAMS[SLOPE]
+    now = _team_means({ax: 3.0, ay: 4.0}, {})
+    assert reversal_z(now, now, 4, SLOPE) == pytest.approx(2.0 * 5.0)
+    assert reversal_z(_team_means({ax: -3.0, ay: -4.0}, {}), now, 4, SLOPE) == pytest.approx(-10.0)
+    assert reversal_z(_team_means({ax: -4.0, ay: 3.0}, {}), now, 4, SLOPE) == pytest.approx(0.0, abs=1e-12)
+    assert math.isnan(reversal_z([0.0] * N_POOL, now, 4, SLOPE))
+
+
+def test_a_force_that_turns_round_from_window_to_window_is_ruled_out():
+    """A force significant in every window whose direction turns round each window (a periodic force, half a
+    period per window): the first window waits (nothing before it), the second rules the slope out (the
+    window before, read along this window's force, z -4.1), and nothing is switched on."""
+    ax, ay = EFFECT_PARAMS[SLOPE]
+    plus, minus = _team_means({ax: 4.0, ay: 1.0}, {}), _team_means({ax: -4.0, ay: -1.0}, {})
+    d = OnlineDetection(2, W, LAGS, 0.01, H, 0)
+    assert _decisions(d, lambda t: plus if (t // W) % 2 else minus, range(8 * W)) == []  # no switch
+    assert d.on == 0 and d.withdrawn == 1 << SLOPE and d.unexplained == 1
+    assert d.last_tick == 3 * W - 1 + H and d.last_z == pytest.approx(-math.sqrt(2.0 * 17.0))
+
+
+def test_a_switched_slope_that_turns_round_is_withdrawn():
+    """A slope switched on a force that held its direction for two windows; the filters' rates (P^-1 r,
+    P^-1 on the same channels) then turn round window by window, each far from 0 (their Wald chi2 alone would
+    keep it): the first window judged after the switch has settled whose window before was judged too
+    withdraws it."""
+    ax, ay = EFFECT_PARAMS[SLOPE]
+    plus, minus = _team_means({ax: 4.0, ay: 1.0}, {}), _team_means({ax: -4.0, ay: -1.0}, {})
+    switch = 3 * W - 1 + H
+    d = OnlineDetection(2, W, LAGS, 0.01, H, 0)
+    got = _decisions(d, lambda t: plus if t < switch + W or (t // W) % 2 else minus, range(10 * W))
+    # the rates are judged on the windows closed a window after the switch (at the ticks 6W-1, 7W-1, ...); the
+    # first of them has no judged window just before it (5W-1 judged nothing), the second turns round
+    assert got == [(switch, SLOPE), (7 * W - 1 + H, N_EFF + SLOPE)]
+    assert d.on == 0 and d.switched == 0 and d.withdrawn == 1 << SLOPE
