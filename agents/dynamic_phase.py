@@ -241,10 +241,10 @@ class DynamicPhase:
                     # twin has estimated the slope beside 1/m from the stage's start, as a declared slope is
                     self.twin = copy.copy(self.kf)  # its arrays are replaced on every step, never changed in place
                     self.twin.release_effect(SLOPE)
+                    self.twin.sens = None  # the scores are the agent's filter's; the twin's start at the handover
         elif stage == J_EXCITE:
             self.j_start = tick
-        elif stage == DONE:
-            self.twin = None  # m and J are done
+            self.twin = None  # m is averaged: a slope switched from here on changes neither m nor f's average
         self.barrier.reset()
         self.conv_since = -1
         for kf in filters:
@@ -346,11 +346,14 @@ class DynamicPhase:
 
     def _twin_decision(self, dec: int) -> None:
         """The slope's twin after the team's decision ``dec`` (-1: none; effect_decision's codes): the slope
-        switched on, the twin becomes the agent's filter; ruled out or decided, it is dropped; any other
-        effect's switch or withdrawal was applied to it too (docs/online-detection.md, "The slope's twin")."""
+        switched on, the twin becomes the agent's filter, its sensitivities to the candidates' rates starting
+        from zero as at a filter's start; ruled out or decided, it is dropped; any other effect's switch or
+        withdrawal was applied to it too (docs/online-detection.md, "The slope's twin")."""
         if self.twin is None:
             return
         if dec == SLOPE:
+            if self.kf.sens is not None:  # from zero, as at a filter's start
+                self.twin.sens = np.zeros_like(self.kf.sens)
             self.kf = self.twin
             if self.monitor is not None:
                 self.monitor.reset()
