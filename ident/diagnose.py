@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ident.change import diagnose_sides
+from ident.change import diagnose_sides, drift_hint
 from ident.fit import states_of, window_valid
 from ident.frames import frame_check, to_world
 from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
@@ -104,6 +104,13 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                       "angle (value, deg)")
     result.change = diagnose_sides(rec, result, options, progress)
     ch = result.change
+    if ch and not ch["found"] and "before" in ch:
+        sides = "; ".join(f"{k} p {ch[k]['whiteness_p']:.2g}" for k in ("before", "after") if "whiteness_p" in ch[k])
+        result.warnings.append(f"a change of the load between {ch['window'][0]:.4g} and {ch['window'][1]:.4g} s was "
+                               f"tried and not kept: the sides' residuals stay structured ({sides})")
+        hint = drift_hint(ch.get("m_per_part", []))
+        if hint:
+            result.warnings.append(hint)
     if ch and ch["found"]:
         if result.effects:
             # named on a structured residual (the 90 % rule, or a random force's walk) by one model over a
