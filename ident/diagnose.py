@@ -20,6 +20,7 @@ from ident.fit import states_of, window_valid
 from ident.frames import frame_check, to_world
 from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
+from ident.saturation import saturated, saturation_warning
 from ident.recording import read_recording as _read
 from ident.report import (
     Diagnosis,
@@ -33,7 +34,8 @@ from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
 
 CANDIDATES: dict[str, tuple[int, str, str]] = {
-    name: (2 if name in VECTOR_EFFECTS else -1 if name in PER_AGENT else 1, unit, sig)
+    name: (2 if name in VECTOR_EFFECTS else 3 if name == "sensor_offset_body" else -1 if name in PER_AGENT else 1, unit,
+           sig)
     for name, (unit, sig) in EFFECTS.items()
 }
 """name -> (number of parameters on a planar load, -1 for n - 1: one per agent but the reference; unit, the
@@ -88,6 +90,9 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                        "run.toml if the wrench is smooth and the delay is real")
                 result = alt
     result.model["hold_source"] = rec.hold_source
+    result.saturation = saturated(raw)
+    if result.saturation:
+        result.warnings.insert(0, saturation_warning(result.saturation))
     if frames is not None:
         result.frames = frames
         if frames["robot_frame"]:

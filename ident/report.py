@@ -77,6 +77,7 @@ class Diagnosis:
     frames: dict[str, Any] | None = None  # ident/frames.py: the robot-frame check
     change: dict[str, Any] | None = None  # ident/change.py: a change of the load, and each side's diagnosis
     random_force: dict[str, Any] | None = None  # ident/random_force.py: the residual's walk, in N and N m
+    saturation: list[dict[str, Any]] = field(default_factory=list)  # ident/saturation.py: forces at a limit
     fits: dict[str, Any] = field(default_factory=dict, repr=False)
     problem: Any = field(default=None, repr=False)
 
@@ -107,6 +108,7 @@ class Diagnosis:
         if self.validation is not None:
             out["validation"] = self.validation
         out["change"] = _jsonable(self.change)
+        out["saturation"] = _jsonable(self.saturation)
         out["frames"] = _jsonable(self.frames)
         return out
 
