@@ -17,7 +17,7 @@ import numpy as np
 
 from ident.change import diagnose_sides, drift_hint
 from ident.fit import states_of, window_valid
-from ident.frames import frame_check, to_world
+from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
 from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
 from ident.saturation import saturated, saturation_warning
@@ -66,6 +66,8 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        rec, vframes = _robot_velocity_frames(rec, options or DiagnoseOptions(), progress)
+        raw = rec  # the forces' check turns from the velocities in the world frame
         rec, frames = _robot_frames(rec, options or DiagnoseOptions(), progress)
         result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
         if frames is not None and frames["robot_frame"]:
@@ -93,6 +95,20 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
     result.saturation = saturated(raw)
     if result.saturation:
         result.warnings.insert(0, saturation_warning(result.saturation))
+    if vframes is not None:
+        result.velocity_frames = vframes
+        if vframes["robot_frame"]:
+            n = len(vframes["phi_deg"])
+            result.effects.insert(0, {"name": "robot_frame_velocities", "value": vframes["phi_deg"], "unit": "deg",
+                                      "ci95": [None] * n, "agents": list(range(n)), "reference": None,
+                                      "frame": "relative to agent 0's", "kind": "logger"})  # fmt: skip
+            result.warnings.insert(0, "robot_frame_velocities: the velocities are logged in each robot's own frame, "
+                                      "turning with the load (the rigid body's kinematics fit "
+                                      f"{vframes['rss_world'] / vframes['rss_robot']:.3g} x better in them; t "
+                                      f"{vframes['t']:.3g} over {vframes['windows']} windows, p {vframes['p']:.2g}): "
+                                      "turned to the world frame before the fit, each by the load's angle from "
+                                      "their own kinematics plus its mounting angle relative to agent 0 (value, "
+                                      "deg), and the team by the angle the forces' direction gives")  # fmt: skip
     if frames is not None:
         result.frames = frames
         if frames["robot_frame"]:
@@ -178,6 +194,25 @@ def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) ->
         progress(f"forces logged in the robots' own frames (equation error {fc.rss_world / fc.rss_robot:.3g} x lower "
                  f"turned with the load, p {fc.p:.2g}): turned to the world frame")
     return to_world(rec, fc.theta, fc.phi), out
+
+
+def _robot_velocity_frames(rec: Recording, opt: DiagnoseOptions, progress) -> tuple[Recording, dict | None]:
+    """The velocities' frame check (:func:`ident.frames.velocity_frame_check`) at the selection's family-wise
+    level; the recording with its velocities turned to the world frame when they are in the robots' frames."""
+    dtm = float(np.median(np.diff(rec.t)))
+    vc = velocity_frame_check(rec, min(FRAME_WINDOW_S, opt.fit.window_stamps * dtm), opt.alpha)
+    if vc is None:
+        return rec, None
+    found = bool(vc.p < opt.alpha)
+    out = {"robot_frame": found, "rss_world": vc.rss_world, "rss_robot": vc.rss_robot, "t": vc.t, "p": vc.p,
+           "windows": vc.windows, "phi_deg": np.degrees(vc.phi).tolist(), "alpha_deg": float(np.degrees(vc.alpha))}
+    # (alpha is NaN where the check does not pass: the angles are read only then)
+    if not found:
+        return rec, out
+    if progress is not None:
+        progress(f"velocities logged in the robots' own frames (kinematics {vc.rss_world / vc.rss_robot:.3g} x better "
+                 f"in them, p {vc.p:.2g}): turned to the world frame")
+    return velocities_to_world(rec, vc), out
 
 
 def sample_period(rec: Recording) -> float:

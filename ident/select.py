@@ -528,6 +528,16 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 accepted.remove(c)
                 table[c]["dropped"] = "stood in for the Coulomb term's smoothing"
                 current = without
+    for c in list(accepted) if len(accepted) > 1 else []:
+        # forward selection adds one effect at a time: one that stood in for part of a later one (a force bias
+        # for the force of a sensor offset named after it) no longer adds to the rest
+        lay = current.lay.with_effects(tuple(e for e in current.lay.effects if e != c))
+        without = lm_fit(pb, lay, _drop(current.g, current.lay, c), current.x)
+        if stats.nested_f(without.rss, current.rss, current.lay.G - lay.G, current.N, current.P)[1] >= opt.alpha:
+            say(f"{c}: adds nothing beside {', '.join(e for e in accepted if e != c)}: dropped")
+            accepted.remove(c)
+            table[c]["dropped"] = "adds nothing beside the effects named after it"
+            current = without
     for c in _unresolved_effects(current, accepted):
         # the effect acts through a 1/m (1/J) the data do not resolve from zero: they see only its product
         # with 1/m, so its value is not determined and it is not named (it stays in the candidates' table)
