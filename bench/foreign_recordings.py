@@ -4,8 +4,9 @@ The plant here is written for this bench and shares no code with ident/, simulat
 a planar rigid body integrated by scipy (``solve_ivp``, rtol 1e-10), n agents at random contacts pushing
 with sums of sines, the wrench either smooth or held by a controller at its own rate; viscous friction,
 Coulomb friction smoothed as v / sqrt(|v|^2 + v_s^2), rotational damping, a sensor delay, sensor glitches
-(a share of samples off by many sigma); velocities or positions logged; the wrench in rows of its own at
-another rate; an agent's logger that drops out; run.toml says n, edges and dt and
+(a share of samples off by many sigma); velocities or positions logged (velocities in each robot's own
+frame: odometry); the wrench in rows of its own at another rate; an agent's logger that drops out; the same
+offset on every force sensor (world or robot frame); a logged force clipped at a limit; a mass that drifts; run.toml says n, edges and dt and
 nothing about how the wrench varies. Each case is diagnosed through the public CLI and judged against the
 plant's truth (docs/diagnose.md, "Measured: recordings as other loggers write them"):
 
@@ -187,7 +188,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
 def _named(k: str, e: dict) -> str:
     """An effect as named: a scalar +- its ci95, or a per-agent effect's agents off the reference."""
     if e.get("agents") is not None:
-        return f"{k} " + ", ".join(f"agent {i}: {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"])
+        return f"{k} " + ", ".join(f"agent {i}: {e['value'][i]:.4g}"
+                                   + ("" if e["ci95"][i] is None else f" +- {e['ci95'][i]:.2g}") for i in e["agents"])
     if e["value"] is None:
         return k
     if isinstance(e["value"], list):  # a vector effect: (x, y)

@@ -4,8 +4,9 @@
 A continuous force meets any one value at one instant, held at most over one run of equal samples (a
 controller slower than the logger repeats each value a few rows in a row). A force that saturates meets its
 limit at every excursion beyond it: the extreme value recurs in many separate runs, which no other value
-does. A quantised log repeats values across runs too, so the extreme must recur in more runs than any
-value between the two extremes. A force of exactly 0 is an idle actuator, not a limit, and is not counted.
+does. A force of a few levels (a switching law) or a quantised log repeats its values across runs: a limit
+is looked for only where most runs between the extremes hold a value of their own, and the extreme must
+recur in more runs than any value between. A force of exactly 0 is an idle actuator, not a limit.
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ def saturated(rec: Recording) -> list[dict]:
             uniq, runs = np.unique(vals, return_counts=True)
             ends = (uniq == x.max()) | (uniq == x.min())  # a force clipped both ways has two limits
             others = runs[~ends]
+            if others.sum() == 0 or uniq.size - ends.sum() < 0.5 * others.sum():
+                continue  # a force of a few levels (a switching law, a quantised log): no continuum to clip
             for ext in sorted({float(x.max()), float(x.min())}):
                 if ext == 0.0:
                     continue

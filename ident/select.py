@@ -487,7 +487,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         best = primary[0]
         fb_ = trials[best][0]
         for c2 in [c for c in eligible if c != best]:
-            if trials[c2][0].bic - fb_.bic >= opt.ambiguous_bic:
+            if c2 == best or c2 not in remaining or trials[c2][0].bic - fb_.bic >= opt.ambiguous_bic:
                 continue
             lay2 = fb_.lay.with_effects(fb_.lay.effects + (c2,))
             say(f"telling {best} from {c2}: joint fit")
@@ -495,6 +495,18 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             q = lay2.G - fb_.lay.G
             p1 = stats.nested_f(fb_.rss, joint.rss, q, joint.N, joint.P)[1]
             p2 = stats.nested_f(trials[c2][0].rss, joint.rss, lay2.G - trials[c2][0].lay.G, joint.N, joint.P)[1]
+            if (p1 >= alpha_k or p2 >= alpha_k) and {best, c2} == set(SAME_FORCE):
+                # a common sensor offset is a force bias plus its torque about the contacts' centroid: where the
+                # data do not resolve that torque (the centroid near the centre of mass) they see the force alone
+                warns.append(f"force_bias and force_sensor_offset: the data do not resolve the offset's torque about "
+                             f"the contacts' centroid (BIC within {abs(trials[c2][0].bic - fb_.bic):.1f}): named "
+                             "force_bias, the force they see (a common sensor offset reads -1/n of it per robot)")
+                if best == "force_sensor_offset":
+                    best, fb_ = c2, trials[c2][0]
+                    remaining.remove("force_sensor_offset")
+                else:
+                    remaining.remove(c2)
+                continue
             if p1 >= alpha_k or p2 >= alpha_k:
                 ambiguous.append([best, c2])
                 warns.append(f"{best} and {c2}: the data cannot separate them (BIC within "
@@ -657,6 +669,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     )  # fmt: skip
 
 
+SAME_FORCE = ("force_bias", "force_sensor_offset")
 TRANSLATION = ("viscous_friction", "coulomb_friction", "force_bias", "force_sensor_offset", "sensor_offset_body")
 ROTATION = ("rotational_damping", "torque_bias")
 

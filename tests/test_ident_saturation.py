@@ -3,7 +3,10 @@ flagged; a held or smooth wrench is not. Recordings from bench/foreign_recording
 
 from __future__ import annotations
 
+import numpy as np
+
 from ident.diagnose import read_recording
+from ident.recording import recording_from_arrays
 from ident.saturation import saturated, saturation_warning
 from tests.foreign_plant import plant
 
@@ -25,3 +28,14 @@ def test_held_and_smooth_wrenches_are_not_flagged(tmp_path):
     for k, kw in enumerate(({"hold_hz": 25.0}, {}, {"hold_hz": 20.0, "rate": 20.0})):
         plant.record(tmp_path / str(k), n=4, dur=10.0, **kw)
         assert saturated(read_recording(tmp_path / str(k))) == []
+
+
+def test_a_switching_force_of_two_levels_is_not_a_limit():
+    """coload's own control law pushes at +-a (every row at one of the two extremes): no continuum to clip.
+    Before this rule tests/test_diagnose.py's recordings read '100 % of its rows' saturated."""
+    t = np.arange(0, 10, 0.01)
+    w = np.zeros((t.size, 2, 3))
+    w[:, :, 0] = np.where(np.sin(1.3 * t) > 0, 2.6, -2.6)[:, None]
+    w[:, :, 1] = np.where(np.sin(0.7 * t + 1) > 0, 1.4, -1.4)[:, None]
+    rec = recording_from_arrays(t, w, vel=np.zeros((t.size, 2, 2)))
+    assert saturated(rec) == []
