@@ -4,8 +4,9 @@ The plant here is written for this bench and shares no code with ident/, simulat
 a planar rigid body integrated by scipy (``solve_ivp``, rtol 1e-10), n agents at random contacts pushing
 with sums of sines, the wrench either smooth or held by a controller at its own rate; viscous friction,
 Coulomb friction smoothed as v / sqrt(|v|^2 + v_s^2), rotational damping, a sensor delay, sensor glitches
-(a share of samples off by many sigma); velocities or positions logged; the wrench in rows of its own at
-another rate; an agent's logger that drops out; run.toml says n, edges and dt and
+(a share of samples off by many sigma); velocities or positions logged (velocities in each robot's own
+frame: odometry); the wrench in rows of its own at another rate; an agent's logger that drops out; the same
+offset on every force sensor (world or robot frame); a logged force clipped at a limit; a mass that drifts; run.toml says n, edges and dt and
 nothing about how the wrench varies. Each case is diagnosed through the public CLI and judged against the
 plant's truth (docs/diagnose.md, "Measured: recordings as other loggers write them"):
 
@@ -52,6 +53,12 @@ CASES: dict[str, dict] = {
     "one_clock_50ms": {"b": 8.0, "clock": (1, 0.05)},
     "robot_frame_forces": {"b": 8.0, "robot_frame": True},
     "spin_10rad_s": {"b": 8.0, "spin": 10.0},
+    "sensor_offset": {"soffset": (0.4, -0.3)},
+    "sensor_offset_viscous": {"b": 8.0, "soffset": (0.4, -0.3)},
+    "clipped_forces": {"b": 8.0, "fclip": 10.0},
+    "sensor_offset_robot_frames": {"b": 8.0, "soffset": (0.4, -0.3), "soffset_robot": True},
+    "mass_drift": {"drift": 0.8},
+    "robot_frame_velocities": {"b": 8.0, "vel_robot": True},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -61,7 +68,10 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            hold_hz: float | None = None, glitches: float = 0.0, pos: float = 0.0, wrench_hz: float | None = None,
            dropout: tuple[int, float, float] | None = None, change: tuple[float, float] | None = None,
            fnoise: float = 0.0, vbias: tuple[float, float] = (0.0, 0.0), gain: tuple[int, float] | None = None,
-           clock: tuple[int, float] | None = None, robot_frame: bool = False, spin: float = 0.0) -> dict:  # fmt: skip
+           clock: tuple[int, float] | None = None, robot_frame: bool = False, spin: float = 0.0,
+           soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
+           vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
+           vel_robot: bool = False) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -71,7 +81,13 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     logger stamps its rows s late (the row at stamp t holds what happened at t - s); ``robot_frame``: each
     robot logs its force in its own frame, fixed to the load and facing the load's centre (logged
     f_i = R(theta + phi_i)^T f_i, phi_i the contact's polar angle + pi); ``spin``: the load's rate (rad/s) at
-    the start of the integration, 1 s before the recording."""
+    the start of the integration, 1 s before the recording; ``soffset``: every agent's force sensor reads this
+    much more (N, world frame, or with ``soffset_robot`` each robot's own frame as ``robot_frame`` has it;
+    the plant gets the true force); ``drift``: m and J change linearly from their values at t = 0 to ``drift``
+    times them at the recording's end; ``vel_robot``: each robot logs its velocity in its own frame (as
+    ``robot_frame`` the force: wheel odometry); ``fclip``: the logged force saturates at
+    +-fclip per axis (the plant gets the true force); ``fs``: static friction (Stribeck: the Coulomb level rises
+    from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
@@ -80,7 +96,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     rad = rng.uniform(0.4, 1.0, n)
     r = np.c_[rad * np.cos(ang), rad * np.sin(ang)]
     freq = rng.uniform(0.15, 1.5, (n, 2, 3))
-    amp = rng.uniform(2, 8, (n, 2, 3)) * m / 40
+    amp = rng.uniform(2, 8, (n, 2, 3)) * m / 40 * famp
     ph = rng.uniform(0, 2 * np.pi, (n, 2, 3))
 
     kg = np.ones((n, 1))
@@ -106,7 +122,10 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         torque = float((rw[:, 0] * f[:, 1] - rw[:, 1] * f[:, 0]).sum())
         v = np.array([vx, vy])
         k = change[1] if change and t >= change[0] else 1.0
-        acc = (f.sum(0) - b * v - fc * v / np.sqrt(v @ v + vs * vs)) / (k * m)
+        if drift:
+            k = 1.0 + (drift - 1.0) * min(max(t, 0.0), dur) / dur
+        fric = fc + (fs - fc) * np.exp(-(v @ v) / vst**2) if fs else fc
+        acc = (f.sum(0) - b * v - fric * v / np.sqrt(v @ v + vs * vs)) / (k * m)
         return [vx, vy, om, acc[0], acc[1], (torque - c * om) / (k * J)]
 
     t = np.arange(0, dur, 1 / rate)
@@ -130,7 +149,18 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                 y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sig[i], 2) + vbias
                 if glitches and rng.random() < glitches:
                     y += rng.normal(0, 20 * sig[i], 2)
+                if vel_robot:
+                    thf = th + phi[i]
+                    y = np.array([np.cos(thf) * y[0] + np.sin(thf) * y[1], -np.sin(thf) * y[0] + np.cos(thf) * y[1]])
             fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0)
+            if soffset and soffset_robot:  # the offset in the robot's frame, turning with the load
+                thf = sol.sol(tk)[2] + phi[i]
+                fl = fl + [np.cos(thf) * soffset[0] - np.sin(thf) * soffset[1],
+                           np.sin(thf) * soffset[0] + np.cos(thf) * soffset[1]]
+            elif soffset:
+                fl = fl + soffset
+            if fclip:
+                fl = np.clip(fl, -fclip, fclip)
             w = ",," if wrench_hz else f"{fl[0]:.9g},{fl[1]:.9g},0"
             rows.append((tk, i, f"{tk:.6f},{i},{y[0]:.9g},{y[1]:.9g},{w}"))
     for tk in np.arange(0, dur, 1 / wrench_hz) if wrench_hz else ():
@@ -145,21 +175,31 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     (out / "run.toml").write_text(f"n = {n}\nedges = {json.dumps(edges)}\ndt = {1 / rate}\n")
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay,
                "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
-               "robot_frame_forces": robot_frame}
-    return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change,
+               "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot, "force_sensor_offset": soffset and not soffset_robot and list(soffset)}
+    if soffset and soffset_robot:  # the team's offset: a force fixed in the load's frame and a constant torque
+        turned = [np.array([[np.cos(p_), -np.sin(p_)], [np.sin(p_), np.cos(p_)]]) @ soffset for p_ in phi]
+        torque = sum(r[i, 0] * turned[i][1] - r[i, 1] * turned[i][0] for i in range(n))
+        effects["sensor_offset_body"] = [float(np.hypot(*sum(turned))), float(torque)]  # |B| (its frame's zero is the model's), T
+    return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change, "drift": drift,
+            "fclip": fclip,
             "force_noise": fnoise * frms * np.sqrt(n), "mounting_deg": np.degrees(phi).tolist()}
 
 
 def _named(k: str, e: dict) -> str:
     """An effect as named: a scalar +- its ci95, or a per-agent effect's agents off the reference."""
     if e.get("agents") is not None:
-        return f"{k} " + ", ".join(f"agent {i}: {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"])
+        return f"{k} " + ", ".join(f"agent {i}: {e['value'][i]:.4g}"
+                                   + ("" if e["ci95"][i] is None else f" +- {e['ci95'][i]:.2g}") for i in e["agents"])
     if e["value"] is None:
         return k
+    if isinstance(e["value"], list):  # a vector effect: (x, y)
+        return f"{k} ({', '.join(f'{v:.4g}' for v in e['value'])}) +- ({', '.join(f'{c:.2g}' for c in e['ci95'])})"
     return f"{k} {e['value']:.4g} +- {e['ci95']:.2g}"
 
 
 def _truth(v) -> str:
+    if isinstance(v, list):
+        return f" (truth ({', '.join(f'{x:g}' for x in v)}))"
     return " (truth: the robots' frames)" if v is True else f" (truth {v:g})"
 
 
@@ -179,6 +219,11 @@ def row(name: str, truth: dict, d: dict, wall: float) -> str:
                 + f" | {sides} | | | | {d['model']['hold']} ({d['model'].get('hold_source', '-')}) | {wall:.0f} |")
     named = {e["name"]: e for e in d["effects"]}
     right = set(named) == set(truth["effects"]) and not d["unexplained"]
+    if truth.get("drift"):  # no effect of the vocabulary: unexplained, no change kept, the drift named
+        right = d["unexplained"] and not (d.get("change") or {}).get("found") and any(
+            w.startswith("m drifts: ") for w in d["warnings"])
+    elif truth.get("fclip"):  # the log, not the plant: the saturation named, no effect named that is not there
+        right = bool(d.get("saturation")) and set(named) <= set(truth["effects"])
     vals = "; ".join(_named(k, e) + (_truth(truth["effects"][k]) if k in truth["effects"] else "")
                      for k, e in named.items())  # fmt: skip
     rf = d.get("random_force")

@@ -15,11 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ident.change import diagnose_sides
+from ident.change import diagnose_sides, drift_hint
 from ident.fit import states_of, window_valid
-from ident.frames import frame_check, to_world
+from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
 from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
+from ident.saturation import saturated, saturation_warning
 from ident.recording import read_recording as _read
 from ident.report import (
     Diagnosis,
@@ -33,7 +34,8 @@ from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
 
 CANDIDATES: dict[str, tuple[int, str, str]] = {
-    name: (2 if name in VECTOR_EFFECTS else -1 if name in PER_AGENT else 1, unit, sig)
+    name: (2 if name in VECTOR_EFFECTS else 3 if name == "sensor_offset_body" else -1 if name in PER_AGENT else 1, unit,
+           sig)
     for name, (unit, sig) in EFFECTS.items()
 }
 """name -> (number of parameters on a planar load, -1 for n - 1: one per agent but the reference; unit, the
@@ -64,6 +66,8 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
+        rec, vframes = _robot_velocity_frames(rec, options or DiagnoseOptions(), progress)
+        raw = rec  # the forces' check turns from the velocities in the world frame
         rec, frames = _robot_frames(rec, options or DiagnoseOptions(), progress)
         result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
         if frames is not None and frames["robot_frame"]:
@@ -88,6 +92,23 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                        "run.toml if the wrench is smooth and the delay is real")
                 result = alt
     result.model["hold_source"] = rec.hold_source
+    result.saturation = saturated(raw)
+    if result.saturation:
+        result.warnings.insert(0, saturation_warning(result.saturation))
+    if vframes is not None:
+        result.velocity_frames = vframes
+        if vframes["robot_frame"]:
+            n = len(vframes["phi_deg"])
+            result.effects.insert(0, {"name": "robot_frame_velocities", "value": vframes["phi_deg"], "unit": "deg",
+                                      "ci95": [None] * n, "agents": list(range(n)), "reference": None,
+                                      "frame": "relative to agent 0's", "kind": "logger"})  # fmt: skip
+            result.warnings.insert(0, "robot_frame_velocities: the velocities are logged in each robot's own frame, "
+                                      "turning with the load (the rigid body's kinematics fit "
+                                      f"{vframes['rss_world'] / vframes['rss_robot']:.3g} x better in them; t "
+                                      f"{vframes['t']:.3g} over {vframes['windows']} windows, p {vframes['p']:.2g}): "
+                                      "turned to the world frame before the fit, each by the load's angle from "
+                                      "their own kinematics plus its mounting angle relative to agent 0 (value, "
+                                      "deg), and the team by the angle the forces' direction gives")  # fmt: skip
     if frames is not None:
         result.frames = frames
         if frames["robot_frame"]:
@@ -104,6 +125,13 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                       "angle (value, deg)")
     result.change = diagnose_sides(rec, result, options, progress)
     ch = result.change
+    if ch and not ch["found"] and "before" in ch:
+        sides = "; ".join(f"{k} p {ch[k]['whiteness_p']:.2g}" for k in ("before", "after") if "whiteness_p" in ch[k])
+        result.warnings.append(f"a change of the load between {ch['window'][0]:.4g} and {ch['window'][1]:.4g} s was "
+                               f"tried and not kept: the sides' residuals stay structured ({sides})")
+        hint = drift_hint(ch.get("m_per_part", []))
+        if hint:
+            result.warnings.append(hint)
     if ch and ch["found"]:
         if result.effects:
             # named on a structured residual (the 90 % rule, or a random force's walk) by one model over a
@@ -166,6 +194,25 @@ def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) ->
         progress(f"forces logged in the robots' own frames (equation error {fc.rss_world / fc.rss_robot:.3g} x lower "
                  f"turned with the load, p {fc.p:.2g}): turned to the world frame")
     return to_world(rec, fc.theta, fc.phi), out
+
+
+def _robot_velocity_frames(rec: Recording, opt: DiagnoseOptions, progress) -> tuple[Recording, dict | None]:
+    """The velocities' frame check (:func:`ident.frames.velocity_frame_check`) at the selection's family-wise
+    level; the recording with its velocities turned to the world frame when they are in the robots' frames."""
+    dtm = float(np.median(np.diff(rec.t)))
+    vc = velocity_frame_check(rec, min(FRAME_WINDOW_S, opt.fit.window_stamps * dtm), opt.alpha)
+    if vc is None:
+        return rec, None
+    found = bool(vc.p < opt.alpha)
+    out = {"robot_frame": found, "rss_world": vc.rss_world, "rss_robot": vc.rss_robot, "t": vc.t, "p": vc.p,
+           "windows": vc.windows, "phi_deg": np.degrees(vc.phi).tolist(), "alpha_deg": float(np.degrees(vc.alpha))}
+    # (alpha is NaN where the check does not pass: the angles are read only then)
+    if not found:
+        return rec, out
+    if progress is not None:
+        progress(f"velocities logged in the robots' own frames (kinematics {vc.rss_world / vc.rss_robot:.3g} x better "
+                 f"in them, p {vc.p:.2g}): turned to the world frame")
+    return velocities_to_world(rec, vc), out
 
 
 def sample_period(rec: Recording) -> float:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats as sst
+from scipy.optimize import minimize_scalar
 
 from ident.fit import FitError, _cumint_windows, _filled, _rotation_kinematics
 from ident.recording import Recording
@@ -137,4 +138,128 @@ def to_world(rec: Recording, theta: np.ndarray, phi: np.ndarray) -> Recording:
     return replace(rec, wrench=w)
 
 
-__all__ = ["FrameCheck", "frame_check", "to_world"]
+
+
+
+@dataclass(frozen=True)
+class VelocityFrameCheck:
+    """The velocity check: the kinematics' equation error in the world frame (the agents' relative velocities
+    rank one, y_j - y_0 = h(t) d_j, h complex) and in the robots' frames (c_j V_j - V_0 = i omega(t) d_j,
+    omega real), the one-sided t-test over windows of the log of their ratio, each agent's mounting angle
+    relative to agent 0 (rad), the load's rate and angle (T,) from the robots' frames, and the angle (rad)
+    that turns the result to the world frame of the forces."""
+
+    rss_world: float
+    rss_robot: float
+    t: float
+    p: float
+    windows: int
+    phi: np.ndarray
+    omega: np.ndarray
+    theta: np.ndarray
+    alpha: float
+
+
+def _robot_kinematics(V: np.ndarray, iters: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Alternating least squares for c_j V_j - V_0 = i omega d_j (``V`` (T, n) complex, every agent at every row):
+    c (n,) unit, c_0 = 1 (each robot's frame turned to robot 0's), d (n,) the contacts relative to agent 0's in
+    that frame, omega (T,) real. Start: c_j from V_0 regressed on V_j (the common translation), omega from the
+    rank one of what is left, made real by half the angle of the sum of its squares."""
+    n = V.shape[1]
+    c = np.ones(n, complex)
+    for j in range(1, n):
+        k = np.vdot(V[:, j], V[:, 0])
+        c[j] = k / abs(k) if abs(k) > 0 else 1.0
+    R = c[1:] * V[:, 1:] - V[:, [0]]
+    U, s, Wh = np.linalg.svd(R, full_matrices=False)
+    h = U[:, 0] * s[0]
+    ph = 0.5 * np.angle(np.sum(h * h))
+    omega = (h * np.exp(-1j * ph)).real
+    d = np.r_[0.0, -1j * np.exp(1j * ph) * Wh[0]]
+    for _ in range(iters):
+        for j in range(1, n):  # c_j and d_j given omega
+            A = np.column_stack((V[:, j], -1j * omega))
+            sol = np.linalg.lstsq(A, V[:, 0], rcond=None)[0]
+            c[j] = sol[0] / abs(sol[0]) if abs(sol[0]) > 0 else 1.0
+            d[j] = np.vdot(-1j * omega, V[:, 0] - c[j] * V[:, j]) / max(float(omega @ omega), 1e-300)
+        r = c[1:] * V[:, 1:] - V[:, [0]]  # omega per row given c, d: real least squares over the agents
+        dd = 1j * d[1:]
+        omega = (r * dd.conj()).real.sum(axis=1) / max(float(np.sum(np.abs(dd) ** 2)), 1e-300)
+    return c, d, omega
+
+
+def velocity_frame_check(rec: Recording, window_s: float, level: float, min_rows: int = 10) -> VelocityFrameCheck | None:
+    """The check on a velocity recording of n >= 3 agents: the rigid body's kinematics fitted to the velocities
+    as logged (world frame) and as each robot's own (turning with the load); None where it cannot be made (fewer
+    than 3 windows of ``min_rows`` rows with every agent). The load's angle and ``alpha`` are read only where
+    the robots' frames pass at ``level`` (empty and NaN otherwise)."""
+    if rec.vel is None or rec.n < 3:
+        return None
+    V = rec.vel[..., 0] + 1j * rec.vel[..., 1]
+    ok = ~np.isnan(V).any(axis=1)
+    t = rec.t
+    wid = np.floor((t - t[0]) / window_s).astype(int)
+    S = int(wid.max()) + 1
+    rows = np.bincount(wid, weights=ok.astype(float), minlength=S)
+    used = np.flatnonzero(rows >= min_rows)
+    if used.size < 3:
+        return None
+    Vo = V[ok]
+    Rw = Vo[:, 1:] - Vo[:, [0]]
+    U, s, Wh = np.linalg.svd(Rw, full_matrices=False)
+    ew = Rw - np.outer(U[:, 0] * s[0], Wh[0])
+    c, d, om = _robot_kinematics(Vo)
+    er = c[1:] * Vo[:, 1:] - Vo[:, [0]] - 1j * np.outer(om, d[1:])
+    per_w = np.bincount(wid[ok], weights=(np.abs(ew) ** 2).sum(axis=1), minlength=S)[used]
+    per_r = np.bincount(wid[ok], weights=(np.abs(er) ** 2).sum(axis=1), minlength=S)[used]
+    dl = np.log(np.maximum(per_w, 1e-300) / np.maximum(per_r, 1e-300))  # > 0: robot frames fit better
+    m = dl.size
+    sd = float(dl.std(ddof=1))
+    tt = float(dl.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if dl.mean() > 0 else -math.inf)
+    p = float(sst.t.sf(tt, m - 1))
+    if not p < level:
+        return VelocityFrameCheck(float(per_w.sum()), float(per_r.sum()), tt, p, m, np.angle(c), np.zeros(0),
+                                  np.zeros(0), math.nan)  # fmt: skip
+    # the kinematics in the robots' frames see only omega d_j: omega's scale and sign are open (positions would
+    # fix them, velocities do not). The result's frame is robot 0's at the first stamp, a constant turn alpha
+    # from the forces' world frame. The scale k and alpha are read from the translation's equation error with
+    # the team's force (its coefficient is e^{-i alpha}/m), or with each agent's force turned by the load's angle
+    # when the forces are in the robots' frames too: the k that leaves the least error, on a grid of
+    # ratios over the contacts' spread taken as 1 m, then refined
+    om1 = np.interp(t, t[ok], om) * float(np.mean(np.abs(d[1:])))
+
+    def error(k: float) -> tuple[float, np.ndarray, np.ndarray, float]:
+        omega = k * om1
+        theta = np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) * np.diff(t))))
+        Y = np.exp(1j * theta)[:, None] * c[None, :] * V
+        turned = _filled(replace(rec, vel=np.stack((Y.real, Y.imag), axis=-1)), 5.0)
+        out = []
+        for robot in (False, True):  # the forces in the world frame (one coefficient), or in the robots' too
+            A, y, okd = _design(turned, theta, omega, wid, robot=robot)
+            if not robot:
+                A = np.column_stack((A[:, : rec.n].sum(axis=1), A[:, rec.n :]))
+            okd &= ok
+            A, y = _within(A, wid, okd, S), _within(y, wid, okd, S)
+            coef = np.linalg.lstsq(A[okd], y[okd], rcond=None)[0]
+            # with the forces in the robots' frames too, the world's orientation is nowhere in the data: alpha 0
+            out.append((float(np.sum(np.abs(y[okd] - A[okd] @ coef) ** 2)), omega, theta,
+                        0.0 if robot else float(-np.angle(coef[0]))))  # fmt: skip
+        return min(out, key=lambda e: e[0])
+
+    grid = np.exp(np.linspace(np.log(0.05), np.log(20.0), 61))
+    ks = np.r_[grid, -grid]
+    errs = [error(k)[0] for k in ks]
+    k0 = float(ks[int(np.argmin(errs))])
+    step = grid[1] / grid[0]
+    res = minimize_scalar(lambda x: error(math.copysign(math.exp(x), k0))[0], method="bounded",
+                          bounds=(math.log(abs(k0) / step), math.log(abs(k0) * step)), options={"xatol": 1e-6})
+    _, omega, theta, alpha = error(math.copysign(math.exp(res.x), k0))
+    return VelocityFrameCheck(float(per_w.sum()), float(per_r.sum()), tt, p, m, np.angle(c), omega, theta, alpha)
+
+
+def velocities_to_world(rec: Recording, vc: VelocityFrameCheck) -> Recording:
+    """``rec`` with each agent's logged velocity turned from its frame to the world's: e^{i (alpha + theta + phi_j)}."""
+    V = rec.vel[..., 0] + 1j * rec.vel[..., 1]
+    Y = np.exp(1j * (vc.alpha + vc.theta))[:, None] * np.exp(1j * vc.phi)[None, :] * V
+    return replace(rec, vel=np.stack((Y.real, Y.imag), axis=-1))
+__all__ = ["FrameCheck", "VelocityFrameCheck", "frame_check", "to_world", "velocities_to_world", "velocity_frame_check"]

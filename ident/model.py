@@ -3,8 +3,8 @@
 One rigid-body step (:func:`simulate`) serves the batch fit and the diagnosis. The state is the
 CoM velocity v, the angular rate omega, the body angle theta and the CoM position p::
 
-    dv/dt     = a (F(t) + f_b - c_v v - F_c v / sqrt(|v|^2 + v_s^2))        a = 1/m
-    domega/dt = b (tau(t) + (R(theta) r_i) x f_i(t) - c_r omega)            b = 1/J
+    dv/dt     = a (F(t) + f_b + R(theta) f_B - n b_s - c_v v - F_c v / sqrt(|v|^2 + v_s^2))        a = 1/m
+    domega/dt = b (tau(t) + (R(theta) r_i) x (f_i(t) - b_s) - c_r omega)            b = 1/J
     dtheta/dt = omega,  dp/dt = v
     contact velocity  y_i = v + omega (R(theta) r_i)^perp + v_b   (at t - d)
     contact position  q_i = p + R(theta) r_i                     (at t - d)
@@ -33,11 +33,15 @@ EFFECTS: dict[str, tuple[str, str]] = {
     "force_bias": ("N", "constant force (ramp in v_C)"),
     "torque_bias": ("N m", "constant torque (ramp in omega)"),
     "velocity_bias": ("m/s", "constant velocity offset"),
+    "sensor_offset_body": ("N, N, N m", "the same offset on every agent's logged force in its own frame, the robot "
+                           "fixed to the load: the team's offset as a force fixed in the load's frame and a torque"),
+    "force_sensor_offset": ("N", "the same offset on every agent's logged force (world frame): a force at the "
+                            "contacts' centroid"),
     "agent_actuator_gain": ("-", "one agent's force scaled (its share of the acceleration)"),
     "agent_clock_offset": ("s", "one agent's rows shifted in time (its force and its velocity)"),
 }
 """Effect name -> (unit, the signature it leaves in the residual)."""
-VECTOR_EFFECTS = ("force_bias", "velocity_bias")
+VECTOR_EFFECTS = ("force_bias", "velocity_bias", "force_sensor_offset")
 PER_AGENT = ("agent_actuator_gain", "agent_clock_offset")
 """Effects with one value per agent relative to a reference agent (``Layout.ref``): a gain common to the
 team is m/g and J/g, a clock offset common to the team is no offset at all, so only n - 1 are identifiable.
@@ -98,6 +102,8 @@ class Layout:
     def q(self, name: str) -> int:
         if name in PER_AGENT:
             return self.n - 1
+        if name == "sensor_offset_body":  # the force's components in the load's frame and the torque
+            return int(sum(self.axes)) + 1
         return int(sum(self.axes)) if name in VECTOR_EFFECTS else 1
 
     @property
@@ -326,6 +332,22 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
     fb = np.zeros((B, 2))
     if "force_bias" in lay.effects:
         fb[:, iax] = g[:, lay.slot("force_bias")]
+    # every agent's logged force reads b too high: the load gets n b less force, and the torque of -b at each
+    # contact, -(R(theta) sum_i r_i) x b, turns with the load
+    so = np.zeros((B, 2))
+    if "force_sensor_offset" in lay.effects:
+        so[:, iax] = g[:, lay.slot("force_sensor_offset")]
+    fb = fb - n * so
+    # every agent's sensor reads the same offset in its own frame, fixed to the load: the logged team force reads
+    # R(theta) B too high (B in the load's frame at the model's angle 0) and the logged torque T too high
+    bb = None
+    if "sensor_offset_body" in lay.effects:
+        bb = np.zeros((B, 2))
+        sob = g[:, lay.slot("sensor_offset_body")]
+        bb[:, iax] = -sob[:, :na]
+        tb = -sob[:, na:] if tb is None else tb - sob[:, na:]
+    rsum = r.sum(axis=1)  # (B, 2) sum of the contacts' body-frame arms
+    sop = "force_sensor_offset" in lay.effects and lay.rotation
     vb = np.zeros((B, 2))
     if "velocity_bias" in lay.effects:
         vb[:, iax] = g[:, lay.slot("velocity_bias")]
@@ -354,6 +376,9 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
     def deriv(X, U):
         v = X[..., 0:2]
         gf = U[..., 0:2] + fbv
+        if bb is not None:
+            cb, sb = np.cos(X[..., 3]), np.sin(X[..., 3])
+            gf = gf + np.stack((cb * bb[:, 0:1] - sb * bb[:, 1:2], sb * bb[:, 0:1] + cb * bb[:, 1:2]), axis=-1)
         if cvv is not None:
             gf = gf - cvv * v
         if fcc is not None:
@@ -367,6 +392,11 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
                 tq = tq - crr * X[..., 2]
             if tbb is not None:
                 tq = tq + tbb
+            if sop:  # -(R(theta) rsum) x b
+                c_, s_ = np.cos(th), np.sin(th)
+                Rx = c_ * rsum[:, 0:1] - s_ * rsum[:, 1:2]
+                Ry = s_ * rsum[:, 0:1] + c_ * rsum[:, 1:2]
+                tq = tq - (Rx * so[:, 1:2] - Ry * so[:, 0:1])
             out[..., 2] = b * tq
             out[..., 3] = X[..., 2]
         else:

@@ -75,8 +75,10 @@ class Diagnosis:
     model: dict[str, Any] = field(default_factory=dict)
     validation: dict[str, Any] | None = None
     frames: dict[str, Any] | None = None  # ident/frames.py: the robot-frame check
+    velocity_frames: dict[str, Any] | None = None  # ident/frames.py: the velocities' robot-frame check
     change: dict[str, Any] | None = None  # ident/change.py: a change of the load, and each side's diagnosis
     random_force: dict[str, Any] | None = None  # ident/random_force.py: the residual's walk, in N and N m
+    saturation: list[dict[str, Any]] = field(default_factory=list)  # ident/saturation.py: forces at a limit
     fits: dict[str, Any] = field(default_factory=dict, repr=False)
     problem: Any = field(default=None, repr=False)
 
@@ -107,7 +109,9 @@ class Diagnosis:
         if self.validation is not None:
             out["validation"] = self.validation
         out["change"] = _jsonable(self.change)
+        out["saturation"] = _jsonable(self.saturation)
         out["frames"] = _jsonable(self.frames)
+        out["velocity_frames"] = _jsonable(self.velocity_frames)
         return out
 
 
@@ -182,7 +186,7 @@ def _agents(e: dict[str, Any]) -> str:
     if e.get("agents") is None:
         return ""
     if e.get("reference") is None:
-        return " (per agent: each robot's mounting angle, body frame at the first stamp)"
+        return f" (per agent: each robot's mounting angle, {e.get('frame', 'body frame at the first stamp')})"
     off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]) or "none"
     why = "the team's median" if len(e["value"]) > 2 else "two agents: which of them is off is not identifiable"
     return f" (per agent, relative to agent {e['reference']}, {why}; outside its 95 % interval: {off})"

@@ -197,7 +197,8 @@ def score(pb: Problem, fit: Fit, name: str) -> _Score:
 
 def _ref_scale(name: str) -> float:
     return {"viscous_friction": 1.0, "coulomb_friction": 1.0, "rotational_damping": 1.0, "measurement_delay": 0.01,
-            "force_bias": 1.0, "torque_bias": 1.0, "velocity_bias": 0.01}[name]  # fmt: skip
+            "force_bias": 1.0, "torque_bias": 1.0, "velocity_bias": 0.01, "force_sensor_offset": 0.1,
+            "sensor_offset_body": 1.0}[name]  # fmt: skip
 
 
 def _reference(name: str, m: float, J: float, dt: float) -> float:
@@ -211,6 +212,8 @@ def _reference(name: str, m: float, J: float, dt: float) -> float:
         "force_bias": 0.005 * mg,
         "torque_bias": 0.005 * mg * 0.2,  # half a percent of the weight at a 0.2 m arm
         "velocity_bias": 0.02,
+        "sensor_offset_body": 0.005 * mg,
+        "force_sensor_offset": 0.001 * mg,  # each agent's sensor: a force bias's share of a team of about five
         "agent_actuator_gain": 0.05,  # one actuator 5 % off the others
         "agent_clock_offset": max(0.02, 2 * dt),  # as the delay: a logger's clock two samples or 20 ms off
     }[name]
@@ -226,6 +229,8 @@ def _value(x: np.ndarray, lay: Layout, name: str, ci: bool = False) -> float | l
         if name == "agent_actuator_gain" and not ci:
             full += 1.0
         return full.tolist()
+    if name == "sensor_offset_body":  # [Bx, By] in the load's frame (None on an idle axis), the torque
+        return _value(x[:-1], lay, "force_bias") + [float(x[-1])]
     if name not in VECTOR_EFFECTS:
         return float(x[0])
     out: list = [None, None]
@@ -243,7 +248,8 @@ def _agents_off(val: list, ci: list, name: str) -> list[int]:
     return [i for i, (v, h) in enumerate(zip(val, ci)) if abs(v - ref) > h]
 
 
-FORCE_LIKE = ("viscous_friction", "coulomb_friction", "rotational_damping", "force_bias", "torque_bias")
+FORCE_LIKE = ("viscous_friction", "coulomb_friction", "rotational_damping", "force_bias", "torque_bias",
+              "force_sensor_offset", "sensor_offset_body")
 
 
 def _regauge(pb: Problem, fit: Fit, say: Callable[[str], None]) -> Fit:
@@ -376,7 +382,9 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     if not all(base.axes):
         warns.append(f"axis {'y' if base.axes[0] else 'x'}: no force and no motion: left out of the model "
                      "(its components of force_bias and velocity_bias are not identifiable)")  # fmt: skip
-    cands = [c for c in opt.candidates if (c not in ("rotational_damping", "torque_bias") or base.rotation)
+    cands = [c for c in opt.candidates if (c not in ("rotational_damping", "torque_bias", "force_sensor_offset",
+                                                     "sensor_offset_body")
+                                           or base.rotation)
              and (c != "velocity_bias" or rec.vel is not None) and (c not in PER_AGENT or rec.n >= 2)]  # fmt: skip
     say("nominal model: fitting")
     nominal = fit_robust(pb, base, g0, x0)
@@ -479,7 +487,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         best = primary[0]
         fb_ = trials[best][0]
         for c2 in [c for c in eligible if c != best]:
-            if trials[c2][0].bic - fb_.bic >= opt.ambiguous_bic:
+            if c2 == best or c2 not in remaining or trials[c2][0].bic - fb_.bic >= opt.ambiguous_bic:
                 continue
             lay2 = fb_.lay.with_effects(fb_.lay.effects + (c2,))
             say(f"telling {best} from {c2}: joint fit")
@@ -487,6 +495,18 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             q = lay2.G - fb_.lay.G
             p1 = stats.nested_f(fb_.rss, joint.rss, q, joint.N, joint.P)[1]
             p2 = stats.nested_f(trials[c2][0].rss, joint.rss, lay2.G - trials[c2][0].lay.G, joint.N, joint.P)[1]
+            if (p1 >= alpha_k or p2 >= alpha_k) and {best, c2} == set(SAME_FORCE):
+                # a common sensor offset is a force bias plus its torque about the contacts' centroid: where the
+                # data do not resolve that torque (the centroid near the centre of mass) they see the force alone
+                warns.append(f"force_bias and force_sensor_offset: the data do not resolve the offset's torque about "
+                             f"the contacts' centroid (BIC within {abs(trials[c2][0].bic - fb_.bic):.1f}): named "
+                             "force_bias, the force they see (a common sensor offset reads -1/n of it per robot)")
+                if best == "force_sensor_offset":
+                    best, fb_ = c2, trials[c2][0]
+                    remaining.remove("force_sensor_offset")
+                else:
+                    remaining.remove(c2)
+                continue
             if p1 >= alpha_k or p2 >= alpha_k:
                 ambiguous.append([best, c2])
                 warns.append(f"{best} and {c2}: the data cannot separate them (BIC within "
@@ -520,6 +540,27 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 accepted.remove(c)
                 table[c]["dropped"] = "stood in for the Coulomb term's smoothing"
                 current = without
+    for c in list(accepted) if len(accepted) > 1 else []:
+        # forward selection adds one effect at a time: one that stood in for part of a later one (a force bias
+        # for the force of a sensor offset named after it) no longer adds to the rest
+        lay = current.lay.with_effects(tuple(e for e in current.lay.effects if e != c))
+        without = lm_fit(pb, lay, _drop(current.g, current.lay, c), current.x)
+        if stats.nested_f(without.rss, current.rss, current.lay.G - lay.G, current.N, current.P)[1] >= opt.alpha:
+            say(f"{c}: adds nothing beside {', '.join(e for e in accepted if e != c)}: dropped")
+            accepted.remove(c)
+            table[c]["dropped"] = "adds nothing beside the effects named after it"
+            current = without
+    for c in _unresolved_effects(current, accepted):
+        # the effect acts through a 1/m (1/J) the data do not resolve from zero: they see only its product
+        # with 1/m, so its value is not determined and it is not named (it stays in the candidates' table)
+        what = "m" if c in TRANSLATION else "J"
+        inv, half = current.inverse(what)
+        warns.append(f"{c}: passes its F-test, but it acts through 1/{what}, which the data do not resolve from zero "
+                     f"(1/{what} {inv:.3g} +- {half:.2g}): its value is not determined; not named")
+        table[c]["unresolved"] = f"1/{what} not resolved"
+        lay = current.lay.with_effects(tuple(e for e in current.lay.effects if e != c))
+        current = lm_fit(pb, lay, _drop(current.g, current.lay, c), current.x)
+        accepted.remove(c)
     st1 = states_of(pb, current)
     theta_w = st1[..., 3]
     modes1 = residual_modes(pb, current, theta=theta_w)
@@ -626,6 +667,24 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         fits={"nominal": nominal, "augmented": final}, problem=pb,
         random_force=walk_info if final is current else None,
     )  # fmt: skip
+
+
+SAME_FORCE = ("force_bias", "force_sensor_offset")
+TRANSLATION = ("viscous_friction", "coulomb_friction", "force_bias", "force_sensor_offset", "sensor_offset_body")
+ROTATION = ("rotational_damping", "torque_bias")
+
+
+def _unresolved_effects(fit: Fit, accepted: list[str]) -> list[str]:
+    """The accepted effects that act through a 1/m (translation's forces) or 1/J (rotation's torques) whose fitted
+    value is not above its own 95 % half-width: the model sees only the effect times it."""
+    out = []
+    for group, name in ((TRANSLATION, "m"), (ROTATION, "J")):
+        if name == "J" and not fit.lay.rotation:
+            continue
+        inv, half = fit.inverse(name)
+        if inv <= half:
+            out += [c for c in accepted if c in group]
+    return out
 
 
 def _drop(g: np.ndarray, lay: Layout, name: str) -> np.ndarray:
