@@ -22,10 +22,9 @@ from ident.recording import Recording
 
 
 @dataclass(frozen=True)
-class FrameCheck:
-    """The comparison: the equation error's sums of squares in the world frame and the robot frames, the
-    one-sided t-test over windows of the log of their ratio per window, the mounting angles (rad, body frame at the
-    first stamp) with their jackknife 95 % half-widths, and the load's angle used (T,)."""
+class _FrameTest:
+    """An equation error's sums of squares in the world frame and the robots' frames, the one-sided t-test over
+    windows of the log of their ratio per window, and each agent's mounting angle (rad)."""
 
     rss_world: float
     rss_robot: float
@@ -33,6 +32,13 @@ class FrameCheck:
     p: float
     windows: int
     phi: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameCheck(_FrameTest):
+    """The forces' comparison (the translation's equation error): the mounting angles in the body frame at the
+    first stamp, with their jackknife 95 % half-widths, and the load's angle used (T,)."""
+
     phi_ci95: np.ndarray
     theta: np.ndarray
 
@@ -142,19 +148,12 @@ def to_world(rec: Recording, theta: np.ndarray, phi: np.ndarray) -> Recording:
 
 
 @dataclass(frozen=True)
-class VelocityFrameCheck:
-    """The velocity check: the kinematics' equation error in the world frame (the agents' relative velocities
-    rank one, y_j - y_0 = h(t) d_j, h complex) and in the robots' frames (c_j V_j - V_0 = i omega(t) d_j,
-    omega real), the one-sided t-test over windows of the log of their ratio, each agent's mounting angle
-    relative to agent 0 (rad), the load's rate and angle (T,) from the robots' frames, and the angle (rad)
-    that turns the result to the world frame of the forces."""
+class VelocityFrameCheck(_FrameTest):
+    """The velocities' comparison: the kinematics' equation error in the world frame (the agents' relative
+    velocities rank one, y_j - y_0 = h(t) d_j, h complex) and in the robots' frames (c_j V_j - V_0 = i omega(t)
+    d_j, omega real); the mounting angles relative to agent 0, the load's rate and angle (T,) from the robots'
+    frames, and the angle (rad) that turns the result to the world frame of the forces."""
 
-    rss_world: float
-    rss_robot: float
-    t: float
-    p: float
-    windows: int
-    phi: np.ndarray
     omega: np.ndarray
     theta: np.ndarray
     alpha: float

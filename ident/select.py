@@ -531,25 +531,15 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     if "coulomb_friction" in accepted and fopt.coulomb_speed is None:
         pb, current = _coulomb_speed(pb, current, say)
         cs = pb.coulomb_speed
-        for c in [c for c in accepted if c != "coulomb_friction"]:
-            # with the smoothing fitted, an effect that only stood in for a too-sharp one no longer adds
-            lay = current.lay.with_effects(tuple(e for e in current.lay.effects if e != c))
-            without = lm_fit(pb, lay, _drop(current.g, current.lay, c), current.x)
-            if stats.nested_f(without.rss, current.rss, current.lay.G - lay.G, current.N, current.P)[1] >= opt.alpha:
-                say(f"{c}: adds nothing beside coulomb_friction with its smoothing fitted: dropped")
-                accepted.remove(c)
-                table[c]["dropped"] = "stood in for the Coulomb term's smoothing"
-                current = without
-    for c in list(accepted) if len(accepted) > 1 else []:
-        # forward selection adds one effect at a time: one that stood in for part of a later one (a force bias
-        # for the force of a sensor offset named after it) no longer adds to the rest
-        lay = current.lay.with_effects(tuple(e for e in current.lay.effects if e != c))
-        without = lm_fit(pb, lay, _drop(current.g, current.lay, c), current.x)
-        if stats.nested_f(without.rss, current.rss, current.lay.G - lay.G, current.N, current.P)[1] >= opt.alpha:
-            say(f"{c}: adds nothing beside {', '.join(e for e in accepted if e != c)}: dropped")
-            accepted.remove(c)
-            table[c]["dropped"] = "adds nothing beside the effects named after it"
-            current = without
+        # with the smoothing fitted, an effect that only stood in for a too-sharp one no longer adds
+        current = _drop_idle(pb, current, [c for c in accepted if c != "coulomb_friction"], accepted, table,
+                             opt.alpha, say, lambda c: "coulomb_friction with its smoothing fitted",
+                             "stood in for the Coulomb term's smoothing")
+    # forward selection adds one effect at a time: one that stood in for part of a later one (a force bias for
+    # the force of a sensor offset named after it) no longer adds to the rest
+    current = _drop_idle(pb, current, list(accepted) if len(accepted) > 1 else [], accepted, table, opt.alpha, say,
+                         lambda c: ", ".join(e for e in accepted if e != c),
+                         "adds nothing beside the effects named after it")
     for c in _unresolved_effects(current, accepted):
         # the effect acts through a 1/m (1/J) the data do not resolve from zero: they see only its product
         # with 1/m, so its value is not determined and it is not named (it stays in the candidates' table)
@@ -685,6 +675,27 @@ def _unresolved_effects(fit: Fit, accepted: list[str]) -> list[str]:
         if inv <= half:
             out += [c for c in accepted if c in group]
     return out
+
+
+def _without(pb: Problem, fit: Fit, name: str) -> tuple[Fit, float]:
+    """``fit`` refitted without effect ``name``, and the nested F-test's p of what the effect adds."""
+    lay = fit.lay.with_effects(tuple(e for e in fit.lay.effects if e != name))
+    without = lm_fit(pb, lay, _drop(fit.g, fit.lay, name), fit.x)
+    return without, stats.nested_f(without.rss, fit.rss, fit.lay.G - lay.G, fit.N, fit.P)[1]
+
+
+def _drop_idle(pb: Problem, fit: Fit, cands: list[str], accepted: list[str], table: dict, alpha: float,
+               say: Callable[[str], None], beside: Callable[[str], str], reason: str) -> Fit:
+    """Each of ``cands`` refitted out of ``fit``: one whose F-test p is then at least ``alpha`` adds nothing
+    beside the rest and is dropped from ``accepted`` (``reason`` in its ``table`` row). The fit without them."""
+    for c in cands:
+        without, p = _without(pb, fit, c)
+        if p >= alpha:
+            say(f"{c}: adds nothing beside {beside(c)}: dropped")
+            accepted.remove(c)
+            table[c]["dropped"] = reason
+            fit = without
+    return fit
 
 
 def _drop(g: np.ndarray, lay: Layout, name: str) -> np.ndarray:
