@@ -20,7 +20,6 @@ from ident.fit import states_of, window_valid
 from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
 from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
-from ident.saturation import saturated, saturation_warning
 from ident.recording import read_recording as _read
 from ident.report import (
     Diagnosis,
@@ -30,6 +29,7 @@ from ident.report import (
     plot_diagnosis,
     residual_panels,
 )
+from ident.saturation import saturated, saturation_warning
 from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
 

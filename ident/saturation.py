@@ -37,7 +37,7 @@ def saturated(rec: Recording) -> list[dict]:
             x = x[np.isfinite(x)]
             if x.size < 10:
                 continue
-            vals, lens = _runs(x)
+            vals, _ = _runs(x)
             uniq, runs = np.unique(vals, return_counts=True)
             ends = (uniq == x.max()) | (uniq == x.min())  # a force clipped both ways has two limits
             others = runs[~ends]
