@@ -11,6 +11,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +78,20 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
             if angle is not None:
                 rec, frames = _robot_frames(raw, options or DiagnoseOptions(), progress, angle)
                 result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
+        if _sign_reversed(result):
+            # the load accelerates against the logged force, far beyond what friction holding it could do: the
+            # forces (and torques) are logged with the opposite sign. The nominal fit cannot tell (its 1/m takes
+            # the sign), the effects can (friction opposes the motion, not the logged force): diagnosed again
+            # with the wrench turned round
+            a, ha = result.fits["nominal"].inverse("m")
+            rec = replace(rec, wrench=-rec.wrench)
+            result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
+            result.effects.insert(0, {"name": "force_sign_reversed", "value": -1.0, "unit": "-", "ci95": 0.0,
+                                      "kind": "logger"})  # fmt: skip
+            result.warnings.insert(0, f"force_sign_reversed: the load accelerates against the logged forces (1/m "
+                                      f"{a:.4g} +- {ha:.2g} 1/kg as logged): every agent's force and torque is "
+                                      "logged with the opposite sign (or its velocities are); diagnosed with the "
+                                      "wrench turned round")  # fmt: skip
         held = _half_sample_delay(result, rec)
         if held is not None:
             if progress is not None:
@@ -194,6 +209,16 @@ def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) ->
         progress(f"forces logged in the robots' own frames (equation error {fc.rss_world / fc.rss_robot:.3g} x lower "
                  f"turned with the load, p {fc.p:.2g}): turned to the world frame")
     return to_world(rec, fc.theta, fc.phi), out
+
+
+def _sign_reversed(result: Diagnosis) -> bool:
+    """Is the nominal fit's 1/m negative beyond its own 99.9 % interval? Friction that holds a creeping load
+    leaves 1/m near zero either way; a clearly negative one is a force logged with the opposite sign."""
+    fit = result.fits.get("nominal")
+    if fit is None:
+        return False
+    a, ha = fit.inverse("m")
+    return a + ha * 3.29 / 1.96 < 0.0  # the 95 % half-width widened to 99.9 %
 
 
 def _robot_velocity_frames(rec: Recording, opt: DiagnoseOptions, progress) -> tuple[Recording, dict | None]:
