@@ -163,8 +163,9 @@ def format_diagnosis(r: Diagnosis) -> str:
     elif ch is not None and "p" in ch:
         lines.append(f"change    none that explains the residual (the best split, at {ch['t']:.4g} s: F-test p "
                      f"{ch['p']:.2g} at level {ch['level']:.2g}, "
-                     + (f"removes {100 * ch['split_share']:.0f} % of the excess" if math.isfinite(ch["split_share"])
-                        else "the residual has no excess over the noise floor")
+                     + (("the residual has no excess over the noise floor" if not math.isfinite(ch["split_share"])
+                         else f"removes {100 * ch['split_share']:.0f} % of the excess" if ch["split_share"] <= 1.0
+                         else f"its sides fit below the noise floor: {100 * ch['split_share']:.0f} % of the excess"))
                      + (f"; its sides leave {100 * (1 - ch['share']):.0f} %)" if "share" in ch else ")"))
     elif ch is not None:
         lines.append(f"change    not searched: {ch.get('why')}")

@@ -578,9 +578,11 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         unexplained, named, final = False, [], nominal
     else:
         unexplained, named, final = True, [], nominal
-        tried = ", ".join(accepted) if accepted else "none"
-        warns.append(f"unexplained: a structured residual remains (Ljung-Box p {white:.2g} with {tried} added, "
-                     f"explaining {100 * share:.0f} % of the excess; nominal p {p_white0:.2g}); no candidate effect "
+        # with nothing accepted every candidate was fitted and rejected: there is no share to report
+        tried = (f"with {', '.join(accepted)} added, explaining {100 * share:.0f} % of the excess" if accepted else
+                 "with no candidate kept")
+        warns.append(f"unexplained: a structured residual remains (Ljung-Box p {white:.2g} {tried}; nominal p "
+                     f"{p_white0:.2g}); no candidate effect "
                      f"explains it, so none is named; m, J and their 95 % intervals are the nominal model's, which "
                      f"the data reject: they hold only as far as that model does")  # fmt: skip
     if walk_white and final is current:
