@@ -13,6 +13,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from statistics import NormalDist
 
 import numpy as np
 
@@ -34,6 +35,7 @@ from ident.saturation import saturated, saturation_warning
 from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
 
+Z999 = NormalDist().inv_cdf(0.9995)  # the two-sided 99.9 % quantile
 CANDIDATES: dict[str, tuple[int, str, str]] = {
     name: (2 if name in VECTOR_EFFECTS else 3 if name == "sensor_offset_body" else -1 if name in PER_AGENT else 1, unit,
            sig)
@@ -190,20 +192,21 @@ def fitted_angle(result: Diagnosis) -> tuple[np.ndarray, np.ndarray] | None:
     return st[:, 3], st[:, 2]
 
 
+def _check_window(rec: Recording, opt: DiagnoseOptions) -> float:
+    """The frame checks' window (s): at most ``FRAME_WINDOW_S``, at most the fit's."""
+    # windows of 1 s are the checks' units (their t-test has one degree of freedom per window less one): the
+    # fit's 2.5 s windows leave a 10 s recording 3, where no t-test reaches the selection's level
+    return min(FRAME_WINDOW_S, opt.fit.window_stamps * float(np.median(np.diff(rec.t))))
+
+
 def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) -> tuple[Recording, dict | None]:
     """The robot-frame check (:mod:`ident.frames`) at the family-wise level of the selection; the recording
     turned to the world frame when its forces are in the robots' frames, else as it is."""
-    # windows of 1 s are the check's units (its t-test has one degree of freedom per window less one): the
-    # fit's 2.5 s windows leave a 10 s recording 3, where no t-test reaches the selection's level
-    dtm = float(np.median(np.diff(rec.t)))
-    fc = frame_check(rec, min(FRAME_WINDOW_S, opt.fit.window_stamps * dtm), opt.fit.gap_factor, angle)
+    fc = frame_check(rec, _check_window(rec, opt), opt.fit.gap_factor, angle)
     if fc is None:
         return rec, None
-    found = bool(fc.p < opt.alpha)
-    out = {"robot_frame": found, "rss_world": fc.rss_world, "rss_robot": fc.rss_robot, "t": fc.t, "p": fc.p,
-           "windows": fc.windows, "phi_deg": np.degrees(fc.phi).tolist(),
-           "phi_ci95_deg": np.degrees(fc.phi_ci95).tolist()}  # fmt: skip
-    if not found:
+    out = fc.summary(opt.alpha) | {"phi_ci95_deg": np.degrees(fc.phi_ci95).tolist()}
+    if not out["robot_frame"]:
         return rec, out
     if progress is not None:
         progress(f"forces logged in the robots' own frames (equation error {fc.rss_world / fc.rss_robot:.3g} x lower "
@@ -218,21 +221,18 @@ def _sign_reversed(result: Diagnosis) -> bool:
     if fit is None:
         return False
     a, ha = fit.inverse("m")
-    return a + ha * 3.29 / 1.96 < 0.0  # the 95 % half-width widened to 99.9 %
+    return a + ha / Z95 * Z999 < 0.0  # the 95 % half-width widened to 99.9 %
 
 
 def _robot_velocity_frames(rec: Recording, opt: DiagnoseOptions, progress) -> tuple[Recording, dict | None]:
     """The velocities' frame check (:func:`ident.frames.velocity_frame_check`) at the selection's family-wise
     level; the recording with its velocities turned to the world frame when they are in the robots' frames."""
-    dtm = float(np.median(np.diff(rec.t)))
-    vc = velocity_frame_check(rec, min(FRAME_WINDOW_S, opt.fit.window_stamps * dtm), opt.alpha)
+    vc = velocity_frame_check(rec, _check_window(rec, opt), opt.alpha)
     if vc is None:
         return rec, None
-    found = bool(vc.p < opt.alpha)
-    out = {"robot_frame": found, "rss_world": vc.rss_world, "rss_robot": vc.rss_robot, "t": vc.t, "p": vc.p,
-           "windows": vc.windows, "phi_deg": np.degrees(vc.phi).tolist(), "alpha_deg": float(np.degrees(vc.alpha))}
     # (alpha is NaN where the check does not pass: the angles are read only then)
-    if not found:
+    out = vc.summary(opt.alpha) | {"alpha_deg": float(np.degrees(vc.alpha))}
+    if not out["robot_frame"]:
         return rec, out
     if progress is not None:
         progress(f"velocities logged in the robots' own frames (kinematics {vc.rss_world / vc.rss_robot:.3g} x better "

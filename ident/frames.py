@@ -33,6 +33,23 @@ class _FrameTest:
     windows: int
     phi: np.ndarray
 
+    def summary(self, level: float) -> dict:
+        """The report's entry: whether the robots' frames pass at ``level``, the sums, the test and the angles
+        (deg)."""
+        return {"robot_frame": bool(self.p < level), "rss_world": self.rss_world, "rss_robot": self.rss_robot,
+                "t": self.t, "p": self.p, "windows": self.windows, "phi_deg": np.degrees(self.phi).tolist()}
+
+
+def _ratio_test(per_world: np.ndarray, per_robot: np.ndarray) -> tuple[float, float]:
+    """The one-sided t-test over windows of the log ratio of the world frame's error to the robots' frames'
+    (> 0: the robots' frames fit better): t and p. The windows differ in excitation, so the ratio, not the
+    difference, is alike across them."""
+    d = np.log(np.maximum(per_world, 1e-300) / np.maximum(per_robot, 1e-300))
+    m = d.size
+    sd = float(d.std(ddof=1))
+    tt = float(d.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if d.mean() > 0 else -math.inf)
+    return tt, float(sst.t.sf(tt, m - 1))
+
 
 @dataclass(frozen=True)
 class FrameCheck(_FrameTest):
@@ -127,11 +144,7 @@ def frame_check(rec: Recording, window_s: float, gap_factor: float = 5.0,
                               * np.conj(coef[:n])) for k in range(m)])  # fmt: skip
     se = np.sqrt((m - 1) / m * ((jack - jack.mean(axis=0)) ** 2).sum(axis=0))
     phi, phi_ci95 = np.angle(coef[:n]), sst.t.ppf(0.975, m - 1) * se
-    # each window's log ratio: the windows differ in excitation, so the ratio, not the difference, is alike
-    d = np.log(np.maximum(per_world, 1e-300) / np.maximum(per_robot, 1e-300))  # > 0: robot frames fit better
-    sd = float(d.std(ddof=1))
-    tt = float(d.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if d.mean() > 0 else -math.inf)
-    p = float(sst.t.sf(tt, m - 1))
+    tt, p = _ratio_test(per_world, per_robot)
     return FrameCheck(float(per_world.sum()), float(per_robot.sum()), tt, p, m, phi, phi_ci95, theta)
 
 
@@ -142,9 +155,6 @@ def to_world(rec: Recording, theta: np.ndarray, phi: np.ndarray) -> Recording:
     f = (w[..., 0] + 1j * w[..., 1]) * rot
     w[..., 0], w[..., 1] = f.real, f.imag
     return replace(rec, wrench=w)
-
-
-
 
 
 @dataclass(frozen=True)
@@ -211,11 +221,8 @@ def velocity_frame_check(rec: Recording, window_s: float, level: float, min_rows
     er = c[1:] * Vo[:, 1:] - Vo[:, [0]] - 1j * np.outer(om, d[1:])
     per_w = np.bincount(wid[ok], weights=(np.abs(ew) ** 2).sum(axis=1), minlength=S)[used]
     per_r = np.bincount(wid[ok], weights=(np.abs(er) ** 2).sum(axis=1), minlength=S)[used]
-    dl = np.log(np.maximum(per_w, 1e-300) / np.maximum(per_r, 1e-300))  # > 0: robot frames fit better
-    m = dl.size
-    sd = float(dl.std(ddof=1))
-    tt = float(dl.mean() / (sd / math.sqrt(m))) if sd > 0 else (math.inf if dl.mean() > 0 else -math.inf)
-    p = float(sst.t.sf(tt, m - 1))
+    m = used.size
+    tt, p = _ratio_test(per_w, per_r)
     if not p < level:
         return VelocityFrameCheck(float(per_w.sum()), float(per_r.sum()), tt, p, m, np.angle(c), np.zeros(0),
                                   np.zeros(0), math.nan)  # fmt: skip
@@ -261,4 +268,6 @@ def velocities_to_world(rec: Recording, vc: VelocityFrameCheck) -> Recording:
     V = rec.vel[..., 0] + 1j * rec.vel[..., 1]
     Y = np.exp(1j * (vc.alpha + vc.theta))[:, None] * np.exp(1j * vc.phi)[None, :] * V
     return replace(rec, vel=np.stack((Y.real, Y.imag), axis=-1))
+
+
 __all__ = ["FrameCheck", "VelocityFrameCheck", "frame_check", "to_world", "velocities_to_world", "velocity_frame_check"]

@@ -548,8 +548,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         warns.append(f"{c}: passes its F-test, but it acts through 1/{what}, which the data do not resolve from zero "
                      f"(1/{what} {inv:.3g} +- {half:.2g}): its value is not determined; not named")
         table[c]["unresolved"] = f"1/{what} not resolved"
-        lay = current.lay.with_effects(tuple(e for e in current.lay.effects if e != c))
-        current = lm_fit(pb, lay, _drop(current.g, current.lay, c), current.x)
+        current = _without(pb, current, c)[0]
         accepted.remove(c)
     st1 = states_of(pb, current)
     theta_w = st1[..., 3]
@@ -636,9 +635,9 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     for name, on in (("m", True), ("J", base.rotation)):
         if not on:
             continue
-        inv, half = final.inverse(name)
-        resolved[name] = inv > half
+        resolved[name] = _resolved(final, name)
         if not resolved[name]:
+            inv, half = final.inverse(name)
             what = ("translation", "force", "kg") if name == "m" else ("rotation", "torque", "kg m^2")
             over = final.over_floor
             why = (f"the {what[0]} hardly answers the applied {what[1]} (friction holding the load, or too weak a "
@@ -673,10 +672,15 @@ def _unresolved_effects(fit: Fit, accepted: list[str]) -> list[str]:
     for group, name in ((TRANSLATION, "m"), (ROTATION, "J")):
         if name == "J" and not fit.lay.rotation:
             continue
-        inv, half = fit.inverse(name)
-        if inv <= half:
+        if not _resolved(fit, name):
             out += [c for c in accepted if c in group]
     return out
+
+
+def _resolved(fit: Fit, name: str) -> bool:
+    """Is the fitted 1/m (``name`` "m") or 1/J ("J") above its own 95 % half-width?"""
+    inv, half = fit.inverse(name)
+    return inv > half
 
 
 def _without(pb: Problem, fit: Fit, name: str) -> tuple[Fit, float]:
