@@ -106,7 +106,11 @@ def recording_from_arrays(t, wrench, vel=None, pos=None, *, hold: str = "foh", d
         vel, pos = (None if a is None else a[keep] for a in (vel, pos))
     part = miss & ~none
     if part.any():
-        warns.append(f"{int(part.any(axis=2).sum())} agent-stamps without a (complete) wrench: interpolated in time")
+        # a wrench logged in rows of its own (mostly not at a velocity's stamp) is a stream of its own, not gaps
+        measured = np.isfinite(vel).all(axis=2) if vel is not None else np.zeros(part.shape[:2], bool)
+        own = measured.any() and (measured & ~part.any(axis=2)).sum() < 0.5 * measured.sum()
+        warns.append(f"{int(part.any(axis=2).sum())} agent-stamps without a (complete) wrench: interpolated in time"
+                     + (" (the wrench is logged at stamps of its own, the velocities at others)" if own else ""))
     for i in range(n):
         for c in range(3):
             m = miss[:, i, c]
@@ -303,11 +307,27 @@ def read_recording(path: str | Path) -> Recording:
             rec.warnings.append(f"a contact speed of {top:.3g} m/s in samples.csv: the velocities are read in m/s "
                                 "(the format's unit); a logger writing mm/s or cm/s makes m and J that factor off")
     if rec.dt is not None:
-        med = float(np.median(np.diff(stamps)))
-        if abs(med - rec.dt) > 0.01 * rec.dt:
-            rec.warnings.append(f"sample period {med:.6g} s differs from run.toml dt = {rec.dt:g} s: "
+        periods = {"all stamps": float(np.median(np.diff(stamps))),
+                   **_stream_periods(stamps, {"velocities": vel, "positions": pos, "wrenches": wrench})}
+        if all(abs(p - rec.dt) > 0.01 * rec.dt for p in periods.values()):
+            own = ", ".join(f"{name}: every {p:.6g} s" for name, p in periods.items())
+            rec.warnings.append(f"run.toml dt = {rec.dt:g} s is no logged stream's sample period ({own}): "
                                 "the stamps are used")
     return rec
+
+
+def _stream_periods(stamps: np.ndarray, streams: dict[str, np.ndarray | None]) -> dict[str, float]:
+    """Each logged stream's sample period: the median interval of the stamps at which one agent logged it,
+    the median over the agents. A logger writing velocities and forces in rows of their own (a 120 Hz
+    mocap beside 100 Hz force sensors) has stamps at the union of both rates, which is neither's period."""
+    out = {}
+    for name, a in streams.items():
+        if a is None:
+            continue
+        per_agent = [np.median(np.diff(stamps[have])) for have in np.isfinite(a).all(axis=2).T if have.sum() > 1]
+        if per_agent:
+            out[name] = float(np.median(per_agent))
+    return out
 
 
 def _stamps_in_seconds(t: np.ndarray, cfg: dict, path: Path) -> tuple[np.ndarray, list[str]]:
