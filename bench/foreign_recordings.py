@@ -59,6 +59,7 @@ CASES: dict[str, dict] = {
     "sensor_offset_robot_frames": {"b": 8.0, "soffset": (0.4, -0.3), "soffset_robot": True},
     "mass_drift": {"drift": 0.8},
     "robot_frame_velocities": {"b": 8.0, "vel_robot": True},
+    "cart_2_20": {"aniso": (2.0, 20.0)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -71,7 +72,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            clock: tuple[int, float] | None = None, robot_frame: bool = False, spin: float = 0.0,
            soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
-           vel_robot: bool = False) -> dict:  # fmt: skip
+           vel_robot: bool = False, aniso: tuple[float, float] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -86,7 +87,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     the plant gets the true force); ``drift``: m and J change linearly from their values at t = 0 to ``drift``
     times them at the recording's end; ``vel_robot``: each robot logs its velocity in its own frame (as
     ``robot_frame`` the force: wheel odometry); ``fclip``: the logged force saturates at
-    +-fclip per axis (the plant gets the true force); ``fs``: static friction (Stribeck: the Coulomb level rises
+    +-fclip per axis (the plant gets the true force); ``aniso`` (b_x, b_y): viscous friction b_x along the
+    load's own x axis and b_y along its y axis (a cart on wheels; the axes as at the integration's start); ``fs``: static friction (Stribeck: the Coulomb level rises
     from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
@@ -126,6 +128,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             k = 1.0 + (drift - 1.0) * min(max(t, 0.0), dur) / dur
         fric = fc + (fs - fc) * np.exp(-(v @ v) / vst**2) if fs else fc
         acc = (f.sum(0) - b * v - fric * v / np.sqrt(v @ v + vs * vs)) / (k * m)
+        if aniso:
+            R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+            acc -= R @ (np.asarray(aniso) * (R.T @ v)) / (k * m)
         return [vx, vy, om, acc[0], acc[1], (torque - c * om) / (k * J)]
 
     t = np.arange(0, dur, 1 / rate)
@@ -176,6 +181,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay,
                "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
                "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot, "force_sensor_offset": soffset and not soffset_robot and list(soffset)}
+    if aniso:  # the isotropic part is viscous friction; the rest D = (b_x - b_y) / 2 diag(1, -1) in the start's axes
+        effects["viscous_friction"] = b + (aniso[0] + aniso[1]) / 2
+        effects["anisotropic_friction"] = [aniso[0] + b, aniso[1] + b]  # the friction along x and along y
     if soffset and soffset_robot:  # the team's offset: a force fixed in the load's frame and a constant torque
         turned = [np.array([[np.cos(p_), -np.sin(p_)], [np.sin(p_), np.cos(p_)]]) @ soffset for p_ in phi]
         torque = sum(r[i, 0] * turned[i][1] - r[i, 1] * turned[i][0] for i in range(n))

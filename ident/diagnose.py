@@ -20,7 +20,7 @@ import numpy as np
 from ident.change import diagnose_sides, drift_hint
 from ident.fit import states_of, window_valid
 from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
-from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
+from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
 from ident.report import (
@@ -37,8 +37,8 @@ from ident.stats import Z95, autocorrelation, block_average, ljung_box
 
 Z999 = NormalDist().inv_cdf(0.9995)  # the two-sided 99.9 % quantile
 CANDIDATES: dict[str, tuple[int, str, str]] = {
-    name: (2 if name in VECTOR_EFFECTS else 3 if name == "sensor_offset_body" else -1 if name in PER_AGENT else 1, unit,
-           sig)
+    name: (2 if name in VECTOR_EFFECTS or name in PLANAR else 3 if name == "sensor_offset_body" else -1 if name in PER_AGENT
+           else 1, unit, sig)
     for name, (unit, sig) in EFFECTS.items()
 }
 """name -> (number of parameters on a planar load, -1 for n - 1: one per agent but the reference; unit, the

@@ -3,7 +3,8 @@
 One rigid-body step (:func:`simulate`) serves the batch fit and the diagnosis. The state is the
 CoM velocity v, the angular rate omega, the body angle theta and the CoM position p::
 
-    dv/dt     = a (F(t) + f_b + R(theta) f_B - n b_s - c_v v - F_c v / sqrt(|v|^2 + v_s^2))        a = 1/m
+    dv/dt     = a (F(t) + f_b + R(theta) f_B - n b_s - c_v v - R(theta) D R(theta)^T v
+                   - F_c v / sqrt(|v|^2 + v_s^2))                                                 a = 1/m
     domega/dt = b (tau(t) + (R(theta) r_i) x (f_i(t) - b_s) - c_r omega)            b = 1/J
     dtheta/dt = omega,  dp/dt = v
     contact velocity  y_i = v + omega (R(theta) r_i)^perp + v_b   (at t - d)
@@ -27,6 +28,9 @@ import numpy as np
 
 EFFECTS: dict[str, tuple[str, str]] = {
     "viscous_friction": ("N s/m", "integral of v_C"),
+    "anisotropic_friction": ("N s/m", "viscous friction stronger along one axis of the load than across it (wheels, "
+                             "casters, a cart): D = [[d1, d2], [d2, -d1]] in the load's frame at the model's angle 0, "
+                             "beside viscous_friction's isotropic part; integral of R D R^T v_C"),
     "coulomb_friction": ("N", "integral of sign(v_C)"),
     "rotational_damping": ("N m s", "integral of omega"),
     "measurement_delay": ("s", "applied-force lag (rate of the prediction)"),
@@ -42,6 +46,8 @@ EFFECTS: dict[str, tuple[str, str]] = {
 }
 """Effect name -> (unit, the signature it leaves in the residual)."""
 VECTOR_EFFECTS = ("force_bias", "velocity_bias", "force_sensor_offset")
+PLANAR = ("anisotropic_friction",)
+"""Effects that exist only on a turning load moving along both axes (n >= 2, no idle axis): two parameters."""
 PER_AGENT = ("agent_actuator_gain", "agent_clock_offset")
 """Effects with one value per agent relative to a reference agent (``Layout.ref``): a gain common to the
 team is m/g and J/g, a clock offset common to the team is no offset at all, so only n - 1 are identifiable.
@@ -104,6 +110,8 @@ class Layout:
             return self.n - 1
         if name == "sensor_offset_body":  # the force's components in the load's frame and the torque
             return int(sum(self.axes)) + 1
+        if name in PLANAR:
+            return 2
         return int(sum(self.axes)) if name in VECTOR_EFFECTS else 1
 
     @property
@@ -327,6 +335,7 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
         return None
 
     cv, fc = eff("viscous_friction"), eff("coulomb_friction")
+    an = eff("anisotropic_friction")  # (B, 2): D's d1, d2
     cr, d = eff("rotational_damping"), eff("measurement_delay")
     tb = eff("torque_bias")
     fb = np.zeros((B, 2))
@@ -381,6 +390,12 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
             gf = gf + np.stack((cb * bb[:, 0:1] - sb * bb[:, 1:2], sb * bb[:, 0:1] + cb * bb[:, 1:2]), axis=-1)
         if cvv is not None:
             gf = gf - cvv * v
+        if an is not None:
+            # R D R^T for the traceless symmetric D is D turned by 2 theta: (d1 + i d2) e^{2 i theta}
+            c2, s2 = np.cos(2 * X[..., 3]), np.sin(2 * X[..., 3])
+            A = an[:, 0:1] * c2 - an[:, 1:2] * s2
+            C = an[:, 0:1] * s2 + an[:, 1:2] * c2
+            gf = gf - np.stack((A * v[..., 0] + C * v[..., 1], C * v[..., 0] - A * v[..., 1]), axis=-1)
         if fcc is not None:
             gf = gf - fcc / np.sqrt((v * v).sum(axis=-1, keepdims=True) + e2) * v
         out = np.empty_like(X)

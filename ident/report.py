@@ -142,7 +142,8 @@ def format_diagnosis(r: Diagnosis) -> str:
                      f"whiteness p {m.whiteness_p:.3g}, held-out {m.heldout_rms:.4g}{err}")  # fmt: skip
     if r.effects:
         for e in r.effects:
-            lines.append(f"effect    {e['name']}: {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}{_agents(e)}")
+            lines.append(f"effect    {e['name']}: {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}{_agents(e)}"
+                         + _principal(e))
     else:
         lines.append("effect    none named")
     lines.append(f"unexplained: {str(r.unexplained).lower()}")
@@ -191,6 +192,15 @@ def _agents(e: dict[str, Any]) -> str:
     off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]) or "none"
     why = "the team's median" if len(e["value"]) > 2 else "two agents: which of them is off is not identifiable"
     return f" (per agent, relative to agent {e['reference']}, {why}; outside its 95 % interval: {off})"
+
+
+def _principal(e: dict[str, Any]) -> str:
+    """An anisotropic friction's reading: the viscous friction along and across its axis."""
+    p = e.get("principal")
+    if p is None:
+        return ""
+    return (f" (viscous friction {p['along']:.4g} N s/m along the load's axis at {p['axis_deg']:.3g} deg, "
+            f"{p['across']:.4g} across it)")
 
 
 def _fmt(v: Any) -> str:

@@ -35,7 +35,7 @@ from ident.fit import (
     subset,
     window_valid,
 )
-from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS, Layout, expand
+from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS, Layout, expand
 from ident.prepare import (
     RUN,
     agent_floors,
@@ -195,17 +195,12 @@ def score(pb: Problem, fit: Fit, name: str) -> _Score:
     return _Score(p, logp, half, collinear, corr, d_full[eff_cols], lm / q)
 
 
-def _ref_scale(name: str) -> float:
-    return {"viscous_friction": 1.0, "coulomb_friction": 1.0, "rotational_damping": 1.0, "measurement_delay": 0.01,
-            "force_bias": 1.0, "torque_bias": 1.0, "velocity_bias": 0.01, "force_sensor_offset": 0.1,
-            "sensor_offset_body": 1.0}[name]  # fmt: skip
-
-
 def _reference(name: str, m: float, J: float, dt: float) -> float:
     """A realistic small magnitude of each effect; a candidate the data cannot resolve to this is 'not excited'."""
     mg = m * 9.81 if math.isfinite(m) and m > 0 else 500.0
     return {
         "viscous_friction": (m if math.isfinite(m) and m > 0 else 50.0) / 20.0,  # time constant m/b = 20 s
+        "anisotropic_friction": (m if math.isfinite(m) and m > 0 else 50.0) / 20.0,
         "coulomb_friction": 0.005 * mg,
         "rotational_damping": (J if math.isfinite(J) and J > 0 else 100.0) / 20.0,
         "measurement_delay": max(0.02, 2 * dt),
@@ -231,6 +226,8 @@ def _value(x: np.ndarray, lay: Layout, name: str, ci: bool = False) -> float | l
         return full.tolist()
     if name == "sensor_offset_body":  # [Bx, By] in the load's frame (None on an idle axis), the torque
         return _value(x[:-1], lay, "force_bias") + [float(x[-1])]
+    if name in PLANAR:
+        return [float(v) for v in x]
     if name not in VECTOR_EFFECTS:
         return float(x[0])
     out: list = [None, None]
@@ -242,13 +239,21 @@ def _value(x: np.ndarray, lay: Layout, name: str, ci: bool = False) -> float | l
     return out
 
 
+def _principal(d: np.ndarray, iso: float) -> dict[str, float]:
+    """The friction's principal axes from D's (d1, d2) and the isotropic part ``iso`` (viscous_friction's
+    value, 0 if not named): ``along`` acts along the axis at ``axis_deg`` in the load's frame at the model's
+    angle 0, ``across`` perpendicular to it."""
+    k = math.hypot(float(d[0]), float(d[1]))
+    return {"axis_deg": math.degrees(0.5 * math.atan2(float(d[1]), float(d[0]))), "along": iso + k, "across": iso - k}
+
+
 def _agents_off(val: list, ci: list, name: str) -> list[int]:
     """The agents whose per-agent value's 95 % interval excludes the reference's (gain 1, offset 0)."""
     ref = 1.0 if name == "agent_actuator_gain" else 0.0
     return [i for i, (v, h) in enumerate(zip(val, ci)) if abs(v - ref) > h]
 
 
-FORCE_LIKE = ("viscous_friction", "coulomb_friction", "rotational_damping", "force_bias", "torque_bias",
+FORCE_LIKE = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "rotational_damping", "force_bias", "torque_bias",
               "force_sensor_offset", "sensor_offset_body")
 
 
@@ -385,7 +390,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     cands = [c for c in opt.candidates if (c not in ("rotational_damping", "torque_bias", "force_sensor_offset",
                                                      "sensor_offset_body")
                                            or base.rotation)
-             and (c != "velocity_bias" or rec.vel is not None) and (c not in PER_AGENT or rec.n >= 2)]  # fmt: skip
+             and (c != "velocity_bias" or rec.vel is not None) and (c not in PER_AGENT or rec.n >= 2)
+             and (c not in PLANAR or (base.rotation and all(base.axes)))]  # fmt: skip
     say("nominal model: fitting")
     nominal = fit_robust(pb, base, g0, x0)
     modes0 = residual_modes(pb, nominal)
@@ -594,6 +600,9 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         val, ci = final.param(c)
         effects.append({"name": c, "value": _value(val, final.lay, c), "unit": EFFECTS[c][0],
                         "ci95": _value(ci, final.lay, c, ci=True)})  # fmt: skip
+        if c in PLANAR:
+            effects[-1]["principal"] = _principal(val, final.param("viscous_friction")[0][0]
+                                                  if "viscous_friction" in named else 0.0)
         if c in PER_AGENT:
             effects[-1]["reference"] = final.lay.ref
             effects[-1]["agents"] = _agents_off(effects[-1]["value"], effects[-1]["ci95"], c)
@@ -661,7 +670,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
 
 
 SAME_FORCE = ("force_bias", "force_sensor_offset")
-TRANSLATION = ("viscous_friction", "coulomb_friction", "force_bias", "force_sensor_offset", "sensor_offset_body")
+TRANSLATION = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "force_bias", "force_sensor_offset", "sensor_offset_body")
 ROTATION = ("rotational_damping", "torque_bias")
 
 
