@@ -13,28 +13,21 @@ from scipy.integrate import solve_ivp
 from ident.diagnose import diagnose_dir
 from ident.model import simulate
 from tests.foreign_plant import plant
-from tests.test_ident_model import _problem
+from tests.test_ident_model import ARMS, _problem, smooth_wrench
 
 B_X, B_Y = 2.0, 20.0  # N s/m along the load's own x and y axes
 
 
 def test_the_term_gives_back_the_true_motion():
-    """A 3-contact load turning under smooth forces with friction R(theta) diag(b_x, b_y) R(theta)^T v: the
+    """tests/test_ident_model.py's 3-contact load turning under its smooth forces with friction R(theta) diag(b_x, b_y) R(theta)^T v: the
     model with viscous_friction (b_x + b_y) / 2 and D = ((b_x - b_y) / 2, 0) predicts the contact velocities
     to the interpolation's error (cubic, 100 Hz: 3e-7 m/s in tests/test_ident_model.py)."""
-    r = np.array([[1.0, 0.2], [-0.8, 0.9], [-0.3, -1.1]])
+    r = ARMS
     m, J = 20.0, 15.0
-
-    def wrench(t):
-        w = np.zeros((3, 3))
-        w[:, 0] = 5 * np.sin(1.3 * t + np.arange(3))
-        w[:, 1] = 4 * np.cos(0.7 * t + 2 * np.arange(3))
-        w[:, 2] = 6 * np.sin(0.9 * t)
-        return w
 
     def f(t, s):
         vx, vy, om, th = s
-        w = wrench(t)
+        w = smooth_wrench(t)
         R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
         fr = R @ np.diag((B_X, B_Y)) @ R.T @ np.array((vx, vy))
         Rr = r @ R.T
@@ -47,7 +40,7 @@ def test_the_term_gives_back_the_true_motion():
     assert np.ptp(th) > 2.0  # the load turns: the friction's axes turn with it
     Rr = np.stack([r @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T for a in th])
     vel = np.stack((vx[:, None] - om[:, None] * Rr[..., 1], vy[:, None] + om[:, None] * Rr[..., 0]), -1)
-    pb = _problem(t, np.stack([wrench(x) for x in t]), vel=vel, hold="cubic")
+    pb = _problem(t, np.stack([smooth_wrench(x) for x in t]), vel=vel, hold="cubic")
     lay = pb.base.with_effects(("viscous_friction", "anisotropic_friction"))
     g = np.concatenate((r.ravel(), [1 / m, 1 / J, (B_X + B_Y) / 2, (B_X - B_Y) / 2, 0.0]))
     pred, _, _ = simulate(pb.win, lay, g[None], sol.y[:, 0][None, None], coulomb_speed=0.0, max_step=0.01)

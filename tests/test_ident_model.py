@@ -49,21 +49,26 @@ def test_ramp_force_is_integrated_as_first_order_hold_not_held():
     assert np.allclose(pc[0, 0, :, 0, 0], k * tt**3 / (6 * m), rtol=0, atol=1e-12)
 
 
+ARMS = np.array([[1.0, 0.2], [-0.8, 0.9], [-0.3, -1.1]])  # the rotating load's contacts (body frame, m)
+
+
+def smooth_wrench(t):
+    """The rotating load's smooth per-agent wrench (3, 3) at time t."""
+    w = np.zeros((3, 3))
+    w[:, 0] = 5 * np.sin(1.3 * t + np.arange(3))
+    w[:, 1] = 4 * np.cos(0.7 * t + 2 * np.arange(3))
+    w[:, 2] = 2 * np.sin(2.1 * t)
+    return w
+
+
 def _rotating(rate, T=6.0):
     """A 3-contact load under smooth forces, integrated by DOP853 at rtol 1e-11; returns (t, wrench, vel, truth)."""
-    r = np.array([[1.0, 0.2], [-0.8, 0.9], [-0.3, -1.1]])
+    r = ARMS
     m, J, cv, cr = 20.0, 15.0, 2.0, 1.5
-
-    def wrench(t):
-        w = np.zeros((3, 3))
-        w[:, 0] = 5 * np.sin(1.3 * t + np.arange(3))
-        w[:, 1] = 4 * np.cos(0.7 * t + 2 * np.arange(3))
-        w[:, 2] = 2 * np.sin(2.1 * t)
-        return w
 
     def f(t, s):
         vx, vy, om, th = s
-        w = wrench(t)
+        w = smooth_wrench(t)
         c, sn = np.cos(th), np.sin(th)
         Rx, Ry = c * r[:, 0] - sn * r[:, 1], sn * r[:, 0] + c * r[:, 1]
         tq = w[:, 2].sum() + np.sum(Rx * w[:, 1] - Ry * w[:, 0]) - cr * om
@@ -76,7 +81,7 @@ def _rotating(rate, T=6.0):
     Rx, Ry = c * r[:, 0] - sn * r[:, 1], sn * r[:, 0] + c * r[:, 1]
     vel = np.stack((vx[:, None] - om[:, None] * Ry, vy[:, None] + om[:, None] * Rx), -1)
     g = np.concatenate((r.ravel(), [1 / m, 1 / J, cv, cr]))
-    return t, np.stack([wrench(x) for x in t]), vel, g, sol.y[:, 0]
+    return t, np.stack([smooth_wrench(x) for x in t]), vel, g, sol.y[:, 0]
 
 
 @pytest.mark.parametrize("rate, hold, tol", [(20.0, "foh", 2e-3), (100.0, "foh", 1e-4), (20.0, "cubic", 3e-5),
