@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from statistics import NormalDist
 
 import numpy as np
 
@@ -95,7 +96,7 @@ def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
         return None
     dims = 2 * (rec.n - 2)  # the remainder's independent real components per stamp
     phi = float(acf[0])
-    p = float(stats.norm_sf(phi * math.sqrt(pairs[0] * dims)))
+    p = 1.0 - NormalDist().cdf(phi * math.sqrt(pairs[0] * dims))
     k = np.arange(2, CORRELATED_LAGS + 1)
     ok = np.isfinite(acf[1:]) & (pairs[1:] > 0)
     ar1 = False
@@ -105,7 +106,7 @@ def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
         bartlett = (1 + p2) * (1 - p2k) / (1 - p2) - 2 * k * p2k  # var(r_k) N of an AR(1)
         own = k * k * phi ** (2 * k - 2) * (1 - p2)  # phi^k's own, phi read from r_1
         z = np.abs(r - phi**k) / np.sqrt((bartlett + own) / (nk * dims))
-        ar1 = bool(z.max() < stats.norm_isf(CORRELATED_LEVEL / (2 * k.size)))
+        ar1 = bool(z.max() < NormalDist().inv_cdf(1.0 - CORRELATED_LEVEL / (2 * k.size)))
     dtm = float(np.median(np.diff(rec.t)))
     tau = -dtm / math.log(phi) if ar1 else 0.0
     if ar1:

@@ -165,16 +165,6 @@ def nested_f(rss_small: float, rss_big: float, q: int, N: int, P_big: int) -> tu
     return F, float(stats.f.sf(F, max(q, 1), dfd))
 
 
-def norm_sf(z: float) -> float:
-    """The standard normal's upper tail at ``z``."""
-    return float(stats.norm.sf(z))
-
-
-def norm_isf(p: float) -> float:
-    """The standard normal's upper ``p`` quantile."""
-    return float(stats.norm.isf(p))
-
-
 def score_test(lm: float, q: int) -> tuple[float, float]:
     """(p, log p) of a score (Lagrange multiplier) statistic ~ chi2(q)."""
     return float(stats.chi2.sf(lm, q)), float(stats.chi2.logsf(lm, q))
