@@ -6,7 +6,8 @@ with sums of sines, the wrench either smooth or held by a controller at its own 
 Coulomb friction smoothed as v / sqrt(|v|^2 + v_s^2), rotational damping, a sensor delay, sensor glitches
 (a share of samples off by many sigma); velocities or positions logged (velocities in each robot's own
 frame: odometry); the wrench in rows of its own at another rate; an agent's logger that drops out; the same
-offset on every force sensor (world or robot frame); velocity noise low-passed (a filtered estimate); a logged force clipped at a limit; a mass that drifts; run.toml says n, edges and dt and
+offset on every force sensor (world or robot frame); a logged force clipped at a limit; a mass that drifts;
+velocity noise low-passed (a filtered estimate); run.toml says n, edges and dt and
 nothing about how the wrench varies. Each case is diagnosed through the public CLI and judged against the
 plant's truth (docs/diagnose.md, "Measured: recordings as other loggers write them"):
 
@@ -89,7 +90,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     times them at the recording's end; ``vel_robot``: each robot logs its velocity in its own frame (as
     ``robot_frame`` the force: wheel odometry); ``fclip``: the logged force saturates at
     +-fclip per axis (the plant gets the true force); ``vcolor``: the velocity noise is a first-order low-pass
-    of white noise with this correlation time (s; a filtered velocity estimate), of standard deviation ``sigma``; ``fs``: static friction (Stribeck: the Coulomb level rises
+    of white noise with this correlation time (s; a filtered velocity estimate), of standard deviation
+    ``sigma``; ``fs``: static friction (Stribeck: the Coulomb level rises
     from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
