@@ -6,7 +6,8 @@ with sums of sines, the wrench either smooth or held by a controller at its own 
 Coulomb friction smoothed as v / sqrt(|v|^2 + v_s^2), rotational damping, a sensor delay, sensor glitches
 (a share of samples off by many sigma); velocities or positions logged (velocities in each robot's own
 frame: odometry); the wrench in rows of its own at another rate; an agent's logger that drops out; the same
-offset on every force sensor (world or robot frame); a logged force clipped at a limit; a mass that drifts; run.toml says n, edges and dt and
+offset on every force sensor (world or robot frame); a logged force clipped at a limit; a mass that drifts;
+velocity noise low-passed (a filtered estimate); run.toml says n, edges and dt and
 nothing about how the wrench varies. Each case is diagnosed through the public CLI and judged against the
 plant's truth (docs/diagnose.md, "Measured: recordings as other loggers write them"):
 
@@ -59,6 +60,8 @@ CASES: dict[str, dict] = {
     "sensor_offset_robot_frames": {"b": 8.0, "soffset": (0.4, -0.3), "soffset_robot": True},
     "mass_drift": {"drift": 0.8},
     "robot_frame_velocities": {"b": 8.0, "vel_robot": True},
+    "colored_velocity": {"vcolor": 0.1},
+    "colored_velocity_viscous": {"b": 8.0, "vcolor": 0.1},
     "cart_2_20": {"aniso": (2.0, 20.0)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
@@ -72,7 +75,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            clock: tuple[int, float] | None = None, robot_frame: bool = False, spin: float = 0.0,
            soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
-           vel_robot: bool = False, aniso: tuple[float, float] | None = None) -> dict:  # fmt: skip
+           vel_robot: bool = False, vcolor: float = 0.0, aniso: tuple[float, float] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -87,9 +90,11 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     the plant gets the true force); ``drift``: m and J change linearly from their values at t = 0 to ``drift``
     times them at the recording's end; ``vel_robot``: each robot logs its velocity in its own frame (as
     ``robot_frame`` the force: wheel odometry); ``fclip``: the logged force saturates at
-    +-fclip per axis (the plant gets the true force); ``aniso`` (b_x, b_y): viscous friction b_x along the
-    load's own x axis and b_y along its y axis (a cart on wheels; the axes as at the integration's start); ``fs``: static friction (Stribeck: the Coulomb level rises
-    from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
+    +-fclip per axis (the plant gets the true force); ``vcolor``: the velocity noise is a first-order low-pass
+    of white noise with this correlation time (s; a filtered velocity estimate), of standard deviation
+    ``sigma``; ``aniso`` (b_x, b_y): viscous friction b_x along the load's own x axis and b_y along its y axis
+    (a cart on wheels; the axes as at the integration's start); ``fs``: static friction (Stribeck: the Coulomb
+    level rises from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
@@ -108,6 +113,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     if clock:
         lag[clock[0]] = clock[1]
     phi = ang + np.pi
+    keep = np.exp(-1 / (rate * vcolor)) if vcolor else 0.0  # the low-pass's share of the previous noise
+    vnoise: list = [None] * n
 
     def force(t: float) -> np.ndarray:  # (n, 2), world frame, as logged
         if hold_hz:
@@ -151,7 +158,11 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             if pos:
                 y = np.array([px + rw[i, 0], py + rw[i, 1]]) + rng.normal(0, pos, 2)
             else:
-                y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sig[i], 2) + vbias
+                draw = rng.normal(0, sig[i], 2)
+                if vcolor:  # stationary from the first sample: the same draws, low-passed
+                    draw = draw if vnoise[i] is None else keep * vnoise[i] + np.sqrt(1 - keep * keep) * draw
+                    vnoise[i] = draw
+                y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + draw + vbias
                 if glitches and rng.random() < glitches:
                     y += rng.normal(0, 20 * sig[i], 2)
                 if vel_robot:

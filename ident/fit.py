@@ -58,6 +58,7 @@ class Problem:
     omega_sigma: float = 0.002
     gap_factor: float = 5.0
     vel_lag1: float = 0.0  # correlation of consecutive velocity noise samples (-1/2: differences of positions)
+    vel_tau: float = 0.0  # correlation time (s) of velocity noise that is a first-order low-pass (0: white)
 
     def residual(self, g: np.ndarray, x: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
         """(B, S, M) weighted measurement residuals (0 where not measured) and (B, S - 1) continuity
@@ -72,6 +73,8 @@ class Problem:
             e = (w.vel[None] - vel) * m / self.sigma_v
             if self.vel_lag1:
                 e = decorrelate(e, self.vel_lag1, first=1) * m
+            elif self.vel_tau:
+                e = whiten_lowpass(e, w.t, w.vmask, self.vel_tau) * m
             parts.append(e.reshape(g.shape[0], w.S, -1))
         if pos is not None:
             m = w.pmask[None, ..., None] * ax
@@ -189,6 +192,32 @@ def decorrelate(e: np.ndarray, rho: float, first: int = 0) -> np.ndarray:
         a = math.sqrt(1.0 - b * b)
         out[..., k, :, :] = (e[..., k, :, :] - b * out[..., k - 1, :, :]) / a
     return out
+
+
+def correlated(pb: Problem, tau: float) -> Problem:
+    """``pb`` whose velocity residual is whitened for noise that is a first-order low-pass of white noise with
+    correlation time ``tau`` (s): generalised least squares, so the fit's intervals, F-tests and whiteness
+    test hold for that noise."""
+    return replace(pb, vel_tau=tau)
+
+
+def whiten_lowpass(e: np.ndarray, t: np.ndarray, mask: np.ndarray, tau: float) -> np.ndarray:
+    """``e`` (..., S, L, n, 2), noise of unit variance that is a first-order low-pass of white noise (an
+    Ornstein-Uhlenbeck process of correlation time ``tau``), whitened per window and agent: the process is
+    Markov, so each sample given the agent's previous measured one in the window is x_k = (e_k - phi e_prev)
+    / sqrt(1 - phi^2), phi = exp(-(t_k - t_prev) / tau), exact on irregular stamps and across missing
+    samples; an agent's first sample in a window is its stationary self. ``t`` (S, L) the stamps, ``mask``
+    (S, L, n) where measured; the unmeasured entries of ``e`` must be zero and are masked again by the caller."""
+    S, L, n = mask.shape
+    k = np.broadcast_to(np.arange(L)[None, :, None], (S, L, n))
+    last = np.maximum.accumulate(np.where(mask > 0, k, -1), axis=1)
+    prev = np.concatenate((np.full((S, 1, n), -1), last[:, :-1]), axis=1)  # the agent's previous measured stamp
+    tn = np.broadcast_to(t[..., None], (S, L, n))
+    dt = tn - np.take_along_axis(tn, np.maximum(prev, 0), axis=1)
+    phi = np.where(prev >= 0, np.exp(-np.maximum(dt, 0.0) / tau), 0.0)
+    phi = np.minimum(phi, 1.0 - 1e-12)
+    ep = np.take_along_axis(e, np.maximum(prev, 0)[..., None].reshape((1,) * (e.ndim - 4) + (S, L, n, 1)), axis=-3)
+    return (e - phi[..., None] * ep) / np.sqrt(1.0 - phi * phi)[..., None]
 
 
 def window_valid(pb: Problem) -> np.ndarray:

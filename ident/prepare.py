@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from statistics import NormalDist
 
 import numpy as np
 
@@ -68,6 +69,52 @@ def differenced_velocities(rec: Recording, warns: list[str]) -> float:
                  "of noisy positions (an encoder's counts over the sample period), each the mean velocity over the "
                  "interval before its stamp: modelled so, and the residual whitened for the noise")
     return -0.5  # white position noise differenced: exactly; a window's covariance stays positive definite
+
+
+CORRELATED_LEVEL = 1e-3  # the selection's level: white noise's remainder passes this test once in 1000 recordings
+CORRELATED_MIN = 0.1  # below it the correlation widens the intervals by less than 10 % ((1 + rho) / (1 - rho))
+CORRELATED_LAGS = 10  # lags over which the remainder must decay as an AR(1)'s, phi^k
+
+
+def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
+    """The velocity noise's correlation in time, measured on the rigid-body kinematics' remainder (n >= 3;
+    no dynamics model involved): ``{"lag1", "tau_s", "ar1", "p", "acf"}``, ``tau_s`` > 0 where the noise is
+    modelled as a first-order low-pass of white noise (an AR(1) in continuous time; the residual is then
+    whitened for it, :func:`ident.fit.correlated`), 0 otherwise; None without the data to measure it.
+
+    A lab's velocity is often a filtered estimate, whose noise correlates over the filter's time constant;
+    the fit's intervals, F-tests and whiteness test assume white noise. Modelled when the lag-1 correlation
+    passes a one-sided test at :data:`CORRELATED_LEVEL` against white noise, is at least
+    :data:`CORRELATED_MIN`, and the correlations at lags 2..:data:`CORRELATED_LAGS` are an AR(1)'s, phi^k
+    (each within its Bartlett standard error at the same level, Bonferroni over the lags): a signal the
+    kinematics lack (one logger's clock offset, a velocity in a robot's frame) also correlates the
+    remainder, but as a slow signal does, nearly flat over these lags, and is left to the fit."""
+    if rec.vel is None or rec.n < 3:
+        return None
+    acf, pairs = stats.kinematic_acf(rec.vel, CORRELATED_LAGS)
+    if not np.isfinite(acf[0]) or pairs[0] < 50:
+        return None
+    dims = 2 * (rec.n - 2)  # the remainder's independent real components per stamp
+    phi = float(acf[0])
+    p = 1.0 - NormalDist().cdf(phi * math.sqrt(pairs[0] * dims))
+    k = np.arange(2, CORRELATED_LAGS + 1)
+    ok = np.isfinite(acf[1:]) & (pairs[1:] > 0)
+    ar1 = False
+    if p < CORRELATED_LEVEL and phi >= CORRELATED_MIN and phi < 1.0 and ok.any():
+        k, r, nk = k[ok], acf[1:][ok], pairs[1:][ok]
+        p2, p2k = phi * phi, phi ** (2 * k)
+        bartlett = (1 + p2) * (1 - p2k) / (1 - p2) - 2 * k * p2k  # var(r_k) N of an AR(1)
+        own = k * k * phi ** (2 * k - 2) * (1 - p2)  # phi^k's own, phi read from r_1
+        z = np.abs(r - phi**k) / np.sqrt((bartlett + own) / (nk * dims))
+        ar1 = bool(z.max() < NormalDist().inv_cdf(1.0 - CORRELATED_LEVEL / (2 * k.size)))
+    dtm = float(np.median(np.diff(rec.t)))
+    tau = -dtm / math.log(phi) if ar1 else 0.0
+    if ar1:
+        warns.append(f"the velocities' noise is correlated in time: lag-1 correlation {phi:.2f}, as a first-order "
+                     f"low-pass of {1000 * tau:.3g} ms (a filtered velocity estimate; measured on the rigid-body "
+                     "kinematics alone): the residual is whitened for it, and the intervals and tests account "
+                     "for it")  # fmt: skip
+    return {"lag1": phi, "tau_s": tau, "ar1": ar1, "p": p, "acf": acf.tolist()}
 
 
 RUN = 4  # consecutive windows kept together: the rotation's links between them carry J's information

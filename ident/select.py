@@ -23,6 +23,7 @@ from ident.fit import (
     FitOptions,
     Lin,
     Problem,
+    correlated,
     differenced,
     fit_robust,
     initial_guess,
@@ -39,6 +40,7 @@ from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS, Layout, expa
 from ident.prepare import (
     RUN,
     agent_floors,
+    correlated_velocities,
     differenced_velocities,
     noise_floor,
     spread_windows,
@@ -333,6 +335,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     warns = list(rec.warnings)
     lag1 = differenced_velocities(rec, warns)
     rec = without_glitches(rec, warns)  # before the floors: glitches inflate them
+    # a filtered velocity's noise correlates in time (differenced positions' is the MA(1) above)
+    corr = None if lag1 else correlated_velocities(rec, warns)
     sv, sp = noise_floor(rec)
     sv_w, sp_w = usable_floor(sv, rec.vel), usable_floor(sp, rec.pos)
     per_agent = {}
@@ -371,6 +375,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     pb = replace(pb, coulomb_speed=cs)
     if lag1:
         pb = differenced(pb, lag1)
+    elif corr is not None and corr["tau_s"]:
+        pb = correlated(pb, corr["tau_s"])
     size = pb.win.S * pb.win.L * rec.n
     if opt.max_samples and size > opt.max_samples:
         idx = spread_windows(pb.win.S, max(8, opt.max_samples // (pb.win.L * rec.n)))
@@ -638,6 +644,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         return rep
 
     floors = {**{f"{k}_per_agent": v for k, v in per_agent.items()}, **retimed}
+    if corr is not None:
+        floors["velocity_correlation"] = corr
     # 1/m and 1/J are the fitted parameters: one not above its own 95 % half-width leaves m (J) unresolved
     # (a load that hardly moves under the applied force: friction holds it, or the push is too weak)
     resolved = {"m": False, "J": False}
@@ -762,7 +770,7 @@ def predict(diag: Diagnosis, rec: Recording, opt: DiagnoseOptions | None = None)
     sv, sp = noise_floor(rec)
     tmp = make_problem(rec, pb0.sigma_v, pb0.sigma_p, opt.fit,
                        rotation=pb0.base.rotation)  # fmt: skip
-    pb = replace(tmp, coulomb_speed=pb0.coulomb_speed, base=pb0.base)
+    pb = replace(tmp, coulomb_speed=pb0.coulomb_speed, base=pb0.base, vel_tau=pb0.vel_tau)
     g_start, x_start, _ = initial_guess(pb, rec)
     out: dict[str, Any] = {"noise_floor": {"velocity": sv, "position": sp}}
     for key in ("nominal", "augmented"):

@@ -84,18 +84,31 @@ def kinematic_noise(vel: np.ndarray) -> float:
                      * n / max(n - 2, 1))
 
 
-def kinematic_lag1(vel: np.ndarray) -> float:
-    """Lag-1 autocorrelation along time of the rigid-body kinematics' remainder (:func:`kinematic_noise`),
-    over runs of stamps where every agent measured: ~0 for white sensor noise, -1/2 for velocities that are
-    differences of noisy positions ((n_k - n_(k-1)) / dt). NaN for n < 3 or too little data."""
+def kinematic_acf(vel: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
+    """Autocorrelation r_1..r_lags along time of the rigid-body kinematics' remainder (:func:`kinematic_noise`),
+    over pairs of stamps ``lag`` apart where every agent measured, and the number of such pairs per lag. The
+    remainder is the noise through one projection per stamp across the agents, the same at every stamp, so
+    it keeps the noise's correlation in time: ~0 for white sensor noise, -1/2 at lag 1 for velocities that
+    are differences of noisy positions, phi^k for noise that is an AR(1) of per-sample correlation phi (a
+    low-passed velocity). NaN (and no pairs) for n < 3 or too little data."""
     got = _kinematic_remainder(vel, 50)
     if got is None:
-        return math.nan
+        return np.full(lags, math.nan), np.zeros(lags, int)
     resid, idx = got
-    nxt = np.flatnonzero(np.diff(idx) == 1)  # consecutive stamps both full
     r = np.concatenate((resid.real, resid.imag), axis=1)
     den = float((r * r).sum()) / r.shape[0]
-    return float((r[nxt] * r[nxt + 1]).sum()) / max(nxt.size, 1) / den if den > 0 else math.nan
+    acf, pairs = np.full(lags, math.nan), np.zeros(lags, int)
+    for k in range(1, lags + 1):
+        nxt = np.flatnonzero(idx[k:] - idx[:-k] == k)  # stamps k apart, both full
+        pairs[k - 1] = nxt.size
+        if den > 0 and nxt.size:
+            acf[k - 1] = float((r[nxt] * r[nxt + k]).sum()) / nxt.size / den
+    return acf, pairs
+
+
+def kinematic_lag1(vel: np.ndarray) -> float:
+    """Lag-1 autocorrelation of the rigid-body kinematics' remainder (:func:`kinematic_acf`)."""
+    return float(kinematic_acf(vel, 1)[0][0])
 
 
 def block_average(x: np.ndarray, block: int) -> np.ndarray:
