@@ -581,10 +581,13 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         named = [c for c in accepted if c not in ambiguous_names]
         final = current
         if white <= opt.alpha_white and not walk_white:
+            # a share above 1 is a residual brought below the floor: its structure is at the noise's level
+            removed = (f"{100 * share:.1f} % of the nominal model's excess residual: named; dynamics outside the "
+                       "vocabulary remain" if share <= 1.0 else "all of the nominal model's excess residual: named; "
+                       "what structure remains is at the noise's level (the sensors', or dynamics outside the "
+                       "vocabulary)")
             warns.append(f"the residual with {', '.join(accepted)} is not white (Ljung-Box p {white:.2g}, "
-                         f"{math.sqrt(current.sigma2):.3g} x the noise floor), but the effects remove "
-                         f"{100 * share:.1f} % of the nominal model's excess residual: named; dynamics outside the "
-                         f"vocabulary remain")  # fmt: skip
+                         f"{math.sqrt(current.sigma2):.3g} x the noise floor), but the effects remove {removed}")
     elif not accepted and (white > opt.alpha_white or walk_white):
         unexplained, named, final = False, [], nominal
     else:
