@@ -4,10 +4,13 @@ from bench/foreign_recordings.py's plant (no code shared with ident/)."""
 
 from __future__ import annotations
 
+import pytest
+
 from ident.diagnose import diagnose_dir
 from tests.foreign_plant import plant
 
 
+@pytest.mark.long  # ~35 s CPU: the nominal fit is 2x the floor, so every candidate is fitted in each round
 def test_a_force_sensor_low_pass_is_named_with_the_friction_and_nothing_else(tmp_path):
     """Viscous friction 8 N s/m behind force sensors that low-pass at 30 ms: the lag was a negative delay, held
     at measurement_delay's bound 0 in silence, and the recording `unexplained` with the friction lost; now the
