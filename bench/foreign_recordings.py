@@ -188,7 +188,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     (out / "run.toml").write_text(f"n = {n}\nedges = {json.dumps(edges)}\ndt = {1 / rate}\n")
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay,
                "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
-               "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot, "force_sensor_offset": soffset and not soffset_robot and list(soffset),
+               "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot,
+               "force_sensor_offset": soffset and not soffset_robot and list(soffset),
                "force_sensor_lowpass": flp, "force_sensor_lag": flate}
     if soffset and soffset_robot:  # the team's offset: a force fixed in the load's frame and a constant torque
         turned = [np.array([[np.cos(p_), -np.sin(p_)], [np.sin(p_), np.cos(p_)]]) @ soffset for p_ in phi]

@@ -197,8 +197,8 @@ def score(pb: Problem, fit: Fit, name: str) -> _Score:
 
 def _ref_scale(name: str) -> float:
     return {"viscous_friction": 1.0, "coulomb_friction": 1.0, "rotational_damping": 1.0, "measurement_delay": 0.01,
-            "force_sensor_lag": 0.01, "force_sensor_lowpass": 0.01, "force_bias": 1.0, "torque_bias": 1.0, "velocity_bias": 0.01,
-            "force_sensor_offset": 0.1, "sensor_offset_body": 1.0}[name]  # fmt: skip
+            "force_sensor_lag": 0.01, "force_sensor_lowpass": 0.01, "force_bias": 1.0, "torque_bias": 1.0,
+            "velocity_bias": 0.01, "force_sensor_offset": 0.1, "sensor_offset_body": 1.0}[name]  # fmt: skip
 
 
 def _reference(name: str, m: float, J: float, dt: float) -> float:
