@@ -188,7 +188,7 @@ def expand(layout: Layout, g: np.ndarray, src: Layout, init: dict | None = None)
 
 def _logged(w: Windows, lowpass: np.ndarray | None) -> list[np.ndarray]:
     """The input series (T, C) each batch member is driven by: as logged, or where the force sensors low-pass
-    with time constant T_k (T_k dF/dt + F = the force applied), the applied force F + T_k dF/dt."""
+    with time constant T_k (T_k dF/dt + F = the applied force, F logged), the applied force F + T_k dF/dt."""
     if lowpass is None or not np.any(lowpass):
         return [w.u] * (1 if lowpass is None else lowpass.size)
     du = np.gradient(w.u, w.u_t, axis=0)

@@ -446,10 +446,12 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             ranked += blind
         trials: dict[str, tuple[Fit, float]] = {}
         eligible: list[str] = []
+        extra = 0  # fits beyond the rounds of max_fits: a force lag's second shape
         for j, c in enumerate(ranked):
-            if screened and j and j % opt.max_fits == 0 and eligible and not (c in FORCE_LAG and trials.keys() & {
-                    *FORCE_LAG}):  # a force lag's two shapes are fitted side by side: the better one goes on
-                break  # fit the next strongest only when none of these qualifies
+            if screened and j and (j - extra) % opt.max_fits == 0 and eligible:
+                if not (c in FORCE_LAG and trials.keys() & set(FORCE_LAG)):
+                    break  # fit the next strongest only when none of these qualifies
+                extra += 1  # a force lag's two shapes are fitted side by side: the better one goes on
             lay = current.lay.with_effects(current.lay.effects + (c,))
             say(f"candidate {c} ({j + 1}/{len(ranked)}) on top of {list(current.lay.effects) or 'nominal'}")
             g = expand(lay, current.g, current.lay, init)
@@ -554,6 +556,10 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                          lambda c: ", ".join(e for e in accepted if e != c),
                          "adds nothing beside the effects named after it")
     current, shape = _force_lag_shape(pb, current, accepted, opt.alpha, say)
+    for c in [c for c in accepted if c not in table]:  # the shape kept at the end, not fitted in a round
+        val, ci = current.param(c)
+        table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
+                    "ci95": _value(ci, current.lay, c, ci=True), "on_top_of": [e for e in accepted if e != c]}
     for c in _unresolved_effects(current, accepted):
         # the effect acts through a 1/m (1/J) the data do not resolve from zero: they see only its product
         # with 1/m, so its value is not determined and it is not named (it stays in the candidates' table)
@@ -741,6 +747,8 @@ def _force_lag_shape(pb: Problem, fit: Fit, accepted: list[str], alpha: float,
     joint = lm_fit(pb, lay3, expand(lay3, fit.g, fit.lay), fit.x)
     adds = stats.nested_f(alt.rss, joint.rss, 1, joint.N, joint.P)[1] < alpha  # the kept shape beside the other
     return fit, (other, alt.bic - fit.bic, adds)
+
+
 SAME_FORCE = ("force_bias", "force_sensor_offset")
 TRANSLATION = ("viscous_friction", "coulomb_friction", "force_bias", "force_sensor_offset", "sensor_offset_body")
 ROTATION = ("rotational_damping", "torque_bias")
