@@ -699,7 +699,7 @@ def _lag_text(name: str, d: float, h: float, shape: tuple[str, float, bool] | No
     if shape is None:
         return head + " (below the sensors' bandwidth a late stamp and a low-pass look alike)"
     other, dbic, apart = shape
-    alt = "a first-order low-pass" if other == "force_sensor_lowpass" else "rows stamped late"
+    alt = "a first-order low-pass" if other == "force_sensor_lowpass" else "a late stamp"
     if apart:
         return head + f"; {alt} fits worse (BIC higher by {dbic:.3g})"
     return head + f"; these data do not tell it from {alt} (its BIC higher by only {dbic:.2g}: it does not add to it)"
