@@ -476,9 +476,6 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                         "ci95": _value(ci, f.lay, c, ci=True),
                         "F": F, "p": pF, "delta_bic": f.bic - current.bic, "whiteness_p": wp,
                         "on_top_of": list(current.lay.effects)}  # fmt: skip
-            if c in NONNEGATIVE and val[0] <= 0.0 and scores[c].step[0] < 0 and scores[c].p < alpha_k:
-                # held at its bound by a fit that wants it below: the data point at the other sign (said below)
-                table[c]["at_bound"] = scores[c].p
             if wp <= opt.alpha_white and pF < alpha_k:
                 # a drifting residual makes the F-test see structure everywhere: the effect must also stand
                 # against the random walk that an unmeasured random force leaves (ident/random_force.py)
@@ -608,8 +605,17 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         final.cov = robust_covariance(pb, final, walk, theta_w)  # the ci95 reported include the walk
     for c in table:
         table[c]["accepted"] = c in named
-        if "at_bound" in table[c] and c not in named and not (c in TIMING and set(TIMING) & set(named)):
-            warns.append(_at_bound(c, table[c]["at_bound"]))
+    # a non-negative candidate the reported model would take below its bound 0 (its score test's step points
+    # there, at the selection's level over the candidates left out): held at 0, the data point at the other sign
+    out = [c for c in cands if c not in final.lay.effects]
+    level = opt.alpha / max(len({"timing" if c in TIMING else c for c in out}), 1)
+    for c in out:
+        if c in NONNEGATIVE and not (c in TIMING and set(TIMING) & set(named)):
+            sc = score(pb, final, c)
+            if sc.step[0] < 0 and sc.p < level:
+                warns.append(_at_bound(c, sc.p))
+                if c in table:
+                    table[c]["at_bound_p"] = sc.p
     effects = []
     retimed: dict[str, float] = {}  # the velocity floor re-read with the clock offsets named
     for c in named:
@@ -719,7 +725,7 @@ def _at_bound(name: str, p: float) -> str:
     """The line for a non-negative candidate held at 0 by a fit that wants it negative."""
     hint = BOUND_HINT.get(name, "a negative value no physical effect of its kind has: the residual holds something "
                                 "else, outside the vocabulary")
-    return f"{name}: fitted at its bound 0, and the data want it below (score test p {p:.2g}): {hint}"
+    return f"{name}: held at its bound 0, and the data want it below (score test p {p:.2g}): {hint}"
 
 
 FORCE_LAG = ("force_sensor_lag", "force_sensor_lowpass")
