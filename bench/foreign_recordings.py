@@ -7,7 +7,8 @@ Coulomb friction smoothed as v / sqrt(|v|^2 + v_s^2), rotational damping, a sens
 (a share of samples off by many sigma); velocities or positions logged (velocities in each robot's own
 frame: odometry); the wrench in rows of its own at another rate; an agent's logger that drops out; the same
 offset on every force sensor (world or robot frame); a logged force clipped at a limit; a mass that drifts;
-velocity noise low-passed (a filtered estimate); run.toml says n, edges and dt and
+velocity noise low-passed (a filtered estimate); force sensors that low-pass or log late; friction fixed to the
+load's axes (a cart); run.toml says n, edges and dt and
 nothing about how the wrench varies. Each case is diagnosed through the public CLI and judged against the
 plant's truth (docs/diagnose.md, "Measured: recordings as other loggers write them"):
 
@@ -63,6 +64,8 @@ CASES: dict[str, dict] = {
     "colored_velocity": {"vcolor": 0.1},
     "colored_velocity_viscous": {"b": 8.0, "vcolor": 0.1},
     "cart_2_20": {"aniso": (2.0, 20.0)},
+    "force_lowpass_30ms": {"b": 8.0, "flp": 0.03},
+    "force_late_30ms": {"b": 8.0, "flate": 0.03},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -75,7 +78,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            clock: tuple[int, float] | None = None, robot_frame: bool = False, spin: float = 0.0,
            soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
-           vel_robot: bool = False, vcolor: float = 0.0, aniso: tuple[float, float] | None = None) -> dict:  # fmt: skip
+           vel_robot: bool = False, vcolor: float = 0.0, aniso: tuple[float, float] | None = None, flp: float = 0.0,
+           flate: float = 0.0) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -94,7 +98,11 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     of white noise with this correlation time (s; a filtered velocity estimate), of standard deviation
     ``sigma``; ``aniso`` (b_x, b_y): viscous friction b_x along the load's own x axis and b_y along its y axis
     (a cart on wheels; the axes as at the integration's start); ``fs``: static friction (Stribeck: the Coulomb
-    level rises from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
+    level rises from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled;
+    ``flp``: every force sensor low-passes (first order, this time constant, s; steady state, smooth pushes
+    only); ``flate``: the force rows are stamped this late (s; the row at t holds the force of t - flate)."""
+    if flp and hold_hz:
+        raise ValueError("flp: the low-pass of a held wrench is not written here (smooth pushes only)")
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
     m = rng.uniform(20, 80)
@@ -120,6 +128,12 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         if hold_hz:
             t = np.floor(t * hold_hz + 1e-9) / hold_hz
         return (amp * np.sin(2 * np.pi * freq * t + ph)).sum(-1)
+
+    def logged(t: float) -> np.ndarray:  # (n, 2): what the force sensors log at t
+        if not flp:
+            return force(t - flate)
+        w = 2 * np.pi * freq  # each sine through T f' + f = its force: gain 1/sqrt(1 + (w T)^2), phase -atan(w T)
+        return (amp / np.sqrt(1 + (w * flp) ** 2) * np.sin(w * (t - flate) + ph - np.arctan(w * flp))).sum(-1)
 
     def arms(th: float) -> np.ndarray:
         ct, st = np.cos(th), np.sin(th)
@@ -150,7 +164,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         for i in range(n):
             px, py, th, vx, vy, om = sol.sol(max(tk - lag[i] - delay, -1.0))
             rw = arms(th)
-            f = force(tk - lag[i])
+            f = logged(tk - lag[i])
             if robot_frame:
                 thf = sol.sol(tk)[2] + phi[i]
                 c_, s_ = np.cos(thf), np.sin(thf)
@@ -180,7 +194,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             w = ",," if wrench_hz else f"{fl[0]:.9g},{fl[1]:.9g},0"
             rows.append((tk, i, f"{tk:.6f},{i},{y[0]:.9g},{y[1]:.9g},{w}"))
     for tk in np.arange(0, dur, 1 / wrench_hz) if wrench_hz else ():
-        f = force(tk)
+        f = logged(tk)
         rows += [(tk, i, f"{tk:.6f},{i},,,{f[i, 0]:.9g},{f[i, 1]:.9g},0") for i in range(n)]
     rows.sort(key=lambda r: r[:2])
     rows = [r for tk, i, r in rows if not (dropout and i == dropout[0] and dropout[1] <= tk < dropout[2])]
@@ -191,7 +205,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     (out / "run.toml").write_text(f"n = {n}\nedges = {json.dumps(edges)}\ndt = {1 / rate}\n")
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay,
                "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
-               "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot, "force_sensor_offset": soffset and not soffset_robot and list(soffset)}
+               "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot,
+               "force_sensor_offset": soffset and not soffset_robot and list(soffset),
+               "force_sensor_lowpass": flp, "force_sensor_lag": flate}
     if aniso:  # the isotropic part is viscous friction; the rest D = (b_x - b_y) / 2 diag(1, -1) in the start's axes
         effects["viscous_friction"] = b + (aniso[0] + aniso[1]) / 2
         effects["anisotropic_friction"] = [aniso[0] + b, aniso[1] + b]  # the friction along x and along y

@@ -311,7 +311,8 @@ def _scales(lay: Layout, g: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.n
     if lay.rotation:
         sg[: lay.n_geom] = np.maximum(np.abs(g[: lay.n_geom]), 0.1)
     sg[lay.ia] = max(abs(g[lay.ia]), 1e-5)
-    for name in ("measurement_delay", "agent_actuator_gain", "agent_clock_offset"):
+    for name in ("measurement_delay", "force_sensor_lag", "force_sensor_lowpass", "agent_actuator_gain",
+                 "agent_clock_offset"):
         if name in lay.effects:
             sg[lay.slot(name)] = np.maximum(np.abs(g[lay.slot(name)]), 0.01)
     sx = np.maximum(np.abs(x).max(axis=0) if x.size else np.ones(lay.K), 1e-3)

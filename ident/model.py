@@ -15,7 +15,10 @@ centred-difference slopes (``cubic``, the default for a recording that does not 
 the straight line (first-order hold, ``foh``), or held (zero-order hold, ``zoh``) when the recording
 says its actuators hold it. The ODE is integrated by classical RK4 with substeps no longer than ``max_step`` between
 stamps (stamps may be irregular). A measurement delay d is the same model driven by the input
-d earlier, since every window starts from a free state. Per agent (``PER_AGENT``): agent i's force is
+d earlier, since every window starts from a free state; a force sensor that lags by d (its rows stamped d late,
+or a low-pass of time constant about d) is the input d later: the two are one shift of the input with two
+signs, each a non-negative effect of its own. A force sensor's first-order low-pass of time constant T is the
+input F + T dF/dt (the same as d = T at low frequency, not above it). Per agent (``PER_AGENT``): agent i's force is
 scaled by its gain g_i, and an agent whose rows are stamped d_i late has its force taken d_i later and its
 velocity predicted d_i earlier. See docs/diagnose.md ("Model").
 """
@@ -34,6 +37,10 @@ EFFECTS: dict[str, tuple[str, str]] = {
     "coulomb_friction": ("N", "integral of sign(v_C)"),
     "rotational_damping": ("N m s", "integral of omega"),
     "measurement_delay": ("s", "applied-force lag (rate of the prediction)"),
+    "force_sensor_lag": ("s", "logged-force lag: the motion leads the logged force (rate of the prediction, the "
+                         "other sign)"),
+    "force_sensor_lowpass": ("s", "the force sensors' first-order low-pass: the motion leads the logged force "
+                             "(its rate, as force_sensor_lag at low frequency)"),
     "force_bias": ("N", "constant force (ramp in v_C)"),
     "torque_bias": ("N m", "constant torque (ramp in omega)"),
     "velocity_bias": ("m/s", "constant velocity offset"),
@@ -52,7 +59,14 @@ PER_AGENT = ("agent_actuator_gain", "agent_clock_offset")
 """Effects with one value per agent relative to a reference agent (``Layout.ref``): a gain common to the
 team is m/g and J/g, a clock offset common to the team is no offset at all, so only n - 1 are identifiable.
 The parameters are the other agents' deviations: gain - 1, offset (s; the agent's rows stamped that late)."""
-NONNEGATIVE = ("viscous_friction", "coulomb_friction", "rotational_damping", "measurement_delay")
+NONNEGATIVE = ("viscous_friction", "coulomb_friction", "rotational_damping", "measurement_delay", "force_sensor_lag",
+               "force_sensor_lowpass")
+MIRRORS = {"measurement_delay": "force_sensor_lag", "force_sensor_lag": "measurement_delay"}
+"""The input's shift with its two signs (velocities measured late, forces logged late): one parameter, each sign
+a candidate that stays >= 0, so that either bound says which sensor lags."""
+TIMING = ("measurement_delay", "force_sensor_lag", "force_sensor_lowpass")
+"""The effects on the timing of the input against the motion: the same signature at first order (the input's
+rate), told apart by its sign and, between a late stamp and a low-pass, at higher frequencies."""
 
 
 @dataclass
@@ -180,24 +194,35 @@ def expand(layout: Layout, g: np.ndarray, src: Layout, init: dict | None = None)
     return out
 
 
+def _logged(w: Windows, lowpass: np.ndarray | None) -> list[np.ndarray]:
+    """The input series (T, C) each batch member is driven by: as logged, or where the force sensors low-pass
+    with time constant T_k (T_k dF/dt + F = the applied force, F logged), the applied force F + T_k dF/dt."""
+    if lowpass is None or not np.any(lowpass):
+        return [w.u] * (1 if lowpass is None else lowpass.size)
+    du = np.gradient(w.u, w.u_t, axis=0)
+    return [w.u + T * du if T else w.u for T in lowpass]
+
+
 def _rk_inputs(w: Windows, r: np.ndarray, delay: np.ndarray, gain: np.ndarray | None = None,
-               clock: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+               clock: np.ndarray | None = None, lowpass: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """Input channels at the stamps for each batch member: (B, S, L) each of Fx, Fy, tau, P, Q with
     torque = tau + cos(theta) P + sin(theta) Q; shifted by each member's delay (linear interpolation);
     ``gain`` (B, n) scales each agent's force, ``clock`` (B, n) shifts it (agent i's force at model time t
-    is the one logged at t + clock_i)."""
+    is the one logged at t + clock_i); ``lowpass`` (B,) the force sensors' time constants (:func:`_logged`)."""
     if gain is not None or clock is not None:
-        return _agent_inputs(w, r, delay, gain, clock)
+        return _agent_inputs(w, r, delay, gain, clock, lowpass)
     B = r.shape[0]
     n = w.n
-    if np.any(delay != 0):
+    lp = np.zeros(B) if lowpass is None else lowpass
+    if np.any(delay != 0) or np.any(lp != 0):
+        series = _logged(w, lp)
         out = []
         for k in range(B):
-            if delay[k] == 0:
+            if delay[k] == 0 and lp[k] == 0:
                 out.append(None)
                 continue
             ts = (w.t - delay[k]).ravel()
-            u = np.stack([np.interp(ts, w.u_t, w.u[:, c]) for c in range(w.u.shape[1])], axis=-1)
+            u = np.stack([np.interp(ts, w.u_t, series[k][:, c]) for c in range(w.u.shape[1])], axis=-1)
             out.append(u.reshape(w.S, w.L, -1))
     else:
         out = [None] * B
@@ -222,21 +247,24 @@ def _rk_inputs(w: Windows, r: np.ndarray, delay: np.ndarray, gain: np.ndarray | 
 
 
 def _agent_inputs(w: Windows, r: np.ndarray, delay: np.ndarray, gain: np.ndarray | None,
-                  clock: np.ndarray | None) -> tuple[np.ndarray, ...]:
+                  clock: np.ndarray | None, lowpass: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """:func:`_rk_inputs` with per-agent gains and clocks: each agent's force taken on its own."""
     B, n = r.shape[0], w.n
     Fx = np.empty((B, w.S, w.L))
     Fy, tau = np.empty_like(Fx), np.empty_like(Fx)
     P, Q = np.zeros_like(Fx), np.zeros_like(Fx)
+    lp = np.zeros(B) if lowpass is None else lowpass
+    series = _logged(w, lp)
     for k in range(B):
         lag = delay[k] - (clock[k] if clock is not None else np.zeros(n))  # (n,): agent i's input from t - lag_i
-        if np.any(lag != 0):
-            fx = np.stack([np.interp(w.t - lag[i], w.u_t, w.u[:, 2 + i]) for i in range(n)], axis=-1)
-            fy = np.stack([np.interp(w.t - lag[i], w.u_t, w.u[:, 2 + n + i]) for i in range(n)], axis=-1)
+        u = series[k]
+        if np.any(lag != 0) or lp[k]:
+            fx = np.stack([np.interp(w.t - lag[i], w.u_t, u[:, 2 + i]) for i in range(n)], axis=-1)
+            fy = np.stack([np.interp(w.t - lag[i], w.u_t, u[:, 2 + n + i]) for i in range(n)], axis=-1)
         else:
             fx, fy = w.fx, w.fy
         # the logged torque column is the team's sum: delayed with the team, neither scaled nor shifted per agent
-        tau[k] = np.interp(w.t - delay[k], w.u_t, w.u[:, 2 + 2 * n]) if delay[k] else w.tau
+        tau[k] = np.interp(w.t - delay[k], w.u_t, u[:, 2 + 2 * n]) if delay[k] or lp[k] else w.tau
         if gain is not None:
             fx, fy = fx * gain[k], fy * gain[k]
         Fx[k], Fy[k] = fx.sum(axis=-1), fy.sum(axis=-1)
@@ -336,7 +364,8 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
 
     cv, fc = eff("viscous_friction"), eff("coulomb_friction")
     an = eff("anisotropic_friction")  # (B, 2): D's d1, d2
-    cr, d = eff("rotational_damping"), eff("measurement_delay")
+    cr, d, dl = eff("rotational_damping"), eff("measurement_delay"), eff("force_sensor_lag")
+    lp = eff("force_sensor_lowpass")
     tb = eff("torque_bias")
     fb = np.zeros((B, 2))
     if "force_bias" in lay.effects:
@@ -361,9 +390,12 @@ def simulate(w: Windows, lay: Layout, g: np.ndarray, x0: np.ndarray, *, coulomb_
     if "velocity_bias" in lay.effects:
         vb[:, iax] = g[:, lay.slot("velocity_bias")]
     delay = d[:, 0] if d is not None else np.zeros(B)
+    if dl is not None:  # the logged force lags the applied one: the input at t is the one logged at t + dl
+        delay = delay - dl[:, 0]
     dgain = lay.per_agent(g, "agent_actuator_gain")
     clock = lay.per_agent(g, "agent_clock_offset")
-    U = np.stack(_rk_inputs(w, r, delay, None if dgain is None else 1.0 + dgain, clock), axis=-1)  # (B, S, L, 5)
+    U = np.stack(_rk_inputs(w, r, delay, None if dgain is None else 1.0 + dgain, clock,
+                            None if lp is None else lp[:, 0]), axis=-1)  # (B, S, L, 5)
     # state (B, S, 6): vx, vy, omega, theta, px, py
     X = np.zeros((B, S, 6))
     X[..., iax] = x0[..., :na]

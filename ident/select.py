@@ -36,7 +36,7 @@ from ident.fit import (
     subset,
     window_valid,
 )
-from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS, Layout, expand
+from ident.model import EFFECTS, MIRRORS, NONNEGATIVE, PER_AGENT, PLANAR, TIMING, VECTOR_EFFECTS, Layout, expand
 from ident.prepare import (
     RUN,
     agent_floors,
@@ -206,6 +206,8 @@ def _reference(name: str, m: float, J: float, dt: float) -> float:
         "coulomb_friction": 0.005 * mg,
         "rotational_damping": (J if math.isfinite(J) and J > 0 else 100.0) / 20.0,
         "measurement_delay": max(0.02, 2 * dt),
+        "force_sensor_lag": max(0.02, 2 * dt),  # force rows two samples or 20 ms late
+        "force_sensor_lowpass": max(0.02, 2 * dt),  # a force sensor's filter of 20 ms
         "force_bias": 0.005 * mg,
         "torque_bias": 0.005 * mg * 0.2,  # half a percent of the weight at a 0.2 m arm
         "velocity_bias": 0.02,
@@ -434,7 +436,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     scores = scores0
     init = {"viscous_friction": 0.0, "coulomb_friction": 0.0}
     while remaining and len(accepted) < opt.max_effects:
-        alpha_k = opt.alpha / len(remaining)
+        # the input's timing is one test (its signs and shapes share one score, each sign's fit sees half of it)
+        alpha_k = opt.alpha / len({"timing" if c in TIMING else c for c in remaining})
         # far above the noise floor the score test, linearised at a poor fit, can miss the effect that
         # made the fit poor and misrank the rest: every candidate left is then fitted
         screened = current.sigma2 <= opt.restart_misfit**2
@@ -455,9 +458,12 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             ranked += blind
         trials: dict[str, tuple[Fit, float]] = {}
         eligible: list[str] = []
+        extra = 0  # fits beyond the rounds of max_fits: a force lag's second shape
         for j, c in enumerate(ranked):
-            if screened and j and j % opt.max_fits == 0 and eligible:
-                break  # fit the next strongest only when none of these qualifies
+            if screened and j and (j - extra) % opt.max_fits == 0 and eligible:
+                if not (c in FORCE_LAG and trials.keys() & set(FORCE_LAG)):
+                    break  # fit the next strongest only when none of these qualifies
+                extra += 1  # a force lag's two shapes are fitted side by side: the better one goes on
             lay = current.lay.with_effects(current.lay.effects + (c,))
             say(f"candidate {c} ({j + 1}/{len(ranked)}) on top of {list(current.lay.effects) or 'nominal'}")
             g = expand(lay, current.g, current.lay, init)
@@ -507,6 +513,10 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             q = lay2.G - fb_.lay.G
             p1 = stats.nested_f(fb_.rss, joint.rss, q, joint.N, joint.P)[1]
             p2 = stats.nested_f(trials[c2][0].rss, joint.rss, lay2.G - trials[c2][0].lay.G, joint.N, joint.P)[1]
+            if (p1 >= alpha_k or p2 >= alpha_k) and {best, c2} == set(FORCE_LAG):
+                # the same lag of the logged force in two shapes: the better named (the shapes compared at the end)
+                remaining.remove(c2)
+                continue
             if (p1 >= alpha_k or p2 >= alpha_k) and {best, c2} == set(SAME_FORCE):
                 # a common sensor offset is a force bias plus its torque about the contacts' centroid: where the
                 # data do not resolve that torque (the centroid near the centre of mass) they see the force alone
@@ -527,6 +537,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 remaining.remove(c2)
         accepted.append(best)
         remaining.remove(best)
+        if MIRRORS.get(best) in remaining:  # one shift of the input: its other sign adds nothing beside it
+            remaining.remove(MIRRORS[best])
         current = fb_
         if best in PER_AGENT:
             current = _regauge(pb, current, say)
@@ -552,6 +564,11 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     current = _drop_idle(pb, current, list(accepted) if len(accepted) > 1 else [], accepted, table, opt.alpha, say,
                          lambda c: ", ".join(e for e in accepted if e != c),
                          "adds nothing beside the effects named after it")
+    current, shape = _force_lag_shape(pb, current, accepted, opt.alpha, say)
+    for c in [c for c in accepted if c not in table]:  # the shape kept at the end, not fitted in a round
+        val, ci = current.param(c)
+        table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
+                    "ci95": _value(ci, current.lay, c, ci=True), "on_top_of": [e for e in accepted if e != c]}
     for c in _unresolved_effects(current, accepted):
         # the effect acts through a 1/m (1/J) the data do not resolve from zero: they see only its product
         # with 1/m, so its value is not determined and it is not named (it stays in the candidates' table)
@@ -603,6 +620,17 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         final.cov = robust_covariance(pb, final, walk, theta_w)  # the ci95 reported include the walk
     for c in table:
         table[c]["accepted"] = c in named
+    # a non-negative candidate the reported model would take below its bound 0 (its score test's step points
+    # there, at the selection's level over the candidates left out): held at 0, the data point at the other sign
+    out = [c for c in cands if c not in final.lay.effects]
+    level = opt.alpha / max(len({"timing" if c in TIMING else c for c in out}), 1)
+    for c in out:
+        if c in NONNEGATIVE and not (c in TIMING and set(TIMING) & set(named)):
+            sc = score(pb, final, c)
+            if sc.step[0] < 0 and sc.p < level:
+                warns.append(_at_bound(c, sc.p))
+                if c in table:
+                    table[c]["at_bound_p"] = sc.p
     effects = []
     retimed: dict[str, float] = {}  # the velocity floor re-read with the clock offsets named
     for c in named:
@@ -612,6 +640,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         if c in PLANAR:
             effects[-1]["principal"] = _principal(val, final.param("viscous_friction")[0][0]
                                                   if "viscous_friction" in named else 0.0)
+        if c in TIMING:
+            warns.append(_lag_text(c, float(val[0]), float(ci[0]), shape))
         if c in PER_AGENT:
             effects[-1]["reference"] = final.lay.ref
             effects[-1]["agents"] = _agents_off(effects[-1]["value"], effects[-1]["ci95"], c)
@@ -678,6 +708,71 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         fits={"nominal": nominal, "augmented": final}, problem=pb,
         random_force=walk_info if final is current else None,
     )  # fmt: skip
+
+
+def _lag_text(name: str, d: float, h: float, shape: tuple[str, float, bool] | None = None) -> str:
+    """A named timing effect in words: which sensor lags, by how much, and what the data tell of its shape
+    (``shape``: :func:`_force_lag_shape`'s comparison with the other shape of a force lag)."""
+    val = f"{1e3 * d:.3g} +- {1e3 * h:.2g} ms"
+    if name == "measurement_delay":
+        return (f"measurement_delay: the velocities are measured {val} after the forces that moved the load: their "
+                "rows are stamped that late, or the velocity sensors low-pass with a time constant of about that "
+                "(below their bandwidth the two look alike)")
+    head = (f"force_sensor_lag: the logged forces lag the ones that moved the load by {val}: the force rows are "
+            "stamped that late" if name == "force_sensor_lag" else
+            f"force_sensor_lowpass: the force sensors low-pass the force that moved the load with a time constant "
+            f"of {val} (first order): the logged forces lag it by about that")
+    if shape is None:
+        return head + " (below the sensors' bandwidth a late stamp and a low-pass look alike)"
+    other, dbic, apart = shape
+    alt = "a first-order low-pass" if other == "force_sensor_lowpass" else "a late stamp"
+    if apart:
+        return head + f"; {alt} fits worse (BIC higher by {dbic:.3g})"
+    return head + f"; these data do not tell it from {alt} (its BIC higher by only {dbic:.2g}: it does not add to it)"
+
+
+BOUND_HINT = {
+    "measurement_delay": "the motion leads the logged force, as it does behind force sensors that lag "
+                         "(force_sensor_lag, force_sensor_lowpass)",
+    "force_sensor_lag": "the logged force leads the motion, as it does with velocities measured late "
+                        "(measurement_delay)",
+    "force_sensor_lowpass": "the logged force leads the motion, as it does with velocities measured late "
+                            "(measurement_delay)",
+}
+
+
+def _at_bound(name: str, p: float) -> str:
+    """The line for a non-negative candidate held at 0 by a fit that wants it negative."""
+    hint = BOUND_HINT.get(name, "a negative value no physical effect of its kind has: the residual holds something "
+                                "else, outside the vocabulary")
+    return f"{name}: held at its bound 0, and the data want it below (score test p {p:.2g}): {hint}"
+
+
+FORCE_LAG = ("force_sensor_lag", "force_sensor_lowpass")
+
+
+def _force_lag_shape(pb: Problem, fit: Fit, accepted: list[str], alpha: float,
+                     say: Callable[[str], None]) -> tuple[Fit, tuple[str, float, bool] | None]:
+    """A force lag named in one shape (late rows, a first-order low-pass) refitted in the other, beside the
+    same effects: the one that fits better is kept (``accepted`` updated). Returns the fit and (the other shape,
+    its BIC above the kept one's, told apart: the kept shape adds to the other at level ``alpha``), or None
+    when no single force lag is named."""
+    named = [c for c in FORCE_LAG if c in accepted]
+    if len(named) != 1:
+        return fit, None
+    c = named[0]
+    other = FORCE_LAG[1 - FORCE_LAG.index(c)]
+    say(f"{c}: refitted as {other}")
+    lay2 = fit.lay.with_effects(tuple(other if e == c else e for e in fit.lay.effects))
+    g2 = expand(lay2, fit.g, fit.lay, {other: float(fit.g[fit.lay.slot(c)][0])})
+    alt = lm_fit(pb, lay2, g2, fit.x)
+    if alt.rss < fit.rss:  # the same number of parameters: the lower residual is the lower BIC
+        accepted[accepted.index(c)] = other
+        fit, alt, c, other = alt, fit, other, c
+    lay3 = fit.lay.with_effects(fit.lay.effects + (other,))
+    joint = lm_fit(pb, lay3, expand(lay3, fit.g, fit.lay), fit.x)
+    adds = stats.nested_f(alt.rss, joint.rss, 1, joint.N, joint.P)[1] < alpha  # the kept shape beside the other
+    return fit, (other, alt.bic - fit.bic, adds)
 
 
 SAME_FORCE = ("force_bias", "force_sensor_offset")

@@ -144,8 +144,9 @@ def test_a_change_is_located_where_the_window_scores_break():
 
 def test_effect_names_and_units_are_the_documented_vocabulary():
     assert {k: v[1] for k, v in CANDIDATES.items()} == {
-        "viscous_friction": "N s/m", "anisotropic_friction": "N s/m", "coulomb_friction": "N", "rotational_damping": "N m s",
-        "measurement_delay": "s", "force_bias": "N", "torque_bias": "N m", "velocity_bias": "m/s",
+        "viscous_friction": "N s/m", "anisotropic_friction": "N s/m", "coulomb_friction": "N",
+        "rotational_damping": "N m s", "measurement_delay": "s", "force_sensor_lag": "s", "force_sensor_lowpass": "s",
+        "force_bias": "N", "torque_bias": "N m", "velocity_bias": "m/s",
         "agent_actuator_gain": "-", "agent_clock_offset": "s", "force_sensor_offset": "N",
         "sensor_offset_body": "N, N, N m",
     }  # fmt: skip
