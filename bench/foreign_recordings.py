@@ -59,6 +59,7 @@ CASES: dict[str, dict] = {
     "sensor_offset_robot_frames": {"b": 8.0, "soffset": (0.4, -0.3), "soffset_robot": True},
     "mass_drift": {"drift": 0.8},
     "robot_frame_velocities": {"b": 8.0, "vel_robot": True},
+    "force_spikes": {"b": 8.0, "fspikes": (0.005, 2.0)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -71,7 +72,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            clock: tuple[int, float] | None = None, robot_frame: bool = False, spin: float = 0.0,
            soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
-           vel_robot: bool = False) -> dict:  # fmt: skip
+           vel_robot: bool = False, fspikes: tuple[float, float] | None = None,
+           fspikes_applied: bool = False) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -86,7 +88,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     the plant gets the true force); ``drift``: m and J change linearly from their values at t = 0 to ``drift``
     times them at the recording's end; ``vel_robot``: each robot logs its velocity in its own frame (as
     ``robot_frame`` the force: wheel odometry); ``fclip``: the logged force saturates at
-    +-fclip per axis (the plant gets the true force); ``fs``: static friction (Stribeck: the Coulomb level rises
+    +-fclip per axis (the plant gets the true force); ``fspikes`` (share, k): that share of the force samples
+    is off by k x the force's RMS per axis (normal; a dropped byte in the F/T log), in the log only or, with
+    ``fspikes_applied``, applied too (a one-sample knock: a triangle of one sample's half-width); ``fs``: static friction (Stribeck: the Coulomb level rises
     from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
@@ -106,6 +110,21 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     if clock:
         lag[clock[0]] = clock[1]
     phi = ang + np.pi
+    t = np.arange(0, dur, 1 / rate)
+    frms = float(np.sqrt((amp**2 / 2).sum(-1).mean()))  # RMS of one agent's force component
+    spikes = np.zeros((t.size, n, 2))
+    if fspikes:  # drawn apart from the plant's stream: the other cases' recordings stay as they were
+        rs = np.random.default_rng(seed + 7919)
+        spikes[rs.random((t.size, n)) < fspikes[0]] = 1.0
+        spikes *= rs.normal(0, fspikes[1] * frms, spikes.shape)
+
+    def knocks(tq: float) -> np.ndarray:  # (n, 2): the applied spikes, triangles one sample wide either side
+        k = int(np.floor(tq * rate))
+        out = np.zeros((n, 2))
+        for j in (k, k + 1):
+            if 0 <= j < t.size:
+                out += spikes[j] * max(0.0, 1.0 - abs(tq * rate - j))
+        return out
 
     def force(t: float) -> np.ndarray:  # (n, 2), world frame, as logged
         if hold_hz:
@@ -118,7 +137,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
 
     def rhs(t, y):
         _, _, th, vx, vy, om = y
-        rw, f = arms(th), kg * force(t)
+        rw, f = arms(th), kg * (force(t) + (knocks(t) if fspikes_applied else 0.0))
         torque = float((rw[:, 0] * f[:, 1] - rw[:, 1] * f[:, 0]).sum())
         v = np.array([vx, vy])
         k = change[1] if change and t >= change[0] else 1.0
@@ -128,11 +147,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         acc = (f.sum(0) - b * v - fric * v / np.sqrt(v @ v + vs * vs)) / (k * m)
         return [vx, vy, om, acc[0], acc[1], (torque - c * om) / (k * J)]
 
-    t = np.arange(0, dur, 1 / rate)
-    frms = float(np.sqrt((amp**2 / 2).sum(-1).mean()))  # RMS of one agent's force component
     y0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, spin])  # x, y, theta, vx, vy, omega
     sol = solve_ivp(rhs, (-1.0, dur + 0.1), y0, dense_output=True, rtol=1e-10, atol=1e-12,
-                    max_step=0.5 / hold_hz if hold_hz else 0.01)  # fmt: skip
+                    max_step=0.5 / hold_hz if hold_hz else 0.25 / rate if fspikes_applied else 0.01)  # fmt: skip
     rows = []
     for tk in t:
         for i in range(n):
@@ -152,7 +169,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                 if vel_robot:
                     thf = th + phi[i]
                     y = np.array([np.cos(thf) * y[0] + np.sin(thf) * y[1], -np.sin(thf) * y[0] + np.cos(thf) * y[1]])
-            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0)
+            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0) + spikes[int(round(tk * rate)), i]
             if soffset and soffset_robot:  # the offset in the robot's frame, turning with the load
                 thf = sol.sol(tk)[2] + phi[i]
                 fl = fl + [np.cos(thf) * soffset[0] - np.sin(thf) * soffset[1],

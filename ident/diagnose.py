@@ -19,6 +19,7 @@ import numpy as np
 
 from ident.change import diagnose_sides, drift_hint
 from ident.fit import states_of, window_valid
+from ident.glitches import GLITCH_FLOORS, force_spikes, spike_response
 from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
 from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
 from ident.recording import Recording, RecordingError
@@ -31,6 +32,7 @@ from ident.report import (
     plot_diagnosis,
     residual_panels,
 )
+from ident.prepare import without_glitches
 from ident.saturation import saturated, saturation_warning
 from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
@@ -61,11 +63,20 @@ def read_recording(path: str | Path) -> Recording:
 
 def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                  progress: Callable[[str], None] | None = None,
-                 validate: str | Path | None = None) -> Diagnosis:  # fmt: skip
+                 validate: str | Path | None = None, keep_spikes: str | None = None) -> Diagnosis:  # fmt: skip
     """Read a recording directory and diagnose it; with ``validate`` (another recording directory) also
-    report the models' errors on it (``Diagnosis.validation``)."""
+    report the models' errors on it (``Diagnosis.validation``). Force spikes (:func:`ident.glitches.force_spikes`)
+    are left out unless the motion follows them; ``keep_spikes``: the reason they are kept (the second pass)."""
     rec = raw = read_recording(path)
     other = read_recording(validate) if validate is not None else None
+    flags = dep = None
+    if rec.vel is not None:  # each agent's own samples: an interpolated row is no evidence
+        logged = rec.wrench_logged[..., None] if rec.wrench_logged is not None else True
+        flags, dep = force_spikes(rec.t, np.where(logged, rec.wrench[..., :2], np.nan))
+    if flags is not None and flags.any() and keep_spikes is None:
+        w = rec.wrench.copy()
+        w[..., :2] -= dep  # each spike replaced by the line through its neighbours
+        rec = raw = replace(rec, wrench=w)
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
@@ -167,6 +178,18 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         result.warnings.append(f"the residual of one model over the whole recording is structured, and a change of "
                                f"the load between {ch['window'][0]:.4g} and {ch['window'][1]:.4g} s explains it: "
                                "each side is explained by its own model (see change)")
+    if flags is not None and flags.any():
+        if keep_spikes is None:
+            why = _spikes_followed(rec, result, flags, dep, options or DiagnoseOptions())
+            if why.startswith("kept"):
+                if progress is not None:
+                    progress("the motion follows the force spikes: diagnosed again with them as logged")
+                return diagnose_dir(path, options=options, progress=progress, validate=validate, keep_spikes=why)
+        k, i = np.nonzero(flags)
+        result.warnings.insert(0, f"{k.size} force samples ({100 * k.size / flags.size:.2g} %) are more than "
+                                  f"{GLITCH_FLOORS:g} noise floors of their agent's force off the cubic through their "
+                                  f"neighbours (agents {sorted(set(i.tolist()))}, the first at t = "
+                                  f"{rec.t0 + rec.t[k.min()]:.6g} s): {keep_spikes or why}")
     if other is not None:
         if other.hold_source == "default" and other.hold != rec.hold:
             other.hold, other.hold_source = rec.hold, f"as {path}"  # the same plant's wrench varies alike
@@ -177,6 +200,40 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         except ValueError as exc:
             raise DiagnoseError(f"{validate}: cannot predict it with this model: {exc}") from None
     return result
+
+
+def _spikes_followed(rec: Recording, result: Diagnosis, flags: np.ndarray, dep: np.ndarray,
+                     opt: DiagnoseOptions) -> str:
+    """Whether the velocities follow the force spikes as the fitted model says a real force would
+    (:func:`ident.glitches.spike_response`, one-sided tests at the selection's level): the verdict's text,
+    starting "kept" (they follow, and do not fall short of it) or "left out" (they do not follow, or the
+    motion cannot tell)."""
+    fit = result.fits.get("augmented")
+    if fit is None:
+        return "left out, each replaced by the line through its neighbours (no model to test them with)"
+    inv_m = fit.inverse("m")[0]
+    inv_J = fit.inverse("J")[0] if fit.lay.rotation else 0.0
+    arms = None
+    angle = fitted_angle(result)
+    if angle is not None and angle[0].size == rec.T:
+        r = fit.g[: 2 * rec.n].reshape(rec.n, 2)
+        c, s = np.cos(angle[0])[:, None], np.sin(angle[0])[:, None]
+        arms = np.stack((c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]), axis=-1)
+    vel = without_glitches(rec, []).vel
+    beta, se, used = spike_response(rec.t, vel, flags, dep, inv_m, inv_J, arms)
+    if not used or not np.isfinite(se) or se <= 0:
+        return ("left out, each replaced by the line through its neighbours: the motion around them cannot be "
+                "measured (too close to an end or to a gap)")
+    p1 = float(NormalDist().cdf((beta - 1.0) / se))  # that the load feels them as logged
+    p0 = float(NormalDist().cdf(-beta / se))  # that it does not feel them
+    seen = (f"the velocities across {used} of them jump {beta:.2g} +- {Z95 * se:.2g} x what the fitted model "
+            f"predicts for a real force (1: the load feels them, p {p1:.2g}; 0: it does not, p {p0:.2g})")
+    if p0 < opt.alpha and p1 >= opt.alpha:
+        return f"kept as logged: {seen}: knocks the load felt"
+    # a glitch of the log, as a velocity's, unless the motion shows it; one too small to move the load
+    # measurably is left out as well: what it would add is below what the data resolve
+    why = "spikes of the force log" if p1 < opt.alpha else "too small for the motion to tell"
+    return f"left out, each replaced by the line through its neighbours: {seen}: {why}"
 
 
 def fitted_angle(result: Diagnosis) -> tuple[np.ndarray, np.ndarray] | None:
