@@ -60,6 +60,7 @@ CASES: dict[str, dict] = {
     "mass_drift": {"drift": 0.8},
     "robot_frame_velocities": {"b": 8.0, "vel_robot": True},
     "force_spikes": {"b": 8.0, "fspikes": (0.005, 2.0)},
+    "one_velocity_scale_90pct": {"b": 8.0, "vscale": (1, 0.9)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -73,7 +74,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
            vel_robot: bool = False, fspikes: tuple[float, float] | None = None,
-           fspikes_applied: bool = False) -> dict:  # fmt: skip
+           fspikes_applied: bool = False, vscale: tuple[int, float] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -90,7 +91,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     ``robot_frame`` the force: wheel odometry); ``fclip``: the logged force saturates at
     +-fclip per axis (the plant gets the true force); ``fspikes`` (share, k): that share of the force samples
     is off by k x the force's RMS per axis (normal; a dropped byte in the F/T log), in the log only or, with
-    ``fspikes_applied``, applied too (a one-sample knock: a triangle of one sample's half-width); ``fs``: static friction (Stribeck: the Coulomb level rises
+    ``fspikes_applied``, applied too (a one-sample knock: a triangle of one sample's half-width); ``vscale``
+    (agent, k): that agent logs k x its contact's velocity (a wheel radius off); ``fs``: static friction (Stribeck: the Coulomb level rises
     from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
@@ -164,6 +166,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                 y = np.array([px + rw[i, 0], py + rw[i, 1]]) + rng.normal(0, pos, 2)
             else:
                 y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + rng.normal(0, sig[i], 2) + vbias
+                if vscale and i == vscale[0]:
+                    y = vscale[1] * y
                 if glitches and rng.random() < glitches:
                     y += rng.normal(0, 20 * sig[i], 2)
                 if vel_robot:
@@ -192,7 +196,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     (out / "run.toml").write_text(f"n = {n}\nedges = {json.dumps(edges)}\ndt = {1 / rate}\n")
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay,
                "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
-               "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot, "force_sensor_offset": soffset and not soffset_robot and list(soffset)}
+               "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot, "velocity_scale": vscale and vscale[1],
+               "force_sensor_offset": soffset and not soffset_robot and list(soffset)}
     if soffset and soffset_robot:  # the team's offset: a force fixed in the load's frame and a constant torque
         turned = [np.array([[np.cos(p_), -np.sin(p_)], [np.sin(p_), np.cos(p_)]]) @ soffset for p_ in phi]
         torque = sum(r[i, 0] * turned[i][1] - r[i, 1] * turned[i][0] for i in range(n))
