@@ -74,7 +74,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
            vel_robot: bool = False, fspikes: tuple[float, float] | None = None,
-           fspikes_applied: bool = False, vscale: tuple[int, float] | None = None) -> dict:  # fmt: skip
+           fspikes_applied: bool = False, vscale: tuple[int, float] | None = None,
+           soffsets: float | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -92,7 +93,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     +-fclip per axis (the plant gets the true force); ``fspikes`` (share, k): that share of the force samples
     is off by k x the force's RMS per axis (normal; a dropped byte in the F/T log), in the log only or, with
     ``fspikes_applied``, applied too (a one-sample knock: a triangle of one sample's half-width); ``vscale``
-    (agent, k): that agent logs k x its contact's velocity (a wheel radius off); ``fs``: static friction (Stribeck: the Coulomb level rises
+    (agent, k): that agent logs k x its contact's velocity (a wheel radius off); ``soffsets``: each agent's force
+    sensor its own offset (world frame), normal with this sd per axis (drawn apart from the plant's stream);
+    ``fs``: static friction (Stribeck: the Coulomb level rises
     from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled."""
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
     rng = np.random.default_rng(seed)
@@ -119,6 +122,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         rs = np.random.default_rng(seed + 7919)
         spikes[rs.random((t.size, n)) < fspikes[0]] = 1.0
         spikes *= rs.normal(0, fspikes[1] * frms, spikes.shape)
+
+    own = np.random.default_rng(seed + 104729).normal(0, soffsets, (n, 2)) if soffsets else np.zeros((n, 2))
 
     def knocks(tq: float) -> np.ndarray:  # (n, 2): the applied spikes, triangles one sample wide either side
         k = int(np.floor(tq * rate))
@@ -180,6 +185,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                            np.sin(thf) * soffset[0] + np.cos(thf) * soffset[1]]
             elif soffset:
                 fl = fl + soffset
+            fl = fl + own[i]
             if fclip:
                 fl = np.clip(fl, -fclip, fclip)
             w = ",," if wrench_hz else f"{fl[0]:.9g},{fl[1]:.9g},0"
@@ -202,6 +208,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         turned = [np.array([[np.cos(p_), -np.sin(p_)], [np.sin(p_), np.cos(p_)]]) @ soffset for p_ in phi]
         torque = sum(r[i, 0] * turned[i][1] - r[i, 1] * turned[i][0] for i in range(n))
         effects["sensor_offset_body"] = [float(np.hypot(*sum(turned))), float(torque)]  # |B| (its frame's zero is the model's), T
+    if soffsets:
+        effects["force_offsets_sum"] = own.sum(axis=0).tolist()
     return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change, "drift": drift,
             "fclip": fclip,
             "force_noise": fnoise * frms * np.sqrt(n), "mounting_deg": np.degrees(phi).tolist()}
