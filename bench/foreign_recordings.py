@@ -178,7 +178,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                 if vel_robot:
                     thf = th + phi[i]
                     y = np.array([np.cos(thf) * y[0] + np.sin(thf) * y[1], -np.sin(thf) * y[0] + np.cos(thf) * y[1]])
-            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0) + spikes[int(round(tk * rate)), i]
+            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0) + spikes[round(tk * rate), i]
             if soffset and soffset_robot:  # the offset in the robot's frame, turning with the load
                 thf = sol.sol(tk)[2] + phi[i]
                 fl = fl + [np.cos(thf) * soffset[0] - np.sin(thf) * soffset[1],

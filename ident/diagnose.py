@@ -20,9 +20,10 @@ from scipy import stats as sst
 
 from ident.change import diagnose_sides, drift_hint
 from ident.fit import lm_fit, states_of, subset, window_valid
-from ident.glitches import GLITCH_FLOORS, force_spikes, spike_response
 from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
+from ident.glitches import GLITCH_FLOORS, force_spikes, spike_response
 from ident.model import EFFECTS, PER_AGENT, VECTOR_EFFECTS
+from ident.prepare import without_glitches
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
 from ident.report import (
@@ -33,11 +34,10 @@ from ident.report import (
     plot_diagnosis,
     residual_panels,
 )
-from ident.prepare import without_glitches
 from ident.saturation import saturated, saturation_warning
 from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
-from ident.vscale import agents_off, rescaled, scale_check
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
+from ident.vscale import agents_off, rescaled, scale_check
 
 Z999 = NormalDist().inv_cdf(0.9995)  # the two-sided 99.9 % quantile
 CANDIDATES: dict[str, tuple[int, str, str]] = {

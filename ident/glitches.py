@@ -15,7 +15,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
 
-
 GLITCH_FLOORS = 8.0  # a white-noise sample is this far off with probability ~1e-15: a flag is a glitch
 MAX_SHARE = 0.02  # more flags than this share of a channel's samples are not glitches: none is taken out
 GAP = 1.5  # four intervals spanning more than this x their median cross a gap: no prediction there
@@ -110,7 +109,6 @@ def force_spikes(t: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarr
     themselves raise a whole-recording floor, which a command's small one cannot afford) and the rounding's of
     the digits logged (:func:`_resolution`): a command's noise is its log's resolution, which is relative (six
     digits, C's %g: 1e-4 N at 10 N, 1e-6 N at 0.1 N)."""
-    T, n, _ = force.shape
     tiny = 1e-9 * np.nanstd(force, axis=(0, 2))  # a constant force: no floor to be off by, only a zero
     # a sample's cubic leans on its neighbours, whose last digit may be coarser (10.0 after 9.99999)
     res = maximum_filter1d(_resolution(force).max(axis=-1), 5, axis=0, mode="nearest")

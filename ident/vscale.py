@@ -20,8 +20,8 @@ from scipy import stats as sst
 from scipy.optimize import minimize
 
 from ident import stats
-from ident.stats import Z95
 from ident.recording import Recording
+from ident.stats import Z95
 
 
 @dataclass(frozen=True)
