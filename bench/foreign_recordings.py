@@ -66,6 +66,8 @@ CASES: dict[str, dict] = {
     "cart_2_20": {"aniso": (2.0, 20.0)},
     "force_lowpass_30ms": {"b": 8.0, "flp": 0.03},
     "force_late_30ms": {"b": 8.0, "flate": 0.03},
+    "force_spikes": {"b": 8.0, "fspikes": (0.005, 2.0)},
+    "one_velocity_scale_90pct": {"b": 8.0, "vscale": (1, 0.9)},
 }
 """case -> plant: n 4, 100 Hz, 20 s, sigma 0.01 m/s, seed 1 unless the case says."""
 
@@ -79,7 +81,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            soffset: tuple[float, float] | None = None, fclip: float | None = None, fs: float = 0.0,
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
            vel_robot: bool = False, vcolor: float = 0.0, aniso: tuple[float, float] | None = None, flp: float = 0.0,
-           flate: float = 0.0) -> dict:  # fmt: skip
+           flate: float = 0.0, fspikes: tuple[float, float] | None = None, fspikes_applied: bool = False,
+           vscale: tuple[int, float] | None = None, soffsets: float | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -100,7 +103,12 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     (a cart on wheels; the axes as at the integration's start); ``fs``: static friction (Stribeck: the Coulomb
     level rises from ``fc`` to ``fs`` as the speed falls below ``vst``); ``famp``: the pushes' amplitude scaled;
     ``flp``: every force sensor low-passes (first order, this time constant, s; steady state, smooth pushes
-    only); ``flate``: the force rows are stamped this late (s; the row at t holds the force of t - flate)."""
+    only); ``flate``: the force rows are stamped this late (s; the row at t holds the force of t - flate);
+    ``fspikes`` (share, k): that share of the force samples is off by k x the force's RMS per axis (normal; a
+    dropped byte in the F/T log), in the log only or, with ``fspikes_applied``, applied too (a one-sample knock:
+    a triangle of one sample's half-width); ``vscale`` (agent, k): that agent logs k x its contact's velocity (a
+    wheel radius off); ``soffsets``: each agent's force sensor its own offset (world frame), normal with this sd
+    per axis (drawn apart from the plant's stream)."""
     if flp and hold_hz:
         raise ValueError("flp: the low-pass of a held wrench is not written here (smooth pushes only)")
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
@@ -123,6 +131,23 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     phi = ang + np.pi
     keep = np.exp(-1 / (rate * vcolor)) if vcolor else 0.0  # the low-pass's share of the previous noise
     vnoise: list = [None] * n
+    t = np.arange(0, dur, 1 / rate)
+    frms = float(np.sqrt((amp**2 / 2).sum(-1).mean()))  # RMS of one agent's force component
+    spikes = np.zeros((t.size, n, 2))
+    if fspikes:  # drawn apart from the plant's stream: the other cases' recordings stay as they were
+        rs = np.random.default_rng(seed + 7919)
+        spikes[rs.random((t.size, n)) < fspikes[0]] = 1.0
+        spikes *= rs.normal(0, fspikes[1] * frms, spikes.shape)
+
+    own = np.random.default_rng(seed + 104729).normal(0, soffsets, (n, 2)) if soffsets else np.zeros((n, 2))
+
+    def knocks(tq: float) -> np.ndarray:  # (n, 2): the applied spikes, triangles one sample wide either side
+        k = int(np.floor(tq * rate))
+        out = np.zeros((n, 2))
+        for j in (k, k + 1):
+            if 0 <= j < t.size:
+                out += spikes[j] * max(0.0, 1.0 - abs(tq * rate - j))
+        return out
 
     def force(t: float) -> np.ndarray:  # (n, 2), world frame, as logged
         if hold_hz:
@@ -141,7 +166,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
 
     def rhs(t, y):
         _, _, th, vx, vy, om = y
-        rw, f = arms(th), kg * force(t)
+        rw, f = arms(th), kg * (force(t) + (knocks(t) if fspikes_applied else 0.0))
         torque = float((rw[:, 0] * f[:, 1] - rw[:, 1] * f[:, 0]).sum())
         v = np.array([vx, vy])
         k = change[1] if change and t >= change[0] else 1.0
@@ -154,11 +179,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             acc -= R @ (np.asarray(aniso) * (R.T @ v)) / (k * m)
         return [vx, vy, om, acc[0], acc[1], (torque - c * om) / (k * J)]
 
-    t = np.arange(0, dur, 1 / rate)
-    frms = float(np.sqrt((amp**2 / 2).sum(-1).mean()))  # RMS of one agent's force component
     y0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, spin])  # x, y, theta, vx, vy, omega
     sol = solve_ivp(rhs, (-1.0, dur + 0.1), y0, dense_output=True, rtol=1e-10, atol=1e-12,
-                    max_step=0.5 / hold_hz if hold_hz else 0.01)  # fmt: skip
+                    max_step=0.5 / hold_hz if hold_hz else 0.25 / rate if fspikes_applied else 0.01)  # fmt: skip
     rows = []
     for tk in t:
         for i in range(n):
@@ -177,18 +200,21 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                     draw = draw if vnoise[i] is None else keep * vnoise[i] + np.sqrt(1 - keep * keep) * draw
                     vnoise[i] = draw
                 y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + draw + vbias
+                if vscale and i == vscale[0]:
+                    y = vscale[1] * y
                 if glitches and rng.random() < glitches:
                     y += rng.normal(0, 20 * sig[i], 2)
                 if vel_robot:
                     thf = th + phi[i]
                     y = np.array([np.cos(thf) * y[0] + np.sin(thf) * y[1], -np.sin(thf) * y[0] + np.cos(thf) * y[1]])
-            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0)
+            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0) + spikes[round(tk * rate), i]
             if soffset and soffset_robot:  # the offset in the robot's frame, turning with the load
                 thf = sol.sol(tk)[2] + phi[i]
                 fl = fl + [np.cos(thf) * soffset[0] - np.sin(thf) * soffset[1],
                            np.sin(thf) * soffset[0] + np.cos(thf) * soffset[1]]
             elif soffset:
                 fl = fl + soffset
+            fl = fl + own[i]
             if fclip:
                 fl = np.clip(fl, -fclip, fclip)
             w = ",," if wrench_hz else f"{fl[0]:.9g},{fl[1]:.9g},0"
@@ -206,6 +232,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     effects = {"viscous_friction": b, "coulomb_friction": fc, "rotational_damping": c, "measurement_delay": delay,
                "agent_actuator_gain": gain and gain[1], "agent_clock_offset": clock and clock[1],
                "robot_frame_forces": robot_frame, "robot_frame_velocities": vel_robot,
+               "velocity_scale": vscale and vscale[1],
                "force_sensor_offset": soffset and not soffset_robot and list(soffset),
                "force_sensor_lowpass": flp, "force_sensor_lag": flate}
     if aniso:  # the isotropic part is viscous friction; the rest D = (b_x - b_y) / 2 diag(1, -1) in the start's axes
@@ -215,6 +242,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         turned = [np.array([[np.cos(p_), -np.sin(p_)], [np.sin(p_), np.cos(p_)]]) @ soffset for p_ in phi]
         torque = sum(r[i, 0] * turned[i][1] - r[i, 1] * turned[i][0] for i in range(n))
         effects["sensor_offset_body"] = [float(np.hypot(*sum(turned))), float(torque)]  # |B| (its frame's zero is the model's), T
+    if soffsets:
+        effects["force_offsets_sum"] = own.sum(axis=0).tolist()
     return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change, "drift": drift,
             "fclip": fclip,
             "force_noise": fnoise * frms * np.sqrt(n), "mounting_deg": np.degrees(phi).tolist()}

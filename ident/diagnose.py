@@ -16,11 +16,14 @@ from pathlib import Path
 from statistics import NormalDist
 
 import numpy as np
+from scipy import stats as sst
 
 from ident.change import diagnose_sides, drift_hint
-from ident.fit import states_of, window_valid
+from ident.fit import lm_fit, states_of, subset, window_valid
 from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
+from ident.glitches import GLITCH_FLOORS, force_spikes, spike_response
 from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS
+from ident.prepare import without_glitches
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
 from ident.report import (
@@ -34,6 +37,7 @@ from ident.report import (
 from ident.saturation import saturated, saturation_warning
 from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
+from ident.vscale import agents_off, rescaled, scale_check
 
 Z999 = NormalDist().inv_cdf(0.9995)  # the two-sided 99.9 % quantile
 CANDIDATES: dict[str, tuple[int, str, str]] = {
@@ -61,15 +65,25 @@ def read_recording(path: str | Path) -> Recording:
 
 def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                  progress: Callable[[str], None] | None = None,
-                 validate: str | Path | None = None) -> Diagnosis:  # fmt: skip
+                 validate: str | Path | None = None, keep_spikes: str | None = None) -> Diagnosis:  # fmt: skip
     """Read a recording directory and diagnose it; with ``validate`` (another recording directory) also
-    report the models' errors on it (``Diagnosis.validation``)."""
+    report the models' errors on it (``Diagnosis.validation``). Force spikes (:func:`ident.glitches.force_spikes`)
+    are left out unless the motion follows them; ``keep_spikes``: the reason they are kept (the second pass)."""
     rec = raw = read_recording(path)
     other = read_recording(validate) if validate is not None else None
+    flags = dep = None
+    if rec.vel is not None:  # each agent's own samples: an interpolated row is no evidence
+        logged = rec.wrench_logged[..., None] if rec.wrench_logged is not None else True
+        flags, dep = force_spikes(rec.t, np.where(logged, rec.wrench[..., :2], np.nan))
+    if flags is not None and flags.any() and keep_spikes is None:
+        w = rec.wrench.copy()
+        w[..., :2] -= dep  # each spike replaced by the line through its neighbours
+        rec = raw = replace(rec, wrench=w)
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
         rec, vframes = _robot_velocity_frames(rec, options or DiagnoseOptions(), progress)
+        rec, vscale = _velocity_scales(rec, options or DiagnoseOptions(), progress)
         raw = rec  # the forces' check turns from the velocities in the world frame
         rec, frames = _robot_frames(rec, options or DiagnoseOptions(), progress)
         result = diagnose(rec, options=options, progress=progress, clock=time.perf_counter)
@@ -126,6 +140,23 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                       "turned to the world frame before the fit, each by the load's angle from "
                                       "their own kinematics plus its mounting angle relative to agent 0 (value, "
                                       "deg), and the team by the angle the forces' direction gives")  # fmt: skip
+    drift = _offsets_drift(result, options or DiagnoseOptions())
+    if drift is not None:
+        _unname_drifting(result, drift)
+    else:
+        _offsets_together(result)
+    if vscale is not None and vscale["scaled"]:
+        off = vscale["agents"]
+        result.effects.insert(0, {"name": "velocity_scale", "value": vscale["scales"], "unit": "-",
+                                  "ci95": vscale["ci95"], "agents": off, "reference": None,
+                                  "frame": "relative to the team's median agent", "kind": "logger"})  # fmt: skip
+        result.warnings.insert(0, "velocity_scale: agent(s) " + ", ".join(
+            f"{j} log {vscale['scales'][j]:.4g} +- {vscale['ci95'][j]:.2g} x" for j in off) + " the velocity the "
+            "others' rigid-body motion gives at their contacts (a wheel radius or an odometry gain off; the "
+            f"kinematics' remainder {vscale['rss_one'] / vscale['rss_scaled']:.3g} x lower with a scale per agent, "
+            f"F {vscale['F']:.3g}, p {vscale['p']:.2g}, and then {vscale['over_noise']:.3g} x the agents' own "
+            "noise): their velocities divided by it before the fit. A gain on an actuator leaves the kinematics "
+            "rigid; a scale common to every agent is m and J's and invisible here")
     if frames is not None:
         result.frames = frames
         if frames["robot_frame"]:
@@ -167,6 +198,18 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         result.warnings.append(f"the residual of one model over the whole recording is structured, and a change of "
                                f"the load between {ch['window'][0]:.4g} and {ch['window'][1]:.4g} s explains it: "
                                "each side is explained by its own model (see change)")
+    if flags is not None and flags.any():
+        if keep_spikes is None:
+            why = _spikes_followed(rec, result, flags, dep, options or DiagnoseOptions())
+            if why.startswith("kept"):
+                if progress is not None:
+                    progress("the motion follows the force spikes: diagnosed again with them as logged")
+                return diagnose_dir(path, options=options, progress=progress, validate=validate, keep_spikes=why)
+        k, i = np.nonzero(flags)
+        result.warnings.insert(0, f"{k.size} force samples ({100 * k.size / flags.size:.2g} %) are more than "
+                                  f"{GLITCH_FLOORS:g} noise floors of their agent's force off the cubic through their "
+                                  f"neighbours (agents {sorted(set(i.tolist()))}, the first at t = "
+                                  f"{rec.t0 + rec.t[k.min()]:.6g} s): {keep_spikes or why}")
     if other is not None:
         if other.hold_source == "default" and other.hold != rec.hold:
             other.hold, other.hold_source = rec.hold, f"as {path}"  # the same plant's wrench varies alike
@@ -177,6 +220,40 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         except ValueError as exc:
             raise DiagnoseError(f"{validate}: cannot predict it with this model: {exc}") from None
     return result
+
+
+def _spikes_followed(rec: Recording, result: Diagnosis, flags: np.ndarray, dep: np.ndarray,
+                     opt: DiagnoseOptions) -> str:
+    """Whether the velocities follow the force spikes as the fitted model says a real force would
+    (:func:`ident.glitches.spike_response`, one-sided tests at the selection's level): the verdict's text,
+    starting "kept" (they follow, and do not fall short of it) or "left out" (they do not follow, or the
+    motion cannot tell)."""
+    fit = result.fits.get("augmented")
+    if fit is None:
+        return "left out, each replaced by the line through its neighbours (no model to test them with)"
+    inv_m = fit.inverse("m")[0]
+    inv_J = fit.inverse("J")[0] if fit.lay.rotation else 0.0
+    arms = None
+    angle = fitted_angle(result)
+    if angle is not None and angle[0].size == rec.T:
+        r = fit.g[: 2 * rec.n].reshape(rec.n, 2)
+        c, s = np.cos(angle[0])[:, None], np.sin(angle[0])[:, None]
+        arms = np.stack((c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]), axis=-1)
+    vel = without_glitches(rec, []).vel
+    beta, se, used = spike_response(rec.t, vel, flags, dep, inv_m, inv_J, arms)
+    if not used or not np.isfinite(se) or se <= 0:
+        return ("left out, each replaced by the line through its neighbours: the motion around them cannot be "
+                "measured (too close to an end or to a gap)")
+    p1 = float(NormalDist().cdf((beta - 1.0) / se))  # that the load feels them as logged
+    p0 = float(NormalDist().cdf(-beta / se))  # that it does not feel them
+    seen = (f"the velocities across {used} of them jump {beta:.2g} +- {Z95 * se:.2g} x what the fitted model "
+            f"predicts for a real force (1: the load feels them, p {p1:.2g}; 0: it does not, p {p0:.2g})")
+    if p0 < opt.alpha and p1 >= opt.alpha:
+        return f"kept as logged: {seen}: knocks the load felt"
+    # a glitch of the log, as a velocity's, unless the motion shows it; one too small to move the load
+    # measurably is left out as well: what it would add is below what the data resolve
+    why = "spikes of the force log" if p1 < opt.alpha else "too small for the motion to tell"
+    return f"left out, each replaced by the line through its neighbours: {seen}: {why}"
 
 
 def fitted_angle(result: Diagnosis) -> tuple[np.ndarray, np.ndarray] | None:
@@ -238,6 +315,108 @@ def _robot_velocity_frames(rec: Recording, opt: DiagnoseOptions, progress) -> tu
         progress(f"velocities logged in the robots' own frames (kinematics {vc.rss_world / vc.rss_robot:.3g} x better "
                  f"in them, p {vc.p:.2g}): turned to the world frame")
     return velocities_to_world(rec, vc), out
+
+
+OFFSETS = ("force_bias", "force_sensor_offset", "sensor_offset_body", "torque_bias")
+PARTS = 4  # runs of windows the named offsets are fitted to apart
+
+
+def _offsets_drift(result: Diagnosis, opt: DiagnoseOptions) -> str | None:
+    """The named constant offsets (force and torque biases, sensor offsets) refitted to each of ``PARTS`` runs
+    of consecutive windows apart (the final model, its other parameters free too): where their values differ
+    between the runs beyond their intervals (the chi-square of the runs about their weighted mean, every
+    offset's components pooled, at the selection's level) the offsets are not constant: the text of the finding
+    with the runs' values, or None."""
+    fit, pb = result.fits.get("augmented"), result.problem
+    named = [e["name"] for e in result.effects if e["name"] in OFFSETS]
+    if fit is None or pb is None or not named or pb.win.S < 2 * PARTS:
+        return None
+    vals, ses, spans = [], [], []
+    for idx in np.array_split(np.arange(pb.win.S), PARTS):
+        f = lm_fit(subset(pb, idx), fit.lay, fit.g, fit.x[idx], max_iter=15)
+        v = np.concatenate([f.param(c)[0] for c in named])
+        se = np.concatenate([f.param(c)[1] for c in named]) / Z95
+        vals.append(v)
+        ses.append(se)
+        spans.append((float(pb.t0[idx[0]]), float(pb.t0[idx[-1]] + (pb.t0[1] - pb.t0[0] if pb.win.S > 1 else 0))))
+    v, se = np.array(vals), np.maximum(np.array(ses), 1e-300)
+    w = 1.0 / se**2
+    mean = (w * v).sum(axis=0) / w.sum(axis=0)
+    chi2 = float(((v - mean) ** 2 * w).sum())
+    dof = (PARTS - 1) * v.shape[1]
+    p = float(sst.chi2.sf(chi2, dof))
+    if not p < opt.alpha:
+        return None
+    runs = "; ".join(f"{a:.3g}-{b:.3g} s: ({', '.join(f'{x:.3g}' for x in row)})" for (a, b), row in zip(spans, v))
+    return (f"a force offset drifts: {', '.join(named)} fitted to each quarter of the recording apart read {runs} "
+            f"(chi-square {chi2:.3g} on {dof} degrees of freedom, p {p:.2g}: not constant). A sensor's bias that "
+            "changes during the run (thermal drift) is outside the vocabulary: the constant offsets are not named")
+
+
+def _unname_drifting(result: Diagnosis, text: str) -> None:
+    """Constant offsets that drift are not named: the diagnosis falls back to the nominal model, unexplained."""
+    result.warnings.append(text)
+    result.warnings.append("unexplained: the offsets named on the whole recording differ from quarter to quarter; "
+                           "m, J and their 95 % intervals are the nominal model's, which the data reject: they hold "
+                           "only as far as that model does")
+    walk = "the residual drifts as a random walk"
+    result.warnings = [w for w in result.warnings if not w.startswith(walk)]
+    for c in result.candidates:
+        c["accepted"] = False
+    result.effects = [e for e in result.effects if e.get("kind") == "logger"]
+    result.augmented, result.random_force, result.unexplained = result.nominal, None, True
+    result.fits["augmented"] = result.fits["nominal"]
+
+
+def _offsets_together(result: Diagnosis) -> None:
+    """force_bias and force_sensor_offset named together: what the data identify is the offsets' sum over the
+    robots (their force on the load) and the moment about the contacts that turns with the load; robots whose
+    offsets differ give both, and the model's split (one offset on every robot plus a bias) is not theirs. The
+    sum, with its 95 % half-widths, is added to force_sensor_offset's entry and said in a warning."""
+    names = {e["name"]: e for e in result.effects}
+    fit = result.fits.get("augmented")
+    if fit is None or not {"force_bias", "force_sensor_offset"} <= set(names):
+        return
+    lay = fit.lay
+    n = lay.n
+    b, o = lay.slot("force_bias"), lay.slot("force_sensor_offset")
+    # the logged forces read n o - b too high in sum (the model gives the load b - n o more than logged)
+    k = np.r_[-np.ones(b.stop - b.start), n * np.ones(o.stop - o.start)]
+    idx = np.r_[np.arange(b.start, b.stop), np.arange(o.start, o.stop)]
+    na = b.stop - b.start
+    val, half = [], []
+    for c in range(na):
+        sel = np.array([c, na + c])
+        w = k[sel]
+        val.append(float(w @ fit.g[idx[sel]]))
+        half.append(float(Z95 * np.sqrt(max(w @ fit.cov[np.ix_(idx[sel], idx[sel])] @ w, 0.0))))
+    it = iter(zip(val, half))
+    pairs = [next(it) if on else (None, None) for on in lay.axes]
+    names["force_sensor_offset"]["sum_over_robots"] = [p[0] for p in pairs]
+    names["force_sensor_offset"]["sum_over_robots_ci95"] = [p[1] for p in pairs]
+    txt = ", ".join(f"{v:.3g} +- {h:.2g}" for v, h in pairs if v is not None)
+    result.warnings.append(f"force_bias and force_sensor_offset together: the robots' logged forces read ({txt}) N "
+                           "too high in sum (n x force_sensor_offset - force_bias), with a moment about the "
+                           "contacts that turns with the load: what force sensors with offsets of their own give. "
+                           "The data identify that sum and that moment, not each robot's offset: the same offset on "
+                           "every robot plus a bias is the model's reading of them, not a correction for each sensor")
+
+
+def _velocity_scales(rec: Recording, opt: DiagnoseOptions, progress) -> tuple[Recording, dict | None]:
+    """The velocity-scale check (:mod:`ident.vscale`) at the selection's family-wise level, its remainder at most
+    ``opt.restart_misfit`` x the agents' own noise (a fault the scales only partly take up leaves more: a clock
+    off); the recording with the agents off rescaled when it passes."""
+    sc = scale_check(rec)
+    if sc is None:
+        return rec, None
+    out = sc.summary(opt.alpha, opt.restart_misfit) | {"agents": agents_off(sc, opt.alpha)}
+    if not out["scaled"] or not out["agents"]:
+        out["scaled"] = False
+        return rec, out
+    if progress is not None:
+        progress(f"agent(s) {out['agents']} log their velocity at scale(s) "
+                 f"{[round(sc.scales[j], 4) for j in out['agents']]} of the others' kinematics: rescaled")
+    return rescaled(rec, sc, out["agents"]), out
 
 
 def sample_period(rec: Recording) -> float:

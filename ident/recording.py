@@ -50,6 +50,7 @@ class Recording:
     truth: dict[str, float] | None = None
     warnings: list[str] = field(default_factory=list)
     t0: float = 0.0
+    wrench_logged: np.ndarray | None = None  # (T, n): where each agent's fx, fy are its own (not interpolated)
 
     @property
     def T(self) -> int:
@@ -119,7 +120,8 @@ def recording_from_arrays(t, wrench, vel=None, pos=None, *, hold: str = "foh", d
             elif m.any():
                 w[m, i, c] = np.interp(t[m], t[~m], w[~m, i, c])
     t0 = float(t[0])
-    return Recording(t=t - t0, n=n, wrench=w, vel=vel, pos=pos, dt=dt, hold=hold, truth=truth, warnings=warns, t0=t0)
+    return Recording(t=t - t0, n=n, wrench=w, vel=vel, pos=pos, dt=dt, hold=hold, truth=truth, warnings=warns, t0=t0,
+                     wrench_logged=~miss[..., :2].any(axis=2))
 
 
 WRENCH_GAP = 5.0  # a wrench missing for more than this many of the agent's own sample periods is unknown

@@ -187,9 +187,12 @@ def _agents(e: dict[str, Any]) -> str:
     """A per-agent effect's reading: which agents are off the reference agent, and by how much."""
     if e.get("agents") is None:
         return ""
+    off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]
+                    if e["ci95"][i] is not None) or "none"  # fmt: skip
+    if e.get("reference") is None and e.get("unit") != "deg":  # a scale relative to the team's median agent
+        return f" (per agent, {e.get('frame', 'relative to the team')}; off: {off})"
     if e.get("reference") is None:
         return f" (per agent: each robot's mounting angle, {e.get('frame', 'body frame at the first stamp')})"
-    off = ", ".join(f"agent {i} {e['value'][i]:.4g} +- {e['ci95'][i]:.2g}" for i in e["agents"]) or "none"
     why = "the team's median" if len(e["value"]) > 2 else "two agents: which of them is off is not identifiable"
     return f" (per agent, relative to agent {e['reference']}, {why}; outside its 95 % interval: {off})"
 
