@@ -257,8 +257,8 @@ def _agents_off(val: list, ci: list, name: str) -> list[int]:
     return [i for i, (v, h) in enumerate(zip(val, ci)) if abs(v - ref) > h]
 
 
-FORCE_LIKE = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "rotational_damping", "force_bias", "torque_bias",
-              "force_sensor_offset", "sensor_offset_body")
+FORCE_LIKE = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "rotational_damping", "force_bias",
+              "torque_bias", "force_sensor_offset", "sensor_offset_body")
 
 
 def _regauge(pb: Problem, fit: Fit, say: Callable[[str], None]) -> Fit:
@@ -621,8 +621,11 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     for c in table:
         table[c]["accepted"] = c in named
     # a non-negative candidate the reported model would take below its bound 0 (its score test's step points
-    # there, at the selection's level over the candidates left out): held at 0, the data point at the other sign
-    out = [c for c in cands if c not in final.lay.effects]
+    # there, at the selection's level over the candidates left out): held at 0, the data point at the other sign.
+    # Only on a white residual: a structured one (a real machine's misfit, a velocity noise filtered otherwise
+    # than the whitening models) makes every score test's p far too small
+    out = [c for c in cands if c not in final.lay.effects] if (white if final is current else p_white0) > \
+        opt.alpha_white else []
     level = opt.alpha / max(len({"timing" if c in TIMING else c for c in out}), 1)
     for c in out:
         if c in NONNEGATIVE and not (c in TIMING and set(TIMING) & set(named)):
@@ -776,7 +779,8 @@ def _force_lag_shape(pb: Problem, fit: Fit, accepted: list[str], alpha: float,
 
 
 SAME_FORCE = ("force_bias", "force_sensor_offset")
-TRANSLATION = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "force_bias", "force_sensor_offset", "sensor_offset_body")
+TRANSLATION = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "force_bias", "force_sensor_offset",
+               "sensor_offset_body")
 ROTATION = ("rotational_damping", "torque_bias")
 
 
