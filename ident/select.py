@@ -722,7 +722,8 @@ def _lag_text(name: str, d: float, h: float, shape: tuple[str, float, bool] | No
                 "rows are stamped that late, or the velocity sensors low-pass with a time constant of about that "
                 "(below their bandwidth the two look alike)")
     head = (f"force_sensor_lag: the logged forces lag the ones that moved the load by {val}: the force rows are "
-            "stamped that late" if name == "force_sensor_lag" else
+            "stamped that late, or the force sensors filter with about that delay (a filter of higher order than "
+            "the first: its group delay)" if name == "force_sensor_lag" else
             f"force_sensor_lowpass: the force sensors low-pass the force that moved the load with a time constant "
             f"of {val} (first order): the logged forces lag it by about that")
     if shape is None:
