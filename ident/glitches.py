@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import maximum_filter1d, median_filter
 
+from ident.stats import divided_weights
+
 GLITCH_FLOORS = 8.0  # a white-noise sample is this far off with probability ~1e-15: a flag is a glitch
 MAX_SHARE = 0.02  # more flags than this share of a channel's samples are not glitches: none is taken out
 GAP = 1.5  # four intervals spanning more than this x their median cross a gap: no prediction there
@@ -142,7 +144,7 @@ def force_spikes(t: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def _local_floor(t: np.ndarray, y: np.ndarray) -> np.ndarray:
     """(T, n) each agent's noise floor of ``y`` (T, n, 2) around each of its samples: the median of the
-    absolute third divided differences (normalised as :func:`ident.stats.difference_noise`'s) over :data:`LOCAL`
+    absolute third divided differences (:func:`ident.stats.divided_weights`) over :data:`LOCAL`
     samples, over the normal's median absolute value, the larger axis's; NaN where the agent has no value."""
     T, n, _ = y.shape
     out = np.full((T, n), np.nan)
@@ -151,11 +153,7 @@ def _local_floor(t: np.ndarray, y: np.ndarray) -> np.ndarray:
         if ok.size < LOCAL:
             continue
         idx = np.arange(ok.size - 3)[:, None] + np.arange(4)
-        tt = t[ok][idx]
-        gap = tt[:, :, None] - tt[:, None, :]
-        gap[:, np.arange(4), np.arange(4)] = 1.0
-        c = 1.0 / gap.prod(axis=2)
-        c /= np.sqrt((c * c).sum(axis=1, keepdims=True))
+        c = divided_weights(t[ok][idx])
         d = np.abs(np.einsum("kj,kjc->kc", c, y[ok, i][idx]))
         d = np.pad(d, ((1, 2), (0, 0)), mode="edge")  # each difference at its window's second sample
         med = median_filter(d, size=(LOCAL, 1), mode="nearest")

@@ -23,6 +23,16 @@ def _trimmed_variance(sq: np.ndarray) -> float:
     return float(kept.mean()) / _TRIM_GAIN
 
 
+def divided_weights(tt: np.ndarray) -> np.ndarray:
+    """Newton's divided-difference weights of each window of stamps ``tt`` (K, order + 1), over their norm:
+    white noise of variance s^2 gives each weighted difference the variance s^2."""
+    k = tt.shape[1]
+    gap = tt[:, :, None] - tt[:, None, :]
+    gap[:, np.arange(k), np.arange(k)] = 1.0
+    c = 1.0 / gap.prod(axis=2)
+    return c / np.sqrt((c * c).sum(axis=1, keepdims=True))
+
+
 def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
     """Noise sigma of the columns of ``y`` (T, ...) from its ``order``-th divided differences along time.
 
@@ -46,11 +56,7 @@ def difference_noise(t: np.ndarray, y: np.ndarray, order: int = 3) -> float:
         med = np.median(dts)
         idx = np.arange(tc.size - order)[:, None] + np.arange(order + 1)
         good = (np.abs(dts - med) <= 0.5 * med)[idx[:, :-1]].all(axis=1)
-        tt = tc[idx[good]]
-        gap = tt[:, :, None] - tt[:, None, :]
-        gap[:, np.arange(order + 1), np.arange(order + 1)] = 1.0
-        c = 1.0 / gap.prod(axis=2)  # Newton's divided-difference weights of each window of order + 1 stamps
-        c /= np.sqrt((c * c).sum(axis=1, keepdims=True))
+        c = divided_weights(tc[idx[good]])
         vals.append((col[idx[good]] * c).sum(axis=1))
     d2 = np.concatenate(vals) ** 2 if vals else np.zeros(0)
     if d2.size < 20:
