@@ -390,16 +390,48 @@ def decode(payload: bytes, expected: type[Msg]) -> Msg:
     return expected(**m.__dict__)
 
 
-def decode_counted(payload: bytes, expected: type[Msg], drops: MutableMapping[str, int], link: Any = None) -> Msg | None:
+def decode_counted(payload: bytes, expected: type[Msg], drops: MutableMapping[str, int], link: Any = None,
+                   said: FirstDrops | None = None, key: str = "") -> Msg | None:
     """:func:`decode` for a daemon: a rejected payload is counted in ``drops`` under its reason (and as
-    ``malformed`` on ``link``, the sender's ``LinkStats``, when given) and comes back as None."""
+    ``malformed`` on ``link``, the sender's ``LinkStats``, when given) and comes back as None; the first
+    one of each kind and reason is also said in the log by ``said`` (with the decoder's detail)."""
     try:
         return decode(payload, expected)
     except DecodeError as exc:
         drops[exc.reason] += 1
         if link is not None:
             link.malformed += 1
+        if said is not None:
+            said.drop(KIND[expected], exc.reason, str(exc), key)
         return None
+
+
+class FirstDrops:
+    """Says in the log, once per (message kind, reason, detail) and at most :attr:`LIMIT` times in all,
+    that a daemon dropped a message that does not follow the wire (docs/wire.md): malformed, another
+    agent's, another run's control notice, ... The drops stay counted by reason (the report,
+    summary.json); the log line is what a user who wrote their own simulator or agent sees at once,
+    instead of daemons that sit idle while every message they get is dropped. Tick discipline
+    (``stale``, ``future``, ``duplicate``, ``resent``, ``off_grid``) happens in a healthy run on a lossy
+    or restarted team and is only counted."""
+
+    LIMIT: Final = 10
+
+    def __init__(self, log: Any, who: str) -> None:
+        self.log = log
+        self.who = who
+        self.said: set[tuple[str, str, str]] = set()
+
+    def drop(self, kind: str, reason: str, detail: str = "", key: str = "") -> None:
+        if len(self.said) > self.LIMIT or (kind, reason, detail) in self.said:
+            return
+        self.said.add((kind, reason, detail))
+        if len(self.said) > self.LIMIT:
+            self.log.warning("%s: more kinds of dropped messages: from now on only counted", self.who)
+            return
+        where = f" on {key}" if key else ""
+        self.log.warning("%s: dropped a %s%s: %s (counted in drops[%r])", self.who, kind, where, detail or reason,
+                         reason)
 
 
 def is_finite_message(msg: Message) -> bool:

@@ -1,0 +1,146 @@
+"""A simulator written from docs/wire.md alone, in the test (plain zenoh + msgpack), against a real
+`coload agent` process on loopback: what such a program plausibly gets wrong must be said, not
+silently dropped or waited out.
+
+* a measurement with an extra field, a tick sent as 5.0, a control notice whose `ticks` is not the
+  agent's scenario's: each dropped and counted (the report's `drops`), and the first one of each kind
+  and reason said in the agent's log with the decoder's detail (before: counted only, so an agent fed
+  nothing but such messages sat idle without a word);
+* a simulator without the liveliness token `alive/sim/0` that stops without `done`: the agent gives up
+  after `timing.sim_lost_timeout_s` without a measurement, reports and exits 1 (before: it waited for
+  ever, silently).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import msgpack
+import pytest
+import zenoh
+
+from net.zenoh_transport import free_tcp_port, zenoh_config
+from tests.conftest import Processes, coload_cmd
+
+pytestmark = pytest.mark.zenoh
+
+TICKS = 400  # quick with duration 4 s
+
+
+def _put(session, key: str, kind: str, body: dict) -> None:
+    session.put(key, msgpack.packb([kind, 1, body]), congestion_control=zenoh.CongestionControl.BLOCK)
+
+
+def _wait_for(cond, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+class Plant:
+    """The test's foreign simulator: hears agent 0's token, wrenches and report."""
+
+    def __init__(self, session, run: str) -> None:
+        self.run = run
+        self.cv = threading.Condition()
+        self.agent_up = False
+        self.wrench_ticks: list[int] = []
+        self.report: dict | None = None
+        self._subs = [
+            session.declare_subscriber(f"coload/{run}/agent/0/wrench", self._on_wrench),
+            session.declare_subscriber(f"coload/{run}/agent/0/report", self._on_report),
+            session.liveliness().declare_subscriber(f"coload/{run}/alive/agent/0", self._on_alive, history=True),
+        ]
+
+    def _on_wrench(self, s) -> None:
+        _, _, body = msgpack.unpackb(s.payload.to_bytes(), strict_map_key=False)
+        with self.cv:
+            self.wrench_ticks.append(body["tick"])
+            self.cv.notify_all()
+
+    def _on_report(self, s) -> None:
+        _, _, body = msgpack.unpackb(s.payload.to_bytes(), strict_map_key=False)
+        with self.cv:
+            self.report = body
+            self.cv.notify_all()
+
+    def _on_alive(self, s) -> None:
+        with self.cv:
+            self.agent_up = s.kind == zenoh.SampleKind.PUT
+            self.cv.notify_all()
+
+    def wait(self, cond, timeout: float, what: str) -> None:
+        with self.cv:
+            assert self.cv.wait_for(cond, timeout), f"timed out waiting for {what}"
+
+
+def _team(tmp_path: Path, *sets: str):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    run = f"foreign{free_tcp_port()}"
+    procs = Processes(tmp_path)
+    router = procs.start("router", coload_cmd("router", "--listen", endpoint), stdout=subprocess.PIPE)
+    assert router.stdout.readline().decode().startswith("ready")
+    args = ["quick", "--connect", endpoint, "--run", run, "--set", "duration=4.0",
+            "--set", "timing.neighbour_timeout_s=0.2"]
+    for s in sets:
+        args += ["--set", s]
+    agent = procs.start("agent0", coload_cmd("agent", "--id", "0", *args))
+    return procs, endpoint, run, agent
+
+
+def test_malformed_input_from_a_foreign_simulator_is_said_once_and_counted(tmp_path):
+    procs, endpoint, run, agent = _team(tmp_path)
+    log = tmp_path / "agent0.log"
+    try:
+        with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
+            plant = Plant(session, run)
+            token = session.liveliness().declare_token(f"coload/{run}/alive/sim/0")
+            plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+            meas = f"coload/{run}/agent/0/meas"
+            ctl = f"coload/{run}/sim/control"
+            for k in range(3):  # three of each: said once, counted three times
+                _put(session, meas, "meas", {"tick": k, "agent": 0, "vx": 0.0, "vy": 0.0, "stamp": 1.5})
+                _put(session, meas, "meas", {"tick": float(k), "agent": 0, "vx": 0.0, "vy": 0.0})
+                _put(session, ctl, "control", {"kind": "start", "tick": 0, "ticks": 3400})
+            _wait_for(lambda: log.read_text().count("dropped a") >= 3, 30, "the agent's log lines")
+            text = log.read_text()
+            assert text.count("dropped a") == 3, text  # each said once
+            assert "agent 0: dropped a meas on coload/" in text
+            assert "('stamp',): Extra inputs are not permitted" in text
+            assert "('tick',): Input should be a valid integer" in text
+            assert ("'start' says the run has ticks=3400; this agent's scenario has 400 (duration / dt)" in text)
+            # a valid done ends the agent: its report counts every drop
+            _put(session, ctl, "control", {"kind": "done", "tick": TICKS, "ticks": TICKS})
+            plant.wait(lambda: plant.report is not None, 30, "agent 0's report")
+            assert plant.report["drops"] == {"bad_schema": 6, "bad_control": 3}
+            assert plant.wrench_ticks == []  # it never stepped: nothing it got was a measurement
+            assert agent.wait(30) == 0
+            del token
+    finally:
+        procs.kill_all()
+
+
+def test_an_agent_whose_tokenless_simulator_stops_without_done_gives_up(tmp_path):
+    procs, endpoint, run, agent = _team(tmp_path, "timing.sim_lost_timeout_s=3.0")
+    log = tmp_path / "agent0.log"
+    try:
+        with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
+            plant = Plant(session, run)  # no liveliness token, on purpose
+            plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+            _put(session, f"coload/{run}/sim/control", "control", {"kind": "start", "tick": 0, "ticks": TICKS})
+            for k in range(20):
+                _put(session, f"coload/{run}/agent/0/meas", "meas", {"tick": k, "agent": 0, "vx": 0.0, "vy": 0.0})
+                plant.wait(lambda: k in plant.wrench_ticks, 30, f"agent 0's wrench of tick {k}")
+            # the simulator stops here, without done: the agent gives up once 3 s pass without a measurement
+            assert agent.wait(60) == 1
+            plant.wait(lambda: plant.report is not None, 10, "agent 0's report")
+            assert plant.report["ticks"] == 20
+    finally:
+        procs.kill_all()
+    text = log.read_text()
+    assert f"the simulator's liveliness token coload/{run}/alive/sim/0 is not there" in text
+    assert "giving up at tick 20" in text
