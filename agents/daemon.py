@@ -327,6 +327,8 @@ class AgentDaemon:
         log.warning("agent %d: measurements %d..%d never came; rejoining at tick %d",
                     self.id, self.last_meas + 1, m.tick - 1, m.tick)
         self.drops["future"] -= 1
+        if not self.drops["future"]:
+            del self.drops["future"]  # not a drop after all: no `future: 0` in the report
         self._join_at(m.tick)
         self.last_meas = m.tick
         self._last_meas_t = self.transport.loop.time()

@@ -144,3 +144,34 @@ def test_an_agent_whose_tokenless_simulator_stops_without_done_gives_up(tmp_path
     text = log.read_text()
     assert f"the simulator's liveliness token coload/{run}/alive/sim/0 is not there" in text
     assert "giving up at tick 20" in text
+
+
+def test_a_simulator_that_numbers_its_ticks_from_1_is_joined_and_nothing_is_counted_as_dropped(tmp_path):
+    """Ticks numbered from 1 (a MATLAB habit): after the start notice the agent holds tick 1 back as a
+    possible forgery, then rejoins at it (`timing.rejoin_after_s`, said in its log). The held measurement was
+    counted as `future` and taken back: the report does not list it (before: `"future": 0`)."""
+    procs, endpoint, run, agent = _team(tmp_path)
+    try:
+        with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
+            plant = Plant(session, run)
+            token = session.liveliness().declare_token(f"coload/{run}/alive/sim/0")
+            plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+            ctl = f"coload/{run}/sim/control"
+            _put(session, ctl, "control", {"kind": "start", "tick": 0, "ticks": TICKS})
+            # the start notice is handled before the first measurement (not a late joiner's start): a notice
+            # of another run behind it on the same subscription, and its log line, say it was
+            _put(session, ctl, "control", {"kind": "progress", "tick": 0, "ticks": 1})
+            log = tmp_path / "agent0.log"
+            _wait_for(lambda: "dropped a control" in log.read_text(), 30, "the agent's log line")
+            for k in range(1, 6):
+                _put(session, f"coload/{run}/agent/0/meas", "meas", {"tick": k, "agent": 0, "vx": 0.0, "vy": 0.0})
+                plant.wait(lambda: k in plant.wrench_ticks, 30, f"agent 0's wrench of tick {k}")
+            _put(session, ctl, "control", {"kind": "done", "tick": TICKS, "ticks": TICKS})
+            plant.wait(lambda: plant.report is not None, 30, "agent 0's report")
+            assert plant.report["drops"] == {"bad_control": 1}
+            assert plant.report["ticks"] == 5
+            assert agent.wait(30) == 0
+            del token
+    finally:
+        procs.kill_all()
+    assert "measurements 0..0 never came; rejoining at tick 1" in (tmp_path / "agent0.log").read_text()
