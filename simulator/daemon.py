@@ -121,6 +121,8 @@ class SimDaemon:
         self._wfmt = f"<{3 * self.n}d"
         self._expected_alive: set[int] = set()
         self._seen: set[int] = set()  # agents seen alive in this run (by token or wrench)
+        names = getattr(recorder, "estimate_names", None)  # the columns of estimates.csv
+        self._columns = None if names is None else frozenset(names)
         self.resumed_at = -1
         self.scenario_hash = hashlib.sha256(dump_scenario(scenario).encode()).hexdigest()
 
@@ -245,6 +247,12 @@ class SimDaemon:
         if not self.recorder.keeps(est.tick):
             self.drops["off_grid"] += 1
             return
+        if self._columns is not None and not self._columns.issuperset(est.values):
+            unknown = sorted(set(est.values) - self._columns)
+            log.warning("agent %d's estimate of tick %d has values estimates.csv has no column for: %s; they are "
+                        "not recorded, the others are (the columns: net/vocabulary.py ESTIMATE_NAMES; said once)",
+                        i, est.tick, ", ".join(unknown[:8]))
+            self._columns = None  # said once
         self._take_estimate(est)
         self._write_journal({"e": base64.b64encode(payload).decode("ascii")})
 
