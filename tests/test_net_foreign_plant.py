@@ -1,6 +1,11 @@
-"""A simulator written from docs/wire.md alone, in the test (plain zenoh + msgpack), against a real
-`coload agent` process on loopback: what such a program plausibly gets wrong must be said, not
-silently dropped or waited out.
+"""A simulator written from docs/wire.md alone, in the test (plain zenoh + msgpack), against real
+`coload agent` processes on loopback.
+
+* tests/wire_plant.py, a plant with its own integrator and its own load (not the scenario's), runs a
+  secure team of five agents (`coload keys init`, the simulator's `sim.json5`) through Algorithm 1:
+  the agents' J, m, z_i, z_C against the plant's own truth.
+
+What such a program plausibly gets wrong must be said, not silently dropped or waited out:
 
 * a measurement with an extra field, a tick sent as 5.0, a control notice whose `ticks` is not the
   agent's scenario's: each dropped and counted (the report's `drops`), and the first one of each kind
@@ -24,6 +29,7 @@ import zenoh
 
 from net.zenoh_transport import free_tcp_port, zenoh_config
 from tests.conftest import Processes, coload_cmd
+from tests.wire_plant import run_plant
 
 pytestmark = pytest.mark.zenoh
 
@@ -90,6 +96,34 @@ def _team(tmp_path: Path, *sets: str):
         args += ["--set", s]
     agent = procs.start("agent0", coload_cmd("agent", "--id", "0", *args))
     return procs, endpoint, run, agent
+
+
+def test_a_foreign_plant_runs_a_secure_team_and_its_load_is_learnt(tmp_path):
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    run, team, n = "foreign-plant", tmp_path / "team", 5
+    procs = Processes(tmp_path)
+    try:
+        subprocess.run(coload_cmd("keys", "init", str(team), "--agents", str(n), "--scenario", "quick-dynamics",
+                                  "--run", run, "--endpoint", endpoint), check=True, capture_output=True)
+        router = procs.start("router", coload_cmd("router", "--tls-dir", str(team)), stdout=subprocess.PIPE)
+        assert router.stdout.readline().decode().startswith("ready")
+        agents = [procs.start(f"agent{i}", coload_cmd("agent", "--id", str(i), "quick-dynamics", "--tls-dir",
+                                                      str(team), "--run", run)) for i in range(n)]
+        res = run_plant(zenoh.Config.from_file(str(team / "sim.json5")), run, n, 3400)  # 34 s, the scenario's
+        for a in agents:
+            assert a.wait(30) == 0
+    finally:
+        procs.kill_all()
+    assert res["wrench_timeouts"] == 0
+    assert sorted(res["reports"]) == list(range(n))
+    for rep in res["reports"].values():
+        assert rep["drops"] == {} and rep["timeouts"] == 0 and rep["ticks"] == 3400
+    est = res["estimates"]
+    assert sorted(est) == list(range(n))
+    for e in est.values():  # measured: J +0.49 %, m -0.29 %, z_i 6-22 mm, z_C 3-11 mm, omega 1 mrad/s
+        assert e["tick"] == 3390 and e["phase"] == 6.0
+        assert abs(e["J_rel"]) < 0.02 and abs(e["m_rel"]) < 0.01
+        assert e["zi_err"] < 0.05 and e["zc_err"] < 0.03 and abs(e["omega_err"]) < 0.01
 
 
 def test_malformed_input_from_a_foreign_simulator_is_said_once_and_counted(tmp_path):
