@@ -168,7 +168,7 @@ def test_an_agent_whose_tokenless_simulator_stops_without_done_gives_up(tmp_path
             _put(session, f"coload/{run}/sim/control", "control", {"kind": "start", "tick": 0, "ticks": TICKS})
             for k in range(20):
                 _put(session, f"coload/{run}/agent/0/meas", "meas", {"tick": k, "agent": 0, "vx": 0.0, "vy": 0.0})
-                plant.wait(lambda: k in plant.wrench_ticks, 30, f"agent 0's wrench of tick {k}")
+                plant.wait(lambda k=k: k in plant.wrench_ticks, 30, f"agent 0's wrench of tick {k}")
             # the simulator stops here, without done: the agent gives up once 3 s pass without a measurement
             assert agent.wait(60) == 1
             plant.wait(lambda: plant.report is not None, 10, "agent 0's report")
@@ -199,7 +199,7 @@ def test_a_simulator_that_numbers_its_ticks_from_1_is_joined_and_nothing_is_coun
             _wait_for(lambda: "dropped a control" in log.read_text(), 30, "the agent's log line")
             for k in range(1, 6):
                 _put(session, f"coload/{run}/agent/0/meas", "meas", {"tick": k, "agent": 0, "vx": 0.0, "vy": 0.0})
-                plant.wait(lambda: k in plant.wrench_ticks, 30, f"agent 0's wrench of tick {k}")
+                plant.wait(lambda k=k: k in plant.wrench_ticks, 30, f"agent 0's wrench of tick {k}")
             _put(session, ctl, "control", {"kind": "done", "tick": TICKS, "ticks": TICKS})
             plant.wait(lambda: plant.report is not None, 30, "agent 0's report")
             assert plant.report["drops"] == {"bad_control": 1}

@@ -124,7 +124,7 @@ def run_plant(conf: zenoh.Config, run: str, n: int, ticks: int, *, dt: float = 0
                                                        "vy": float(v[i, 1])}]))
             f, tau = np.zeros((n, 2)), np.zeros(n)
             with cv:
-                if not cv.wait_for(lambda: all((k, i) in wrenches for i in alive), wrench_timeout_s):
+                if not cv.wait_for(lambda k=k: all((k, i) in wrenches for i in alive), wrench_timeout_s):
                     timeouts += 1
                 for i in range(n):
                     w = wrenches.pop((k, i), None)
