@@ -363,6 +363,28 @@ def _reason(err: ValidationError) -> str:
     return "bad_schema"
 
 
+_MSGPACK_TYPE: Final = {tuple: "array", list: "array", dict: "map", bytes: "bin (bytes)", str: "str", int: "int",
+                        float: "float", bool: "bool", type(None): "nil"}
+
+
+def _msgpack_type(x: Any) -> str:
+    return _MSGPACK_TYPE.get(type(x), type(x).__name__)
+
+
+def _envelope_problem(obj: Any) -> str:
+    """What is wrong with a payload that is not ``[kind: str, version: int, body: map]``, for the log."""
+    if not isinstance(obj, tuple):
+        return f"expected an array [kind, version, body], got a {_msgpack_type(obj)}"
+    if len(obj) != 3:
+        return f"expected an array of 3 [kind, version, body], got {len(obj)} elements"
+    kind, version, body = obj
+    if not isinstance(kind, str):
+        return f"kind must be a msgpack str, got {_msgpack_type(kind)}"
+    if type(version) is not int:
+        return f"version must be the msgpack int {SCHEMA_VERSION}, got {_msgpack_type(version)}"
+    return f"body must be a msgpack map, got {_msgpack_type(body)}"
+
+
 def decode(payload: bytes, expected: type[Msg]) -> Msg:
     """Validate ``payload`` as a message of type ``expected`` and return the plain dataclass.
 
@@ -374,13 +396,15 @@ def decode(payload: bytes, expected: type[Msg]) -> Msg:
     obj = _unpack(payload)
     if not (isinstance(obj, tuple) and len(obj) == 3 and isinstance(obj[0], str)
             and type(obj[1]) is int and isinstance(obj[2], dict)):
-        raise DecodeError("bad_envelope", f"expected [kind, version, body], got {type(obj).__name__}")
+        raise DecodeError("bad_envelope", _envelope_problem(obj))
     kind, version, body = obj
     if version != SCHEMA_VERSION:
         raise DecodeError("bad_version", f"schema version {version}, this build speaks {SCHEMA_VERSION}")
     want = KIND[expected]
     if kind != want:
         raise DecodeError("wrong_kind", f"expected {want!r}, got {kind[:32]!r}")
+    if any(isinstance(k, bytes) for k in body):
+        raise DecodeError("bad_schema", "the body's keys are msgpack bin (bytes): field names must be msgpack str")
     try:
         m = _BODY[expected].model_validate(body)
     except ValidationError as e:
