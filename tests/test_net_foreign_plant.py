@@ -209,3 +209,54 @@ def test_a_simulator_that_numbers_its_ticks_from_1_is_joined_and_nothing_is_coun
     finally:
         procs.kill_all()
     assert "measurements 0..0 never came; rejoining at tick 1" in (tmp_path / "agent0.log").read_text()
+
+
+def test_on_a_secure_team_a_simulator_subscribed_wider_than_its_keys_hears_nothing(tmp_path):
+    """docs/security.md (the Zenoh details): an agent sends its wrench only once the router has told it of a
+    subscriber on `agent/*/wrench`, and its policy lets it learn of exactly that expression. A simulator whose
+    only subscription is `coload/R/agent/**` therefore hears no wrench, without an error anywhere; once an
+    exact subscriber is there, the wide one gets the wrenches too."""
+    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    run, team = "wide-sub", tmp_path / "team"
+    procs = Processes(tmp_path)
+    cv = threading.Condition()
+    heard: dict[str, list[int]] = {"wide": [], "exact": [], "monitor": []}
+
+    def hear(name: str, kind: str):
+        def on(sample) -> None:
+            if str(sample.key_expr).endswith(kind):
+                with cv:
+                    heard[name].append(msgpack.unpackb(sample.payload.to_bytes(), strict_map_key=False)[2]["tick"])
+                    cv.notify_all()
+        return on
+
+    def wait(cond, what: str) -> None:
+        with cv:
+            assert cv.wait_for(cond, 60), f"timed out waiting for {what}: {heard}"
+
+    try:
+        subprocess.run(coload_cmd("keys", "init", str(team), "--agents", "5", "--scenario", "quick", "--run", run,
+                                  "--endpoint", endpoint), check=True, capture_output=True)
+        router = procs.start("router", coload_cmd("router", "--tls-dir", str(team)), stdout=subprocess.PIPE)
+        assert router.stdout.readline().decode().startswith("ready")
+        with zenoh.open(zenoh.Config.from_file(str(team / "sim.json5"))) as sim, \
+                zenoh.open(zenoh.Config.from_file(str(team / "monitor.json5"))) as monitor:
+            plant = Plant(monitor, run)  # its liveliness watch only (the monitor may watch; it hears no wrench)
+            wide = sim.declare_subscriber(f"coload/{run}/agent/**", hear("wide", "/wrench"))
+            seen = monitor.declare_subscriber(f"coload/{run}/agent/*/estimate", hear("monitor", "/estimate"))
+            token = sim.liveliness().declare_token(f"coload/{run}/alive/sim/0")
+            agent = procs.start("agent0", coload_cmd("agent", "--id", "0", "quick", "--tls-dir", str(team), "--run",
+                                                     run, "--set", "timing.neighbour_timeout_s=0.2"))
+            plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+            _put(sim, f"coload/{run}/sim/control", "control", {"kind": "start", "tick": 0, "ticks": 2000})
+            _put(sim, f"coload/{run}/agent/0/meas", "meas", {"tick": 0, "agent": 0, "vx": 0.0, "vy": 0.0})
+            wait(lambda: 0 in heard["monitor"], "agent 0's estimate of tick 0")  # it stepped tick 0
+            exact = sim.declare_subscriber(f"coload/{run}/agent/*/wrench", hear("exact", "/wrench"))
+            _put(sim, f"coload/{run}/agent/0/meas", "meas", {"tick": 1, "agent": 0, "vx": 0.0, "vy": 0.0})
+            wait(lambda: 1 in heard["exact"] and 1 in heard["wide"], "agent 0's wrench of tick 1")
+            # the wrench of tick 0 was never sent: the agent knew of no subscriber it may learn of
+            assert heard["wide"] == [1] and heard["exact"] == [1]
+            assert agent.poll() is None
+            del wide, seen, exact, token
+    finally:
+        procs.kill_all()
