@@ -21,7 +21,7 @@ from net import keys
 from net.link import DelayLine, LinkStats, build_in_links, receive_through
 from net.messages import AgentReport, Control, Measurement, StateMsg
 from net.neighbour_wait import MAX_TICK_LEAD, NeighbourWait
-from net.schema import decode_counted, encode
+from net.schema import FirstDrops, decode_counted, encode
 from net.transport import Transport
 
 log = logging.getLogger("coload.agent")
@@ -72,6 +72,7 @@ class AgentDaemon:
         self.stats = {j: LinkStats() for j in self.neighbours}
         self.line = DelayLine()
         self.drops: Counter[str] = Counter()
+        self.said = FirstDrops(log, f"agent {agent_id}")  # the first drop of each kind and reason, in the log
         self.timeouts = 0
         self.next_tick = 0  # the tick the core steps next
         self.last_meas = -1  # tick of the last accepted measurement
@@ -101,6 +102,7 @@ class AgentDaemon:
         self.sim_alive = False
         self._sim_lost = False  # the simulator's token went away after the run started; cleared by a measurement
         self._lost_timer: asyncio.TimerHandle | None = None  # gives up on a simulator gone too long
+        self._tokenless = False  # measurements come, but the simulator's liveliness token was never seen
         self.gave_up = False  # ended because the simulator never came back
         self.failed: str | None = None  # ended because its step raised (a control law or a bug): the one-line cause
         self._resend: dict[str, bytes] = {}  # key -> last wrench / estimate published, re-sent to a returning simulator
@@ -143,8 +145,8 @@ class AgentDaemon:
         )
 
     # ---- inputs ----------------------------------------------------------------------------
-    def _decode(self, payload: bytes, kind: type, link: int | None = None):
-        return decode_counted(payload, kind, self.drops, None if link is None else self.stats[link])
+    def _decode(self, payload: bytes, kind: type, key: str, link: int | None = None):
+        return decode_counted(payload, kind, self.drops, None if link is None else self.stats[link], self.said, key)
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)
@@ -175,6 +177,7 @@ class AgentDaemon:
         if self._lost_timer is not None:
             self._lost_timer.cancel()
             self._lost_timer = None
+        self._tokenless = False
         if self._sim_lost:
             log.info("agent %d: the simulator is back; re-sending the last wrench and estimate", self.id)
             for key, payload in self._resend.items():
@@ -183,8 +186,9 @@ class AgentDaemon:
     def _on_control(self, key: str, payload: bytes) -> None:
         if key != self._k_control:
             self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            self.said.drop("control", keys.WRONG_KEY, f"a put on {key}, taken only on {self._k_control}")
             return
-        msg = self._decode(payload, Control)
+        msg = self._decode(payload, Control, key)
         if msg is None:
             return
         # a run lasts its scenario's ticks, or fewer when it stops after done (stop_after_done_s)
@@ -192,6 +196,12 @@ class AgentDaemon:
         if msg.ticks != self.scenario.ticks or (
                 msg.kind == "done" and not (msg.tick == msg.ticks or (early_end and 0 < msg.tick < msg.ticks))):
             self.drops["bad_control"] += 1  # not this run's simulator (or a forgery): ignore it
+            if msg.ticks != self.scenario.ticks:
+                why = (f"{msg.kind!r} says the run has ticks={msg.ticks}; this agent's scenario has "
+                       f"{self.scenario.ticks} (duration / dt): another run's notice, ignored")
+            else:
+                why = f"'done' at tick {msg.tick} before the run's last tick ({msg.ticks}): ignored"
+            self.said.drop("control", "bad_control", why, key)
             return
         if msg.kind == "start":
             self.seen_start = True
@@ -217,12 +227,14 @@ class AgentDaemon:
     def _on_meas(self, key: str, payload: bytes) -> None:
         if key != self._k_meas:
             self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
+            self.said.drop("meas", keys.WRONG_KEY, f"a put on {key}, taken only on {self._k_meas}")
             return
-        m = self._decode(payload, Measurement)
+        m = self._decode(payload, Measurement, key)
         if m is None:
             return
         if m.agent != self.id:
             self.drops["wrong_agent"] += 1
+            self.said.drop("meas", "wrong_agent", f"a measurement of agent {m.agent} on agent {self.id}'s key", key)
             return
         if m.tick == self.last_meas or m.tick in self.pending_meas:
             # the simulator re-sends the current measurement to an agent that (re)appears while it
@@ -259,6 +271,8 @@ class AgentDaemon:
         self.last_meas = m.tick
         self._last_meas_t = self.transport.loop.time()
         self._sim_lost = False
+        if not self.sim_alive and self._lost_timer is None:
+            self._watch_tokenless()
         if self._jump is not None and self._jump.tick <= m.tick:
             self._jump = None  # the real stream went past it: it was not ours (counted when held)
         if self.mode == "realtime" and m.tick > self.next_tick:
@@ -267,6 +281,30 @@ class AgentDaemon:
             self.next_tick = m.tick
         self.pending_meas[m.tick] = m
         self._try_step()
+
+    def _watch_tokenless(self) -> None:
+        """Measurements come but the simulator's liveliness token (``alive/sim/0``) is not there: a
+        simulator written without one, or one whose token came later than its first measurement (their
+        subscriptions run on different threads). Without the token this agent cannot tell that the
+        simulator is gone; so it gives up as for a lost simulator once no measurement has come for
+        ``timing.sim_lost_timeout_s`` (and says so once measurements have come for a while with no token),
+        instead of waiting for a ``done`` for ever."""
+        wait = self.scenario.timing.sim_lost_timeout_s
+        idle = self.transport.loop.time() - self._last_meas_t
+        if self.sim_alive or self.done.is_set():
+            self._lost_timer = None
+            return
+        if idle >= wait:
+            self._lost_timer = None
+            self._give_up()
+            return
+        if not self._tokenless and self.ticks_stepped >= 1:
+            self._tokenless = True
+            log.warning("agent %d: measurements come but the simulator's liveliness token %s is not there "
+                        "(docs/wire.md): this agent gives up %g s after the last measurement unless a 'done' comes",
+                        self.id, keys.alive(self.run_name, "sim", 0), wait)
+        self._lost_timer = asyncio.get_running_loop().call_later(min(wait - idle, max(1.0, wait / 10)),
+                                                                 self._watch_tokenless)
 
     def _hold_jump(self, m: Measurement) -> None:
         """Counted as a ``future`` drop now; taken back if the agent does rejoin with it."""
@@ -289,6 +327,8 @@ class AgentDaemon:
         log.warning("agent %d: measurements %d..%d never came; rejoining at tick %d",
                     self.id, self.last_meas + 1, m.tick - 1, m.tick)
         self.drops["future"] -= 1
+        if not self.drops["future"]:
+            del self.drops["future"]  # not a drop after all: no `future: 0` in the report
         self._join_at(m.tick)
         self.last_meas = m.tick
         self._last_meas_t = self.transport.loop.time()
@@ -322,12 +362,14 @@ class AgentDaemon:
         if sender is None:
             # a put on a wider key expression that this subscription matched (agent/*/state)
             self.drops[keys.WRONG_KEY] += 1
+            self.said.drop("state", keys.WRONG_KEY, f"a put on {key}, taken only on a neighbour's exact state key")
             return
-        msg = self._decode(payload, StateMsg, link=sender)
+        msg = self._decode(payload, StateMsg, key, link=sender)
         if msg is None:
             return
         if msg.sender != sender:
             self.drops["spoofed_sender"] += 1
+            self.said.drop("state", "spoofed_sender", f"sender {msg.sender} on agent {sender}'s state key", key)
             return
         horizon = self._horizon() if self.mode == "realtime" and self._anchor is not None else math.inf
         refused = self.wait.admit(sender, msg.tick, self.next_tick, horizon)

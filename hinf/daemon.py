@@ -32,7 +32,7 @@ from net.hinf_messages import HinfInput, HinfMeas, HinfState
 from net.link import DelayLine, LinkStats, receive_through
 from net.messages import AgentReport, Control
 from net.neighbour_wait import MAX_TICK_LEAD, NeighbourWait
-from net.schema import decode_counted, encode
+from net.schema import FirstDrops, decode_counted, encode
 from net.transport import Transport
 
 from .runtime import (
@@ -97,6 +97,7 @@ class HinfSimDaemon:
         self.rec = TraceWriter(setup)
         self.alive: set[int] = set()
         self.drops: Counter[str] = Counter()
+        self.said = FirstDrops(log, "hinf simulator")  # the first drop of each kind and reason, in the log
         self.input_timeouts = 0
         self.reports: dict[int, AgentReport] = {}
         self.tick = 0
@@ -120,8 +121,8 @@ class HinfSimDaemon:
         self.drops["unknown_sender" if parsed is not None and parsed.kind == kind else keys.WRONG_KEY] += 1
         return None
 
-    def _decode(self, payload: bytes, kind: type):
-        return decode_counted(payload, kind, self.drops)
+    def _decode(self, payload: bytes, kind: type, key: str = ""):
+        return decode_counted(payload, kind, self.drops, None, self.said, key)
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)
@@ -132,7 +133,7 @@ class HinfSimDaemon:
 
     def _on_input(self, key: str, payload: bytes) -> None:
         k = self._agent_of(key, "input")
-        msg = self._decode(payload, HinfInput) if k is not None else None
+        msg = self._decode(payload, HinfInput, key) if k is not None else None
         if msg is None:
             return
         s = self.setup
@@ -161,7 +162,7 @@ class HinfSimDaemon:
 
     def _on_report(self, key: str, payload: bytes) -> None:
         k = self._agent_of(key, "report")
-        rep = self._decode(payload, AgentReport) if k is not None else None
+        rep = self._decode(payload, AgentReport, key) if k is not None else None
         if rep is None:
             return
         if rep.agent != k:
@@ -276,6 +277,7 @@ class HinfAgentDaemon:
         self.stats = {j: LinkStats() for j in self.nbrs}
         self.line: DelayLine = DelayLine()
         self.drops: Counter[str] = Counter()
+        self.said = FirstDrops(log, f"hinf estimator {k}")  # the first drop of each kind and reason, in the log
         self.timeouts = 0
         self.next_tick = 0
         self.last_meas = -1
@@ -329,8 +331,8 @@ class HinfAgentDaemon:
         return AgentReport(self.id, {j: s.as_dict() for j, s in self.stats.items()}, drops, self.timeouts,
                            self.ticks_stepped)
 
-    def _decode(self, payload: bytes, kind: type, link: int | None = None):
-        return decode_counted(payload, kind, self.drops, None if link is None else self.stats[link])
+    def _decode(self, payload: bytes, kind: type, link: int | None = None, key: str = ""):
+        return decode_counted(payload, kind, self.drops, None if link is None else self.stats[link], self.said, key)
 
     def _on_alive(self, key: str, alive: bool) -> None:
         parsed = keys.parse_alive(key)
@@ -343,7 +345,7 @@ class HinfAgentDaemon:
         if key != self._k_control:
             self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
             return
-        msg = self._decode(payload, Control)
+        msg = self._decode(payload, Control, key=key)
         if msg is None:
             return
         if msg.ticks != self.setup.ticks:
@@ -360,7 +362,7 @@ class HinfAgentDaemon:
         if key != self._k_meas:
             self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression: not the simulator's
             return
-        m = self._decode(payload, HinfMeas)
+        m = self._decode(payload, HinfMeas, key=key)
         if m is None:
             return
         if m.agent != self.id:
@@ -420,7 +422,7 @@ class HinfAgentDaemon:
         if sender is None:
             self.drops[keys.WRONG_KEY] += 1  # a put on a wider key expression (hinf/*/state)
             return
-        msg = self._decode(payload, HinfState, link=sender)
+        msg = self._decode(payload, HinfState, link=sender, key=key)
         if msg is None:
             return
         s = self.setup

@@ -363,6 +363,28 @@ def _reason(err: ValidationError) -> str:
     return "bad_schema"
 
 
+_MSGPACK_TYPE: Final = {tuple: "array", list: "array", dict: "map", bytes: "bin (bytes)", str: "str", int: "int",
+                        float: "float", bool: "bool", type(None): "nil"}
+
+
+def _msgpack_type(x: Any) -> str:
+    return _MSGPACK_TYPE.get(type(x), type(x).__name__)
+
+
+def _envelope_problem(obj: Any) -> str:
+    """What is wrong with a payload that is not ``[kind: str, version: int, body: map]``, for the log."""
+    if not isinstance(obj, tuple):
+        return f"expected an array [kind, version, body], got a {_msgpack_type(obj)}"
+    if len(obj) != 3:
+        return f"expected an array of 3 [kind, version, body], got {len(obj)} elements"
+    kind, version, body = obj
+    if not isinstance(kind, str):
+        return f"kind must be a msgpack str, got {_msgpack_type(kind)}"
+    if type(version) is not int:
+        return f"version must be the msgpack int {SCHEMA_VERSION}, got {_msgpack_type(version)}"
+    return f"body must be a msgpack map, got {_msgpack_type(body)}"
+
+
 def decode(payload: bytes, expected: type[Msg]) -> Msg:
     """Validate ``payload`` as a message of type ``expected`` and return the plain dataclass.
 
@@ -374,13 +396,15 @@ def decode(payload: bytes, expected: type[Msg]) -> Msg:
     obj = _unpack(payload)
     if not (isinstance(obj, tuple) and len(obj) == 3 and isinstance(obj[0], str)
             and type(obj[1]) is int and isinstance(obj[2], dict)):
-        raise DecodeError("bad_envelope", f"expected [kind, version, body], got {type(obj).__name__}")
+        raise DecodeError("bad_envelope", _envelope_problem(obj))
     kind, version, body = obj
     if version != SCHEMA_VERSION:
         raise DecodeError("bad_version", f"schema version {version}, this build speaks {SCHEMA_VERSION}")
     want = KIND[expected]
     if kind != want:
         raise DecodeError("wrong_kind", f"expected {want!r}, got {kind[:32]!r}")
+    if any(isinstance(k, bytes) for k in body):
+        raise DecodeError("bad_schema", "the body's keys are msgpack bin (bytes): field names must be msgpack str")
     try:
         m = _BODY[expected].model_validate(body)
     except ValidationError as e:
@@ -390,16 +414,48 @@ def decode(payload: bytes, expected: type[Msg]) -> Msg:
     return expected(**m.__dict__)
 
 
-def decode_counted(payload: bytes, expected: type[Msg], drops: MutableMapping[str, int], link: Any = None) -> Msg | None:
+def decode_counted(payload: bytes, expected: type[Msg], drops: MutableMapping[str, int], link: Any = None,
+                   said: FirstDrops | None = None, key: str = "") -> Msg | None:
     """:func:`decode` for a daemon: a rejected payload is counted in ``drops`` under its reason (and as
-    ``malformed`` on ``link``, the sender's ``LinkStats``, when given) and comes back as None."""
+    ``malformed`` on ``link``, the sender's ``LinkStats``, when given) and comes back as None; the first
+    one of each kind and reason is also said in the log by ``said`` (with the decoder's detail)."""
     try:
         return decode(payload, expected)
     except DecodeError as exc:
         drops[exc.reason] += 1
         if link is not None:
             link.malformed += 1
+        if said is not None:
+            said.drop(KIND[expected], exc.reason, str(exc), key)
         return None
+
+
+class FirstDrops:
+    """Says in the log, once per (message kind, reason, detail) and at most :attr:`LIMIT` times in all,
+    that a daemon dropped a message that does not follow the wire (docs/wire.md): malformed, another
+    agent's, another run's control notice, ... The drops stay counted by reason (the report,
+    summary.json); the log line is what a user who wrote their own simulator or agent sees at once,
+    instead of daemons that sit idle while every message they get is dropped. Tick discipline
+    (``stale``, ``future``, ``duplicate``, ``resent``, ``off_grid``) happens in a healthy run on a lossy
+    or restarted team and is only counted."""
+
+    LIMIT: Final = 10
+
+    def __init__(self, log: Any, who: str) -> None:
+        self.log = log
+        self.who = who
+        self.said: set[tuple[str, str, str]] = set()
+
+    def drop(self, kind: str, reason: str, detail: str = "", key: str = "") -> None:
+        if len(self.said) > self.LIMIT or (kind, reason, detail) in self.said:
+            return
+        self.said.add((kind, reason, detail))
+        if len(self.said) > self.LIMIT:
+            self.log.warning("%s: more kinds of dropped messages: from now on only counted", self.who)
+            return
+        where = f" on {key}" if key else ""
+        self.log.warning("%s: dropped a %s%s: %s (counted in drops[%r])", self.who, kind, where, detail or reason,
+                         reason)
 
 
 def is_finite_message(msg: Message) -> bool:

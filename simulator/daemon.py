@@ -36,7 +36,7 @@ from config.scenario import Scenario
 from net import keys
 from net.link import partition_events
 from net.messages import AgentReport, Control, Estimate, LoadPose, Measurement, Wrench
-from net.schema import decode, decode_counted, encode
+from net.schema import FirstDrops, decode, decode_counted, encode
 from net.transport import Transport
 from simulator.plant import Plant, sensor_rng
 from simulator.stop import done_stop
@@ -91,6 +91,7 @@ class SimDaemon:
         self.journal_path = recorder.journal_path
         self.alive: set[int] = set()
         self.drops: Counter[str] = Counter()
+        self.said = FirstDrops(log, "simulator")  # the first drop of each kind and reason, in the log
         self.wrench_timeouts = 0
         self.events: list[dict[str, Any]] = []
         self.reports: dict[int, AgentReport] = {}
@@ -120,12 +121,14 @@ class SimDaemon:
         self._wfmt = f"<{3 * self.n}d"
         self._expected_alive: set[int] = set()
         self._seen: set[int] = set()  # agents seen alive in this run (by token or wrench)
+        names = getattr(recorder, "estimate_names", None)  # the columns of estimates.csv
+        self._columns = None if names is None else frozenset(names)
         self.resumed_at = -1
         self.scenario_hash = hashlib.sha256(dump_scenario(scenario).encode()).hexdigest()
 
     # ---- inputs ----------------------------------------------------------------------------
-    def _decode(self, payload: bytes, kind: type):
-        return decode_counted(payload, kind, self.drops)
+    def _decode(self, payload: bytes, kind: type, key: str = ""):
+        return decode_counted(payload, kind, self.drops, None, self.said, key)
 
     def _agent_of(self, key: str, kind: str) -> int | None:
         """The agent whose ``kind`` key ``key`` is; None (counted) for a put on a wider key expression
@@ -136,8 +139,10 @@ class SimDaemon:
         parsed = keys.parse_agent_key(key)
         if parsed is None or parsed.run != self.run_name or parsed.kind != kind:
             self.drops[keys.WRONG_KEY] += 1
+            self.said.drop(kind, keys.WRONG_KEY, f"a put on {key}, taken only on an agent's exact {kind} key")
             return None
         self.drops["unknown_sender"] += 1
+        self.said.drop(kind, "unknown_sender", f"agent {parsed.agent} is not in this run (0..{self.n - 1})", key)
         return None
 
     def _on_alive(self, key: str, alive: bool) -> None:
@@ -183,11 +188,12 @@ class SimDaemon:
 
     def _on_wrench(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key, "wrench")
-        w = self._decode(payload, Wrench) if i is not None else None
+        w = self._decode(payload, Wrench, key) if i is not None else None
         if w is None:
             return
         if w.agent != i:
             self.drops["spoofed_sender"] += 1
+            self.said.drop("wrench", "spoofed_sender", f"agent {w.agent} on agent {i}'s key", key)
             return
         if self.scenario.mode == "realtime":
             # the newest wrench holds; an older one (a replay, a reordered copy) or one from a tick
@@ -222,11 +228,12 @@ class SimDaemon:
 
     def _on_estimate(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key, "estimate")
-        est = self._decode(payload, Estimate) if i is not None else None
+        est = self._decode(payload, Estimate, key) if i is not None else None
         if est is None:
             return
         if est.agent != i:
             self.drops["spoofed_sender"] += 1
+            self.said.drop("estimate", "spoofed_sender", f"agent {est.agent} on agent {i}'s key", key)
             return
         # an agent publishes an estimate once per recorded tick, after stepping it (so never for a
         # tick the simulator has not reached): anything else would write a forged row
@@ -240,6 +247,12 @@ class SimDaemon:
         if not self.recorder.keeps(est.tick):
             self.drops["off_grid"] += 1
             return
+        if self._columns is not None and not self._columns.issuperset(est.values):
+            unknown = sorted(set(est.values) - self._columns)
+            log.warning("agent %d's estimate of tick %d has values estimates.csv has no column for: %s; they are "
+                        "not recorded, the others are (the columns: net/vocabulary.py ESTIMATE_NAMES; said once)",
+                        i, est.tick, ", ".join(unknown[:8]))
+            self._columns = None  # said once
         self._take_estimate(est)
         self._write_journal({"e": base64.b64encode(payload).decode("ascii")})
 
@@ -252,11 +265,12 @@ class SimDaemon:
 
     def _on_report(self, key: str, payload: bytes) -> None:
         i = self._agent_of(key, "report")
-        rep = self._decode(payload, AgentReport) if i is not None else None
+        rep = self._decode(payload, AgentReport, key) if i is not None else None
         if rep is None:
             return
         if rep.agent != i:
             self.drops["spoofed_sender"] += 1
+            self.said.drop("report", "spoofed_sender", f"agent {rep.agent} on agent {i}'s key", key)
             return
         if not self.ended:
             self.drops["early"] += 1  # agents report after the simulator's done notice only

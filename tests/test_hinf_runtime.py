@@ -184,8 +184,9 @@ def test_memory_daemons_equal_the_in_process_engine_under_faults(design):
     assert ib["timeouts"] == {"input": 0, "neighbour": 0} and ib["drops"] == {}
 
 
-def test_daemons_drop_and_count_bad_messages(design):
-    """Garbage, wrong shapes, spoofed senders and unknown keys are counted by reason; the run is unchanged."""
+def test_daemons_drop_and_count_bad_messages(design, caplog):
+    """Garbage, wrong shapes, spoofed senders and unknown keys are counted by reason; the run is unchanged.
+    A malformed payload is also said once in the receiver's log."""
     su = _setup(design, "run.duration=1")
     ref, _ = R.run_inproc(su)
 
@@ -222,6 +223,7 @@ def test_daemons_drop_and_count_bad_messages(design):
     d = info["drops"]
     assert d["0:not_msgpack"] == 1 and d["0:bad_shape"] == 1 and d["0:spoofed_sender"] == 1
     assert d["0:wrong_agent"] == 1 and d["sim:bad_shape"] == 1 and d["sim:unknown_sender"] == 1
+    assert "hinf estimator 0: dropped a hinf_state on coload/hostile/hinf/1/state: not_msgpack" in caplog.text
 
 
 def test_realtime_mode_runs_on_wall_clock(design):

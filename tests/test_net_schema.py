@@ -377,3 +377,23 @@ def test_fuzz_corrupted_messages_raise_only_decode_error(msg: object, data: st.D
         decode(bytes(payload), type(msg))
     except DecodeError as e:
         assert e.reason in REASONS
+
+
+def test_envelope_and_key_problems_are_named() -> None:
+    """What a client in another language plausibly gets wrong is named in the drop's detail (said in the
+    daemon's log): strings packed as msgpack bin, an envelope as a map, a version as a string."""
+    good = {"tick": 0, "agent": 0, "vx": 0.0, "vy": 0.0}
+    cases = [
+        ([b"meas", 1, good], "bad_envelope", "kind must be a msgpack str, got bin (bytes)"),
+        (["meas", 1, {k.encode(): v for k, v in good.items()}], "bad_schema",
+         "the body's keys are msgpack bin (bytes): field names must be msgpack str"),
+        ({"kind": "meas", "version": 1, "body": good}, "bad_envelope",
+         "expected an array [kind, version, body], got a map"),
+        (["meas", "1", good], "bad_envelope", "version must be the msgpack int 1, got str"),
+        (["meas", 1, good, 0], "bad_envelope", "expected an array of 3 [kind, version, body], got 4 elements"),
+        (["meas", 1, [0, 0, 0.0, 0.0]], "bad_envelope", "body must be a msgpack map, got array"),
+    ]
+    for obj, reason, detail in cases:
+        with pytest.raises(DecodeError) as exc:
+            decode(msgpack.packb(obj, use_bin_type=True), Measurement)
+        assert exc.value.reason == reason and str(exc.value) == f"{reason}: {detail}"
