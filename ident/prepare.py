@@ -13,6 +13,7 @@ from statistics import NormalDist
 import numpy as np
 
 from ident import stats
+from ident.fit import NoiseAR, whiten_ar
 from ident.glitches import GLITCH_FLOORS, find_glitches
 from ident.recording import Recording
 
@@ -78,12 +79,24 @@ NOISE_ORDER = 30  # the longest autoregression of the noise: a 0.15 s boxcar at 
 REGULAR = 0.01  # stamp intervals within this share of the median are one sample period: an AR(p) counts samples
 
 
-def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
+def remainder_whiteness(rec: Recording, noise: NoiseAR, block_s: float, lags: int) -> float:
+    """Ljung-Box p of the rigid-body kinematics' remainder whitened for ``noise`` (the fit's whitening,
+    :func:`ident.fit.whiten_ar`), on its 2(n - 2) independent components, ``block_s`` block means and
+    ``lags`` lags as the fit's whiteness test: whether the noise model leaves the sensors' noise white."""
+    r, idx = stats.kinematic_columns(rec.vel)
+    x = whiten_ar(r[None, :, :, None], rec.t[idx][None], np.ones((1,) + r.shape), noise)[0, :, :, 0]
+    dims = 2 * (rec.n - 2)
+    x = x @ np.linalg.svd(x, full_matrices=False)[2][:dims].T  # the remainder's own subspace
+    block = max(1, round(block_s / noise.dt))
+    return stats.ljung_box(stats.block_average(x, block), lags)[2]
+
+
+def correlated_velocities(rec: Recording, warns: list[str], block_s: float, lags: int) -> dict | None:
     """The velocity noise's correlation in time, measured on the rigid-body kinematics' remainder (n >= 3;
     no dynamics model involved), as an autoregression of order ``order`` (0: treated as white) whose
     predictors the fit whitens the residual with (:func:`ident.fit.correlated`); None without the data to
     measure it. ``{"lag1", "p", "acf", "modelled", "order", "partial", "coefficients", "tau_s", "ar1",
-    "partial2_z"}``.
+    "partial2_z", "whitened_p"}``.
 
     A lab's velocity is often a filtered estimate, whose noise correlates over the filter's time; the fit's
     intervals, F-tests and whiteness test assume white noise. Modelled when the lag-1 correlation passes a
@@ -96,7 +109,10 @@ def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
     order is the BIC's among 1..:data:`NOISE_ORDER` (Burg's reflection coefficients, pooled over the
     remainder's columns); on irregular stamps, where a lag of k samples is no fixed time, it is 1 (a
     first-order low-pass in continuous time). ``tau_s``: the first-order low-pass's time constant, or for
-    a higher order the integral correlation time (dt / 2 x the variance factor below); 0 when not modelled."""
+    a higher order the integral correlation time (dt / 2 x the variance factor below); 0 when not modelled.
+    The model must leave the remainder white (:func:`remainder_whiteness` at the same level, ``block_s``
+    and ``lags`` the fit's whiteness test's): a moving average (a boxcar) has zeros in its spectrum that no
+    finite autoregression inverts, and is then treated as white, with a warning."""
     if rec.vel is None or rec.n < 3:
         return None
     acf, pairs = stats.kinematic_acf(rec.vel, CORRELATED_LAGS)
@@ -110,7 +126,7 @@ def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
     dtm = float(np.median(dts))
     regular = bool(np.mean(np.abs(dts - dtm) <= REGULAR * dtm) > 0.99)
     out = {"lag1": phi, "p": p, "acf": acf.tolist(), "modelled": False, "order": 0, "partial": [],
-           "coefficients": [], "tau_s": 0.0, "ar1": False, "partial2_z": math.nan}  # fmt: skip
+           "coefficients": [], "tau_s": 0.0, "ar1": False, "partial2_z": math.nan, "whitened_p": math.nan}  # fmt: skip
     if not (p < CORRELATED_LEVEL and CORRELATED_MIN <= phi < 1.0):
         return out
     kappa = stats.burg(stats.kinematic_segments(rec.vel), NOISE_ORDER if regular else 2)
@@ -123,6 +139,16 @@ def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
     A, var = stats.ar_table(kappa[:order])
     factor = float(var[order] / (1.0 - A[order].sum()) ** 2)  # slow signals: this many samples per independent one
     tau = -dtm / math.log(kappa[0]) if order == 1 else 0.5 * dtm * factor
+    p_white = remainder_whiteness(rec, NoiseAR(tuple(kappa[:order].tolist()), dtm, tau if order == 1 else 0.0),
+                                  block_s, lags)  # fmt: skip
+    out["whitened_p"] = p_white
+    if p_white < CORRELATED_LEVEL:
+        warns.append(f"the velocities' noise is correlated in time (lag-1 correlation {phi:.3g}, measured on the "
+                     f"rigid-body kinematics alone), but no autoregression of order up to {NOISE_ORDER} whitens it "
+                     f"(Ljung-Box p {p_white:.2g} of the whitened remainder; a moving average's spectral zeros "
+                     "would need an endless one): treated as white noise, so the intervals are too narrow and the "
+                     "tests see the correlation as structure")  # fmt: skip
+        return out
     out.update(modelled=True, order=order, partial=kappa[:order].tolist(), coefficients=A[order].tolist(),
                tau_s=tau, ar1=order == 1)  # fmt: skip
     shape = (f"as a first-order low-pass of {1000 * tau:.3g} ms" if order == 1 else

@@ -339,7 +339,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     lag1 = differenced_velocities(rec, warns)
     rec = without_glitches(rec, warns)  # before the floors: glitches inflate them
     # a filtered velocity's noise correlates in time (differenced positions' is the MA(1) above)
-    corr = None if lag1 else correlated_velocities(rec, warns)
+    corr = None if lag1 else correlated_velocities(rec, warns, opt.block_s, opt.lags)
     sv, sp = noise_floor(rec)
     sv_w, sp_w = usable_floor(sv, rec.vel), usable_floor(sp, rec.pos)
     per_agent = {}

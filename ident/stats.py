@@ -112,14 +112,23 @@ def kinematic_acf(vel: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
     return acf, pairs
 
 
-def kinematic_segments(vel: np.ndarray) -> list[np.ndarray]:
-    """The rigid-body kinematics' remainder (:func:`kinematic_noise`) as real columns (2n: each agent's x and
-    y), cut into runs of consecutive stamps where every agent measured; empty for n < 3 or too little data."""
+def kinematic_columns(vel: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rigid-body kinematics' remainder (:func:`kinematic_noise`) as real columns (K, 2n: each agent's x
+    and y) at the stamps where every agent measured, and those stamps' indices; None for n < 3 or too
+    little data."""
     got = _kinematic_remainder(vel, 50)
     if got is None:
-        return []
+        return None
     resid, idx = got
-    r = np.concatenate((resid.real, resid.imag), axis=1)
+    return np.concatenate((resid.real, resid.imag), axis=1), idx
+
+
+def kinematic_segments(vel: np.ndarray) -> list[np.ndarray]:
+    """:func:`kinematic_columns` cut into runs of consecutive stamps; empty for n < 3 or too little data."""
+    got = kinematic_columns(vel)
+    if got is None:
+        return []
+    r, idx = got
     return [s for s in np.split(r, np.flatnonzero(np.diff(idx) != 1) + 1) if s.shape[0] > 1]
 
 
