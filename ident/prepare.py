@@ -76,7 +76,7 @@ CORRELATED_LEVEL = 1e-3  # the selection's level: white noise's remainder passes
 CORRELATED_MIN = 0.1  # below it the correlation widens the intervals by less than 10 % ((1 + rho) / (1 - rho))
 CORRELATED_LAGS = 10  # lags of the remainder's autocorrelation reported (JSON)
 NOISE_ORDER = 30  # the longest autoregression of the noise: a 0.15 s boxcar at 200 Hz needs 30 predecessors
-REGULAR = 0.01  # stamp intervals within this share of the median are one sample period: an AR(p) counts samples
+REGULAR = 0.1  # intervals within this share of the median are one sample period (a logger rounding its stamps)
 
 
 def remainder_whiteness(rec: Recording, noise: NoiseAR, block_s: float, lags: int) -> float:
