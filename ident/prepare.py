@@ -75,7 +75,8 @@ def differenced_velocities(rec: Recording, warns: list[str]) -> float:
 CORRELATED_LEVEL = 1e-3  # the selection's level: white noise's remainder passes this test once in 1000 recordings
 CORRELATED_MIN = 0.1  # below it the correlation widens the intervals by less than 10 % ((1 + rho) / (1 - rho))
 CORRELATED_LAGS = 10  # lags of the remainder's autocorrelation reported (JSON)
-NOISE_ORDER = 30  # the longest autoregression of the noise: a 0.15 s boxcar at 200 Hz needs 30 predecessors
+NOISE_ORDER = 30  # the longest autoregression of the noise (a digital Butterworth's spectral zero at the Nyquist
+# frequency wants ever more: 30 leaves its remainder white at the whiteness test's 0.1 s blocks, p 0.13-0.99)
 REGULAR = 0.1  # intervals within this share of the median are one sample period (a logger rounding its stamps)
 
 
@@ -109,7 +110,8 @@ def correlated_velocities(rec: Recording, warns: list[str], block_s: float, lags
     order is the BIC's among 1..:data:`NOISE_ORDER` (Burg's reflection coefficients, pooled over the
     remainder's columns); on irregular stamps, where a lag of k samples is no fixed time, it is 1 (a
     first-order low-pass in continuous time). ``tau_s``: the first-order low-pass's time constant, or for
-    a higher order the integral correlation time (dt / 2 x the variance factor below); 0 when not modelled.
+    a higher order the integral correlation time, dt / 2 x the model's spectrum at 0 over its variance; 0 when not
+    modelled.
     The model must leave the remainder white (:func:`remainder_whiteness` at the same level, ``block_s``
     and ``lags`` the fit's whiteness test's): a moving average (a boxcar) has zeros in its spectrum that no
     finite autoregression inverts, and is then treated as white, with a warning."""
