@@ -63,6 +63,8 @@ CASES: dict[str, dict] = {
     "robot_frame_velocities": {"b": 8.0, "vel_robot": True},
     "colored_velocity": {"vcolor": 0.1},
     "colored_velocity_viscous": {"b": 8.0, "vcolor": 0.1},
+    "butterworth_velocity_viscous": {"b": 8.0, "vfilter": ("butter2", 0.1)},
+    "boxcar_velocity_viscous": {"b": 8.0, "vfilter": ("boxcar", 0.15)},
     "cart_2_20": {"aniso": (2.0, 20.0)},
     "force_lowpass_30ms": {"b": 8.0, "flp": 0.03},
     "force_late_30ms": {"b": 8.0, "flate": 0.03},
@@ -82,7 +84,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            vst: float = 0.02, famp: float = 1.0, soffset_robot: bool = False, drift: float | None = None,
            vel_robot: bool = False, vcolor: float = 0.0, aniso: tuple[float, float] | None = None, flp: float = 0.0,
            flate: float = 0.0, fspikes: tuple[float, float] | None = None, fspikes_applied: bool = False,
-           vscale: tuple[int, float] | None = None, soffsets: float | None = None) -> dict:  # fmt: skip
+           vscale: tuple[int, float] | None = None, soffsets: float | None = None,
+           vfilter: tuple[str, float] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -108,7 +111,11 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     dropped byte in the F/T log), in the log only or, with ``fspikes_applied``, applied too (a one-sample knock:
     a triangle of one sample's half-width); ``vscale`` (agent, k): that agent logs k x its contact's velocity (a
     wheel radius off); ``soffsets``: each agent's force sensor its own offset (world frame), normal with this sd
-    per axis (drawn apart from the plant's stream)."""
+    per axis (drawn apart from the plant's stream); ``vfilter`` (kind, tau): the velocity noise is white noise
+    filtered otherwise than ``vcolor``, rescaled to ``sigma``: ``"butter2"`` a digital second-order Butterworth
+    low-pass of cutoff 1 / (2 pi tau) (the commonest filter on a lab's velocity estimate), ``"boxcar"`` the mean
+    over the last tau (a moving average); stationary from the first sample (run in on draws apart from the
+    plant's stream)."""
     if flp and hold_hz:
         raise ValueError("flp: the low-pass of a held wrench is not written here (smooth pushes only)")
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
@@ -131,6 +138,26 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     phi = ang + np.pi
     keep = np.exp(-1 / (rate * vcolor)) if vcolor else 0.0  # the low-pass's share of the previous noise
     vnoise: list = [None] * n
+    if vfilter:  # y_k = sum b_j w_(k-j) - sum a_j y_(k-j), per agent and axis, on the plant's own draws
+        if vfilter[0] == "butter2":
+            from scipy.signal import butter
+
+            fb, fa = butter(2, 1 / (2 * np.pi * vfilter[1]), fs=rate)
+        else:
+            fb, fa = np.ones(max(1, round(vfilter[1] * rate))), np.ones(1)
+        fb, fa = fb / fa[0], fa / fa[0]
+        imp = np.zeros(int(50 * vfilter[1] * rate) + fb.size)  # the impulse response: the output's variance
+        for k in range(imp.size):
+            imp[k] = (fb[k] if k < fb.size else 0.0) - sum(fa[j] * imp[k - j] for j in range(1, min(k, fa.size - 1) + 1))
+        fb = fb / np.sqrt((imp**2).sum())
+        rw = np.random.default_rng(seed + 104729)
+        whist = [rw.normal(0, sig[i], (fb.size, 2)) for i in range(n)]  # newest first
+        yhist = [np.zeros((max(fa.size - 1, 1), 2)) for i in range(n)]
+        for i in range(n):  # run in: the filter's state stationary before the first row
+            for _ in range(imp.size):
+                whist[i] = np.vstack((rw.normal(0, sig[i], (1, 2)), whist[i][:-1]))
+                y_ = fb @ whist[i] - (fa[1:] @ yhist[i][: fa.size - 1] if fa.size > 1 else 0.0)
+                yhist[i] = np.vstack((y_[None], yhist[i][:-1]))
     t = np.arange(0, dur, 1 / rate)
     frms = float(np.sqrt((amp**2 / 2).sum(-1).mean()))  # RMS of one agent's force component
     spikes = np.zeros((t.size, n, 2))
@@ -199,6 +226,10 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                 if vcolor:  # stationary from the first sample: the same draws, low-passed
                     draw = draw if vnoise[i] is None else keep * vnoise[i] + np.sqrt(1 - keep * keep) * draw
                     vnoise[i] = draw
+                elif vfilter:
+                    whist[i] = np.vstack((draw[None], whist[i][:-1]))
+                    draw = fb @ whist[i] - (fa[1:] @ yhist[i][: fa.size - 1] if fa.size > 1 else 0.0)
+                    yhist[i] = np.vstack((draw[None], yhist[i][:-1]))
                 y = np.array([vx - om * rw[i, 1], vy + om * rw[i, 0]]) + draw + vbias
                 if vscale and i == vscale[0]:
                     y = vscale[1] * y

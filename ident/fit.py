@@ -19,6 +19,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ident import stats
 from ident.model import Layout, Windows, simulate
 from ident.recording import Recording
 
@@ -58,7 +59,7 @@ class Problem:
     omega_sigma: float = 0.002
     gap_factor: float = 5.0
     vel_lag1: float = 0.0  # correlation of consecutive velocity noise samples (-1/2: differences of positions)
-    vel_tau: float = 0.0  # correlation time (s) of velocity noise that is a first-order low-pass (0: white)
+    vel_ar: NoiseAR | None = None  # velocity noise correlated in time, an autoregression (None: white)
 
     def residual(self, g: np.ndarray, x: np.ndarray, lay: Layout) -> tuple[np.ndarray, np.ndarray]:
         """(B, S, M) weighted measurement residuals (0 where not measured) and (B, S - 1) continuity
@@ -73,8 +74,8 @@ class Problem:
             e = (w.vel[None] - vel) * m / self.sigma_v
             if self.vel_lag1:
                 e = decorrelate(e, self.vel_lag1, first=1) * m
-            elif self.vel_tau:
-                e = whiten_lowpass(e, w.t, w.vmask, self.vel_tau) * m
+            elif self.vel_ar is not None:
+                e = whiten_ar(e, w.t, w.vmask, self.vel_ar) * m
             parts.append(e.reshape(g.shape[0], w.S, -1))
         if pos is not None:
             m = w.pmask[None, ..., None] * ax
@@ -194,30 +195,61 @@ def decorrelate(e: np.ndarray, rho: float, first: int = 0) -> np.ndarray:
     return out
 
 
-def correlated(pb: Problem, tau: float) -> Problem:
-    """``pb`` whose velocity residual is whitened for noise that is a first-order low-pass of white noise with
-    correlation time ``tau`` (s): generalised least squares, so the fit's intervals, F-tests and whiteness
-    test hold for that noise."""
-    return replace(pb, vel_tau=tau)
+@dataclass(frozen=True)
+class NoiseAR:
+    """Velocity noise that is an autoregression of order p over samples ``dt`` apart, from its reflection
+    coefficients ``kappa`` (:func:`ident.prepare.correlated_velocities`); ``tau`` > 0 with p = 1: a
+    first-order low-pass of that time constant in continuous time, phi = exp(-dt / tau) over any interval."""
+
+    kappa: tuple[float, ...]
+    dt: float
+    tau: float = 0.0
+
+    @property
+    def order(self) -> int:
+        return len(self.kappa)
 
 
-def whiten_lowpass(e: np.ndarray, t: np.ndarray, mask: np.ndarray, tau: float) -> np.ndarray:
-    """``e`` (..., S, L, n, 2), noise of unit variance that is a first-order low-pass of white noise (an
-    Ornstein-Uhlenbeck process of correlation time ``tau``), whitened per window and agent: the process is
-    Markov, so each sample given the agent's previous measured one in the window is x_k = (e_k - phi e_prev)
-    / sqrt(1 - phi^2), phi = exp(-(t_k - t_prev) / tau), exact on irregular stamps and across missing
-    samples; an agent's first sample in a window is its stationary self. ``t`` (S, L) the stamps, ``mask``
-    (S, L, n) where measured; the unmeasured entries of ``e`` must be zero and are masked again by the caller."""
+def correlated(pb: Problem, noise: NoiseAR) -> Problem:
+    """``pb`` whose velocity residual is whitened for noise correlated in time as ``noise``: generalised least
+    squares, so the fit's intervals, F-tests and whiteness test hold for that noise."""
+    return replace(pb, vel_ar=noise)
+
+
+def whiten_ar(e: np.ndarray, t: np.ndarray, mask: np.ndarray, noise: NoiseAR) -> np.ndarray:
+    """``e`` (..., S, L, n, 2), noise of unit variance that is the autoregression ``noise``, whitened per
+    window and agent: each sample less its prediction from the agent's preceding samples in the window, over
+    the prediction error's deviation (:func:`ident.stats.ar_table`: exact GLS, a window's first samples
+    predicted from the fewer predecessors they have). An AR(p) counts samples: its predecessors are the
+    run of measured samples one sample period apart before it, up to p (a missing sample or a longer
+    interval starts the run afresh). An AR(1) in continuous time (``tau``) is Markov: its predecessor is the
+    previous measured sample at any interval, phi = exp(-dt / tau), exact on irregular stamps and across
+    missing samples. ``t`` (S, L) the stamps, ``mask`` (S, L, n) where measured; the unmeasured entries of
+    ``e`` must be zero and are masked again by the caller."""
     S, L, n = mask.shape
-    k = np.broadcast_to(np.arange(L)[None, :, None], (S, L, n))
-    last = np.maximum.accumulate(np.where(mask > 0, k, -1), axis=1)
-    prev = np.concatenate((np.full((S, 1, n), -1), last[:, :-1]), axis=1)  # the agent's previous measured stamp
-    tn = np.broadcast_to(t[..., None], (S, L, n))
-    dt = tn - np.take_along_axis(tn, np.maximum(prev, 0), axis=1)
-    phi = np.where(prev >= 0, np.exp(-np.maximum(dt, 0.0) / tau), 0.0)
-    phi = np.minimum(phi, 1.0 - 1e-12)
-    ep = np.take_along_axis(e, np.maximum(prev, 0)[..., None].reshape((1,) * (e.ndim - 4) + (S, L, n, 1)), axis=-3)
-    return (e - phi[..., None] * ep) / np.sqrt(1.0 - phi * phi)[..., None]
+    p = noise.order
+    lead = (1,) * (e.ndim - 4)
+    if p == 1 and noise.tau > 0:
+        k = np.broadcast_to(np.arange(L)[None, :, None], (S, L, n))
+        last = np.maximum.accumulate(np.where(mask > 0, k, -1), axis=1)
+        prev = np.concatenate((np.full((S, 1, n), -1), last[:, :-1]), axis=1)  # the agent's previous measured stamp
+        tn = np.broadcast_to(t[..., None], (S, L, n))
+        dt = tn - np.take_along_axis(tn, np.maximum(prev, 0), axis=1)
+        phi = np.where(prev >= 0, np.exp(-np.maximum(dt, 0.0) / noise.tau), 0.0)
+        phi = np.minimum(phi, 1.0 - 1e-12)
+        ep = np.take_along_axis(e, np.maximum(prev, 0)[..., None].reshape(lead + (S, L, n, 1)), axis=-3)
+        return (e - phi[..., None] * ep) / np.sqrt(1.0 - phi * phi)[..., None]
+    A, v = stats.ar_table(np.asarray(noise.kappa))
+    # run[s, k, i]: measured samples one period apart right before stamp k, capped at p
+    step = np.abs(np.diff(t, axis=1) - noise.dt) <= 0.5 * noise.dt
+    run = np.zeros((S, L, n), int)
+    for k in range(1, L):
+        run[:, k] = np.where((mask[:, k - 1] > 0) & step[:, k - 1, None], np.minimum(run[:, k - 1] + 1, p), 0)
+    coef = A[run]  # (S, L, n, p)
+    out = e.copy()
+    for j in range(1, p + 1):
+        out[..., j:, :, :] -= coef[:, j:, :, j - 1, None] * e[..., :-j, :, :]
+    return out / np.sqrt(v[run])[..., None]
 
 
 def window_valid(pb: Problem) -> np.ndarray:

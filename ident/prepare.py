@@ -13,6 +13,7 @@ from statistics import NormalDist
 import numpy as np
 
 from ident import stats
+from ident.fit import NoiseAR, whiten_ar
 from ident.glitches import GLITCH_FLOORS, find_glitches
 from ident.recording import Recording
 
@@ -73,48 +74,93 @@ def differenced_velocities(rec: Recording, warns: list[str]) -> float:
 
 CORRELATED_LEVEL = 1e-3  # the selection's level: white noise's remainder passes this test once in 1000 recordings
 CORRELATED_MIN = 0.1  # below it the correlation widens the intervals by less than 10 % ((1 + rho) / (1 - rho))
-CORRELATED_LAGS = 10  # lags over which the remainder must decay as an AR(1)'s, phi^k
+CORRELATED_LAGS = 10  # lags of the remainder's autocorrelation reported (JSON)
+NOISE_ORDER = 30  # the longest autoregression of the noise (a digital Butterworth's spectral zero at the Nyquist
+# frequency wants ever more: 30 leaves its remainder white at the whiteness test's 0.1 s blocks, p 0.13-0.99)
+REGULAR = 0.1  # intervals within this share of the median are one sample period (a logger rounding its stamps)
 
 
-def correlated_velocities(rec: Recording, warns: list[str]) -> dict | None:
+def remainder_whiteness(rec: Recording, noise: NoiseAR, block_s: float, lags: int) -> float:
+    """Ljung-Box p of the rigid-body kinematics' remainder whitened for ``noise`` (the fit's whitening,
+    :func:`ident.fit.whiten_ar`), on its 2(n - 2) independent components, ``block_s`` block means and
+    ``lags`` lags as the fit's whiteness test: whether the noise model leaves the sensors' noise white."""
+    r, idx = stats.kinematic_columns(rec.vel)
+    x = whiten_ar(r[None, :, :, None], rec.t[idx][None], np.ones((1,) + r.shape), noise)[0, :, :, 0]
+    dims = 2 * (rec.n - 2)
+    x = x @ np.linalg.svd(x, full_matrices=False)[2][:dims].T  # the remainder's own subspace
+    block = max(1, round(block_s / noise.dt))
+    return stats.ljung_box(stats.block_average(x, block), lags)[2]
+
+
+def correlated_velocities(rec: Recording, warns: list[str], block_s: float, lags: int) -> dict | None:
     """The velocity noise's correlation in time, measured on the rigid-body kinematics' remainder (n >= 3;
-    no dynamics model involved): ``{"lag1", "tau_s", "ar1", "p", "acf"}``, ``tau_s`` > 0 where the noise is
-    modelled as a first-order low-pass of white noise (an AR(1) in continuous time; the residual is then
-    whitened for it, :func:`ident.fit.correlated`), 0 otherwise; None without the data to measure it.
+    no dynamics model involved), as an autoregression of order ``order`` (0: treated as white) whose
+    predictors the fit whitens the residual with (:func:`ident.fit.correlated`); None without the data to
+    measure it. ``{"lag1", "p", "acf", "modelled", "order", "partial", "coefficients", "tau_s", "ar1",
+    "partial2_z", "whitened_p"}``.
 
-    A lab's velocity is often a filtered estimate, whose noise correlates over the filter's time constant;
-    the fit's intervals, F-tests and whiteness test assume white noise. Modelled when the lag-1 correlation
-    passes a one-sided test at :data:`CORRELATED_LEVEL` against white noise, is at least
-    :data:`CORRELATED_MIN`, and the correlations at lags 2..:data:`CORRELATED_LAGS` are an AR(1)'s, phi^k
-    (each within its Bartlett standard error at the same level, Bonferroni over the lags): a signal the
-    kinematics lack (one logger's clock offset, a velocity in a robot's frame) also correlates the
-    remainder, but as a slow signal does, nearly flat over these lags, and is left to the fit."""
+    A lab's velocity is often a filtered estimate, whose noise correlates over the filter's time; the fit's
+    intervals, F-tests and whiteness test assume white noise. Modelled when the lag-1 correlation passes a
+    one-sided test at :data:`CORRELATED_LEVEL` against white noise, is at least :data:`CORRELATED_MIN`, and
+    the correlation is that of a low-pass of white noise, rounded at lag 0: its lag-2 partial correlation
+    (kappa_2, 0 for a first-order low-pass, negative for higher orders and moving averages) not above 0
+    at the same level. A signal the kinematics lack (one logger's clock offset, a velocity in a robot's
+    frame, one agent noisier than the rigid-body fit allows) adds a slow remainder to the white sensor
+    noise: its correlation drops at lag 1 and stays (a positive kappa_2), and it is left to the fit. The
+    order is the BIC's among 1..:data:`NOISE_ORDER` (Burg's reflection coefficients, pooled over the
+    remainder's columns); on irregular stamps, where a lag of k samples is no fixed time, it is 1 (a
+    first-order low-pass in continuous time). ``tau_s``: the first-order low-pass's time constant, or for
+    a higher order the integral correlation time, dt / 2 x the model's spectrum at 0 over its variance; 0 when not
+    modelled.
+    The model must leave the remainder white (:func:`remainder_whiteness` at the same level, ``block_s``
+    and ``lags`` the fit's whiteness test's): a moving average (a boxcar) has zeros in its spectrum that no
+    finite autoregression inverts, and is then treated as white, with a warning."""
     if rec.vel is None or rec.n < 3:
         return None
     acf, pairs = stats.kinematic_acf(rec.vel, CORRELATED_LAGS)
     if not np.isfinite(acf[0]) or pairs[0] < 50:
         return None
     dims = 2 * (rec.n - 2)  # the remainder's independent real components per stamp
+    N = pairs[0] * dims
     phi = float(acf[0])
-    p = 1.0 - NormalDist().cdf(phi * math.sqrt(pairs[0] * dims))
-    k = np.arange(2, CORRELATED_LAGS + 1)
-    ok = np.isfinite(acf[1:]) & (pairs[1:] > 0)
-    ar1 = False
-    if p < CORRELATED_LEVEL and phi >= CORRELATED_MIN and phi < 1.0 and ok.any():
-        k, r, nk = k[ok], acf[1:][ok], pairs[1:][ok]
-        p2, p2k = phi * phi, phi ** (2 * k)
-        bartlett = (1 + p2) * (1 - p2k) / (1 - p2) - 2 * k * p2k  # var(r_k) N of an AR(1)
-        own = k * k * phi ** (2 * k - 2) * (1 - p2)  # phi^k's own, phi read from r_1
-        z = np.abs(r - phi**k) / np.sqrt((bartlett + own) / (nk * dims))
-        ar1 = bool(z.max() < NormalDist().inv_cdf(1.0 - CORRELATED_LEVEL / (2 * k.size)))
-    dtm = float(np.median(np.diff(rec.t)))
-    tau = -dtm / math.log(phi) if ar1 else 0.0
-    if ar1:
-        warns.append(f"the velocities' noise is correlated in time: lag-1 correlation {phi:.2f}, as a first-order "
-                     f"low-pass of {1000 * tau:.3g} ms (a filtered velocity estimate; measured on the rigid-body "
-                     "kinematics alone): the residual is whitened for it, and the intervals and tests account "
-                     "for it")  # fmt: skip
-    return {"lag1": phi, "tau_s": tau, "ar1": ar1, "p": p, "acf": acf.tolist()}
+    p = 1.0 - NormalDist().cdf(phi * math.sqrt(N))
+    dts = np.diff(rec.t)
+    dtm = float(np.median(dts))
+    regular = bool(np.mean(np.abs(dts - dtm) <= REGULAR * dtm) > 0.99)
+    out = {"lag1": phi, "p": p, "acf": acf.tolist(), "modelled": False, "order": 0, "partial": [],
+           "coefficients": [], "tau_s": 0.0, "ar1": False, "partial2_z": math.nan, "whitened_p": math.nan}  # fmt: skip
+    if not (p < CORRELATED_LEVEL and CORRELATED_MIN <= phi < 1.0):
+        return out
+    kappa = stats.burg(stats.kinematic_segments(rec.vel), NOISE_ORDER if regular else 2)
+    z2 = float(kappa[1] * math.sqrt(N))  # kappa_2's standard error is 1/sqrt(N) for an AR(1)
+    out["partial2_z"] = z2
+    if z2 > NormalDist().inv_cdf(1.0 - CORRELATED_LEVEL):
+        return out
+    v = np.cumprod(1.0 - kappa * kappa)
+    order = int(np.argmin(N * np.log(v) + np.arange(1, kappa.size + 1) * math.log(N))) + 1 if regular else 1
+    A, var = stats.ar_table(kappa[:order])
+    factor = float(var[order] / (1.0 - A[order].sum()) ** 2)  # slow signals: this many samples per independent one
+    tau = -dtm / math.log(kappa[0]) if order == 1 else 0.5 * dtm * factor
+    p_white = remainder_whiteness(rec, NoiseAR(tuple(kappa[:order].tolist()), dtm, tau if order == 1 else 0.0),
+                                  block_s, lags)  # fmt: skip
+    out["whitened_p"] = p_white
+    if p_white < CORRELATED_LEVEL:
+        warns.append(f"the velocities' noise is correlated in time (lag-1 correlation {phi:.3g}, measured on the "
+                     f"rigid-body kinematics alone), but no autoregression of order up to {NOISE_ORDER} whitens it "
+                     f"(Ljung-Box p {p_white:.2g} of the whitened remainder; a moving average's spectral zeros "
+                     "would need an endless one): treated as white noise, so the intervals are too narrow and the "
+                     "tests see the correlation as structure")  # fmt: skip
+        return out
+    out.update(modelled=True, order=order, partial=kappa[:order].tolist(), coefficients=A[order].tolist(),
+               tau_s=tau, ar1=order == 1)  # fmt: skip
+    shape = (f"as a first-order low-pass of {1000 * tau:.3g} ms" if order == 1 else
+             f"as an autoregression of order {order} (a filter of higher order than a first-order low-pass; "
+             f"correlation time {1000 * tau:.3g} ms)")  # fmt: skip
+    warns.append(f"the velocities' noise is correlated in time: lag-1 correlation {phi:.3g}, {shape}, measured on "
+                 f"the rigid-body kinematics alone (a filtered velocity estimate): slow signals carry {factor:.3g}x "
+                 "less information than white noise of its level would; the residual is whitened for it, and the "
+                 "intervals and tests account for it")  # fmt: skip
+    return out
 
 
 RUN = 4  # consecutive windows kept together: the rotation's links between them carry J's information

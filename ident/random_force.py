@@ -180,7 +180,7 @@ def fit_random_force(pb: Problem, fit: Fit, states: np.ndarray, *, alpha: float,
     ``states`` (S, L, 6): the fitted model's [vx, vy, omega, theta, px, py] at the stamps."""
     w = pb.win
     theta = states[..., 3]
-    if w.vel is None or pb.vel_lag1 or pb.vel_tau:
+    if w.vel is None or pb.vel_lag1 or pb.vel_ar is not None:
         return NONE  # the walk is modelled on an uncorrelated residual (a correlated sensor's is whitened)
     valid = window_valid(pb)
     M = w.L * w.n * 2

@@ -22,6 +22,7 @@ from ident.fit import (
     FitError,
     FitOptions,
     Lin,
+    NoiseAR,
     Problem,
     correlated,
     differenced,
@@ -338,7 +339,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     lag1 = differenced_velocities(rec, warns)
     rec = without_glitches(rec, warns)  # before the floors: glitches inflate them
     # a filtered velocity's noise correlates in time (differenced positions' is the MA(1) above)
-    corr = None if lag1 else correlated_velocities(rec, warns)
+    corr = None if lag1 else correlated_velocities(rec, warns, opt.block_s, opt.lags)
     sv, sp = noise_floor(rec)
     sv_w, sp_w = usable_floor(sv, rec.vel), usable_floor(sp, rec.pos)
     per_agent = {}
@@ -377,8 +378,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     pb = replace(pb, coulomb_speed=cs)
     if lag1:
         pb = differenced(pb, lag1)
-    elif corr is not None and corr["tau_s"]:
-        pb = correlated(pb, corr["tau_s"])
+    elif corr is not None and corr["modelled"]:
+        pb = correlated(pb, NoiseAR(tuple(corr["partial"]), dtm, corr["tau_s"] if corr["order"] == 1 else 0.0))
     size = pb.win.S * pb.win.L * rec.n
     if opt.max_samples and size > opt.max_samples:
         idx = spread_windows(pb.win.S, max(8, opt.max_samples // (pb.win.L * rec.n)))
@@ -873,7 +874,7 @@ def predict(diag: Diagnosis, rec: Recording, opt: DiagnoseOptions | None = None)
     sv, sp = noise_floor(rec)
     tmp = make_problem(rec, pb0.sigma_v, pb0.sigma_p, opt.fit,
                        rotation=pb0.base.rotation)  # fmt: skip
-    pb = replace(tmp, coulomb_speed=pb0.coulomb_speed, base=pb0.base, vel_tau=pb0.vel_tau)
+    pb = replace(tmp, coulomb_speed=pb0.coulomb_speed, base=pb0.base, vel_ar=pb0.vel_ar)
     g_start, x_start, _ = initial_guess(pb, rec)
     out: dict[str, Any] = {"noise_floor": {"velocity": sv, "position": sp}}
     for key in ("nominal", "augmented"):

@@ -112,6 +112,61 @@ def kinematic_acf(vel: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
     return acf, pairs
 
 
+def kinematic_columns(vel: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The rigid-body kinematics' remainder (:func:`kinematic_noise`) as real columns (K, 2n: each agent's x
+    and y) at the stamps where every agent measured, and those stamps' indices; None for n < 3 or too
+    little data."""
+    got = _kinematic_remainder(vel, 50)
+    if got is None:
+        return None
+    resid, idx = got
+    return np.concatenate((resid.real, resid.imag), axis=1), idx
+
+
+def kinematic_segments(vel: np.ndarray) -> list[np.ndarray]:
+    """:func:`kinematic_columns` cut into runs of consecutive stamps; empty for n < 3 or too little data."""
+    got = kinematic_columns(vel)
+    if got is None:
+        return []
+    r, idx = got
+    return [s for s in np.split(r, np.flatnonzero(np.diff(idx) != 1) + 1) if s.shape[0] > 1]
+
+
+def burg(segments: list[np.ndarray], order: int) -> np.ndarray:
+    """Reflection (partial autocorrelation) coefficients kappa_1..kappa_order of an autoregressive model
+    fitted by Burg's method to every column of every segment (T_s, C) together: each kappa minimises the
+    forward and backward prediction errors' power summed over them. |kappa| < 1 always, so the filter is
+    stable; Yule-Walker's equations on a sample autocorrelation are not, where the spectrum is steep (a
+    second-order low-pass's lag-1 correlation 0.996 gave a negative innovation variance)."""
+    f = [s - 0.0 for s in segments]
+    b = [s - 0.0 for s in segments]
+    kappa = np.zeros(order)
+    for k in range(order):
+        num = sum(float((fi[1:] * bi[:-1]).sum()) for fi, bi in zip(f, b))
+        den = sum(float((fi[1:] ** 2).sum() + (bi[:-1] ** 2).sum()) for fi, bi in zip(f, b))
+        kk = 2.0 * num / den if den > 0 else 0.0
+        f, b = [fi[1:] - kk * bi[:-1] for fi, bi in zip(f, b)], [bi[:-1] - kk * fi[1:] for fi, bi in zip(f, b)]
+        kappa[k] = kk
+    return kappa
+
+
+def ar_table(kappa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Levinson's step-up recursion: from reflection coefficients kappa_1..kappa_p, the predictors of every
+    order, ``A`` (p + 1, p) (row k: x_t = sum_j A[k, j - 1] x_(t - j) + innovation, j <= k), and each
+    order's innovation variance over the process' own, ``v`` (p + 1,). Row k predicts a stationary sample
+    from its k predecessors exactly, so the rows 0..p applied to a series' first samples are the Cholesky
+    factor of its covariance: whitening with them is exact generalised least squares for an AR(p)."""
+    p = len(kappa)
+    A = np.zeros((p + 1, p))
+    v = np.ones(p + 1)
+    for k in range(1, p + 1):
+        kk = kappa[k - 1]
+        A[k, : k - 1] = A[k - 1, : k - 1] - kk * A[k - 1, : k - 1][::-1]
+        A[k, k - 1] = kk
+        v[k] = v[k - 1] * (1.0 - kk * kk)
+    return A, v
+
+
 def kinematic_lag1(vel: np.ndarray) -> float:
     """Lag-1 autocorrelation of the rigid-body kinematics' remainder (:func:`kinematic_acf`)."""
     return float(kinematic_acf(vel, 1)[0][0])

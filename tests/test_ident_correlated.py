@@ -1,6 +1,6 @@
 """Velocity noise correlated in time (docs/diagnose.md, "Velocities whose noise is correlated in time"): a
-filtered velocity estimate's noise, a first-order low-pass of white noise, is measured on the rigid-body
-kinematics and the residual whitened for it. The recording comes from bench/foreign_recordings.py's plant
+filtered velocity estimate's noise, a low-pass of white noise (first order, or a second-order Butterworth), is
+measured on the rigid-body kinematics and the residual whitened for it. The recording comes from bench/foreign_recordings.py's plant
 (scipy, no code shared with ident/), loaded by its path.
 """
 
@@ -44,3 +44,18 @@ def test_low_passed_velocity_noise_is_measured_and_the_intervals_hold(tmp_path):
     assert abs(b["value"] - 8.0) < b["ci95"], b
     _within(a, truth)
     assert 0.9 < a.residual_over_floor < 1.1 and math.isfinite(a.whiteness_p)
+
+
+def test_second_order_filtered_velocity_noise_is_modelled(tmp_path):
+    # a digital second-order Butterworth low-pass of the noise (0.1 s, lag-1 correlation 0.996) is no AR(1):
+    # before, treated as white: viscous friction outside its interval, m and J outside theirs (probe6 bw_visc)
+    truth = plant.record(tmp_path / "bw", n=4, dur=10.0, b=8.0, vfilter=("butter2", 0.1))
+    d = diagnose_dir(tmp_path / "bw")
+    corr = d.noise_floor["velocity_correlation"]
+    assert corr["modelled"] and corr["order"] > 1 and len(corr["coefficients"]) == corr["order"], corr
+    named = {e["name"]: e for e in d.effects}
+    assert set(named) == {"viscous_friction"} and not d.unexplained, (named, d.warnings)
+    b = named["viscous_friction"]
+    assert abs(b["value"] - 8.0) < b["ci95"], b
+    _within(d.augmented, truth)
+    assert not any("held at its bound" in w for w in d.warnings), d.warnings
