@@ -172,6 +172,19 @@ def _one_axis(c: int, axis: str, w: np.ndarray, vel: np.ndarray | None, pos: np.
     return [f"axis {axis}: no measurement and no force in any row: a recording along the other axis only"]
 
 
+def _header_hint(header: list[str]) -> str:
+    """What a header that does not start t,agent most likely is, for the error's text."""
+    first = header[0] if header else ""
+    if first.startswith("#"):
+        return ": the first line is a comment; the format has none (the header is the first line)"
+    if ";" in first or "\t" in first:
+        sep = "';'" if ";" in first else "a tab"
+        return f": the columns are separated by {sep}; the format's separator is ',' (and '.' the decimal point)"
+    if first.split("[")[0].split("(")[0].strip() == "t" and first != "t":
+        return ": column names carry no units (t is in s, velocities in m/s, forces in N, torques in N m)"
+    return ""
+
+
 def _num(cell: str, where: str, name: str) -> float:
     if cell.strip() == "":
         return math.nan
@@ -368,7 +381,8 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
         raise RecordingError(f"{path}:1: empty file (expected a header starting t,agent)")
     header = [h.strip() for h in rows[0]]
     if header[:2] != ["t", "agent"]:
-        raise RecordingError(f"{path}:1: header must start with t,agent (got {','.join(header[:2])})")
+        raise RecordingError(f"{path}:1: header must start with t,agent (got {','.join(header[:2])})"
+                             + _header_hint(header))
     has_v, has_p = bool({"vx", "vy"} & set(header)), bool({"x", "y"} & set(header))
     if not (has_v or has_p):
         raise RecordingError(f"{path}:1: header lacks measured columns: need vx,vy and/or x,y")
@@ -384,19 +398,26 @@ def _read_samples(path: Path, n: int) -> tuple[np.ndarray, np.ndarray, dict[str,
         raise RecordingError(f"{path}: no data rows")
     vals = {c: np.empty(len(body)) for c in want}
     width = len(header)
+    nan_text: list[str] = []  # cells written as nan: missing values, said (the format's missing value is an empty cell)
     for j, (line, r) in enumerate(body):
         where = f"{path}:{line}"
         if len(r) != width:
             raise RecordingError(f"{where}: {len(r)} fields, header has {width}")
         for c in want:
             v = _num(r[idx[c]], where, c) if c in idx else math.nan
-            if c in ("t", "agent") and math.isnan(v):
-                raise RecordingError(f"{where}: column '{c}': empty (expected a number)")
+            if math.isnan(v):
+                if c in ("t", "agent"):
+                    raise RecordingError(f"{where}: column '{c}': {r[idx[c]].strip() or 'empty'} (expected a number)")
+                if c in idx and r[idx[c]].strip():
+                    nan_text.append(f"{where}: column '{c}'")
             vals[c][j] = v
         a = vals["agent"][j]
         if a != int(a) or not 0 <= a < n:
             raise RecordingError(f"{where}: column 'agent': agent {r[idx['agent']]} out of range 0..{n - 1} "
                                  f"(run.toml's n = {n}; agents are numbered from 0)")
+    if nan_text:
+        warns.append(f"{len(nan_text)} cell(s) written as nan read as missing values (as an empty cell), the first at "
+                     f"{nan_text[0]}")
     cols = {c: vals[c] for c in want[2:]}
     for c in WRENCH:
         if c in absent:

@@ -135,6 +135,10 @@ def test_round_trip(tmp_path):
     (None, ["0.0,0,0,0,0,0,0", "", "0.0,0,1,0,0,0,0"], None,
      r"samples.csv:4: column 'vx': agent 0 has two rows at t = 0.0 with different values \(line 2: 0.0, here: 1.0\)"),
     (None, ["0.0,0,0,0,0,0"], None, r"samples.csv:2: 6 fields, header has 7"),
+    ("# logged by rig B", ["t,agent,vx,vy,fx,fy,tau"], None, r"samples.csv:1: .*the first line is a comment"),
+    ("t;agent;vx;vy;fx;fy;tau", ["0,0;0;0;0;0;0;0"], None, r"samples.csv:1: .*separated by ';'; the format's separator is ','"),
+    ("t [s],agent,vx,vy,fx,fy,tau", ["0.0,0,0,0,0,0,0"], None, r"samples.csv:1: .*column names carry no units"),
+    (None, ["nan,0,0,0,0,0,0"], None, r"samples.csv:2: column 't': nan \(expected a number\)"),
     (None, ["0.0,0,0,0,0,0,0"], "dt = 0.01\n", r"run.toml: field 'n': expected a positive integer"),
     (None, ["0.0,0,0,0,0,0,0"], 'n = 2\ninput_hold = "spline"\n', r"run.toml: field 'input_hold'"),
     (None, ["0.0,0,0,0,0,0,0"], 'n = 2\ntime_unit = "min"\n', r"run.toml: field 'time_unit': expected one of"),
@@ -145,6 +149,16 @@ def test_bad_input_names_file_line_and_field(tmp_path, header, rows, toml, match
         kw["toml"] = toml
     with pytest.raises(RecordingError, match=match):
         read_recording(write(tmp_path, rows, **kw))
+
+
+def test_a_cell_written_nan_is_a_missing_value_said_once(tmp_path):
+    rows = [f"{0.01 * k!r},{i},{k * 0.001!r},0.0,1.0,0.0,0.0" for k in range(60) for i in range(2)]
+    rows[7] = rows[7].replace(",0.0,1.0,", ",nan,1.0,", 1)
+    rows[9] = rows[9].replace(",0.0,1.0,", ",NaN,1.0,", 1)
+    rec = read_recording(write(tmp_path, rows))
+    assert np.isnan(rec.vel[3, 1, 1]) and np.isnan(rec.vel[4, 1, 1]) and np.isfinite(rec.vel[5, 1, 1])
+    said = [w for w in rec.warnings if "written as nan" in w]
+    assert len(said) == 1 and said[0].startswith("2 cell(s)") and "samples.csv:9: column 'vy'" in said[0]
 
 
 def test_cli_bad_input_exit_2_and_import_help(tmp_path):
