@@ -146,26 +146,46 @@ def diagnose_sides(rec: Recording, result: Diagnosis, options: DiagnoseOptions |
 
 def mass_per_part(pb: Problem, fit: Fit, parts: int = 4) -> list[dict[str, float]]:
     """The model fitted to each of ``parts`` runs of consecutive windows on its own (from ``fit``): each run's
-    time span, m and its 95 % half-width (a load whose mass drifts shows m trending from run to run)."""
+    time span, m, J and their 95 % half-widths (a load whose mass drifts shows m trending from run to run, a
+    payload that slides across it J more than m; J is NaN without rotation)."""
     S = pb.win.S
     out = []
     for idx in np.array_split(np.arange(S), min(parts, S)):
         f = lm_fit(subset(pb, idx), fit.lay, fit.g, fit.x[idx], max_iter=15)
         mj = f.mj()
         t1 = float(pb.win.t[idx[-1]][pb.win.t[idx[-1]] > -np.inf].max())
-        out.append({"from_s": float(pb.t0[idx[0]]), "to_s": t1, "m": mj["m"], "m_ci95": mj["m_ci95"]})
+        out.append({"from_s": float(pb.t0[idx[0]]), "to_s": t1, "m": mj["m"], "m_ci95": mj["m_ci95"],
+                    "J": mj["J"], "J_ci95": mj["J_ci95"]})
     return out
 
 
+def _trend(parts: list[dict[str, float]], key: str) -> float | None:
+    """The relative change of ``key`` from the first run to the last where it moves one way over the runs and
+    its ends differ beyond their intervals; None otherwise."""
+    v = np.array([p.get(key, math.nan) for p in parts])
+    ci = np.array([p.get(f"{key}_ci95", math.nan) for p in parts])
+    if v.size < 3 or not np.all(np.isfinite(v)) or not np.all(np.isfinite(ci)):
+        return None
+    d = np.diff(v)
+    if not (np.all(d > 0) or np.all(d < 0)) or abs(v[-1] - v[0]) <= ci[0] + ci[-1]:
+        return None
+    return float(v[-1] / v[0] - 1)
+
+
 def drift_hint(parts: list[dict[str, float]]) -> str | None:
-    """A warning when m per run of windows moves one way and its ends differ beyond their intervals."""
-    m = np.array([p["m"] for p in parts])
-    ci = np.array([p["m_ci95"] for p in parts])
-    if m.size < 3 or not np.all(np.isfinite(m)):
+    """A warning when m or J per run of windows moves one way and its ends differ beyond their intervals: a
+    mass that changes gradually moves both alike, a payload sliding across the load (its mass distribution)
+    moves J far more than m."""
+    dm, dj = _trend(parts, "m"), _trend(parts, "J")
+    if dm is None and dj is None:
         return None
-    d = np.diff(m)
-    if not (np.all(d > 0) or np.all(d < 0)) or abs(m[-1] - m[0]) <= ci[0] + ci[-1]:
-        return None
-    runs = ", ".join(f"{p['m']:.4g} +- {p['m_ci95']:.2g} ({p['from_s']:.3g}-{p['to_s']:.3g} s)" for p in parts)
-    return (f"m drifts: fitted on its own to each quarter of the recording it reads {runs}; a change at one time "
-            "leaves each side structured here, a load whose mass (and inertia) changes gradually fits that")
+    said = [q for q, d in (("m", dm), ("J", dj)) if d is not None]
+    runs = "; ".join(f"{q} " + ", ".join(f"{p[q]:.4g} +- {p[q + '_ci95']:.2g} ({p['from_s']:.3g}-{p['to_s']:.3g} s)"
+                                         for p in parts) for q in said)
+    if dj is not None and (dm is None or abs(dj) > 2.0 * abs(dm)):
+        why = ("J changes more than m: a load whose mass distribution changes gradually (a payload sliding or "
+               "shifting across it) fits that better than a mass that changes")
+    else:
+        why = "a load whose mass (and inertia) changes gradually fits that"
+    return (f"{' and '.join(said)} drift{'s' if len(said) == 1 else ''}: fitted on its own to each quarter of the "
+            f"recording it reads {runs}; a change at one time leaves each side structured here, {why}")
