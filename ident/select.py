@@ -58,6 +58,7 @@ from ident.random_force import (
 )
 from ident.recording import Recording
 from ident.report import Diagnosis, ModelReport
+from ident.timing import FORCE_LAG, at_bound, force_lag_shape, lag_text
 
 Z95 = stats.Z95
 
@@ -564,7 +565,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     current = _drop_idle(pb, current, list(accepted) if len(accepted) > 1 else [], accepted, table, opt.alpha, say,
                          lambda c: ", ".join(e for e in accepted if e != c),
                          "adds nothing beside the effects named after it")
-    current, shape = _force_lag_shape(pb, current, accepted, opt.alpha, say)
+    current, shape = force_lag_shape(pb, current, accepted, opt.alpha, say)
     for c in [c for c in accepted if c not in table]:  # the shape kept at the end, not fitted in a round
         val, ci = current.param(c)
         table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
@@ -631,7 +632,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         if c in NONNEGATIVE and not (c in TIMING and set(TIMING) & set(named)):
             sc = score(pb, final, c)
             if sc.step[0] < 0 and sc.p < level:
-                warns.append(_at_bound(c, sc.p))
+                warns.append(at_bound(c, sc.p))
                 if c in table:
                     table[c]["at_bound_p"] = sc.p
     effects = []
@@ -644,7 +645,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             effects[-1]["principal"] = _principal(val, final.param("viscous_friction")[0][0]
                                                   if "viscous_friction" in named else 0.0)
         if c in TIMING:
-            warns.append(_lag_text(c, float(val[0]), float(ci[0]), shape))
+            warns.append(lag_text(c, float(val[0]), float(ci[0]), shape))
         if c in PER_AGENT:
             effects[-1]["reference"] = final.lay.ref
             effects[-1]["agents"] = _agents_off(effects[-1]["value"], effects[-1]["ci95"], c)
@@ -711,72 +712,6 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         fits={"nominal": nominal, "augmented": final}, problem=pb,
         random_force=walk_info if final is current else None,
     )  # fmt: skip
-
-
-def _lag_text(name: str, d: float, h: float, shape: tuple[str, float, bool] | None = None) -> str:
-    """A named timing effect in words: which sensor lags, by how much, and what the data tell of its shape
-    (``shape``: :func:`_force_lag_shape`'s comparison with the other shape of a force lag)."""
-    val = f"{1e3 * d:.3g} +- {1e3 * h:.2g} ms"
-    if name == "measurement_delay":
-        return (f"measurement_delay: the velocities are measured {val} after the forces that moved the load: their "
-                "rows are stamped that late, or the velocity sensors low-pass with a time constant of about that "
-                "(below their bandwidth the two look alike)")
-    head = (f"force_sensor_lag: the logged forces lag the ones that moved the load by {val}: the force rows are "
-            "stamped that late, or the force sensors filter with about that delay (a filter of higher order than "
-            "the first: its group delay)" if name == "force_sensor_lag" else
-            f"force_sensor_lowpass: the force sensors low-pass the force that moved the load with a time constant "
-            f"of {val} (first order): the logged forces lag it by about that")
-    if shape is None:
-        return head + " (below the sensors' bandwidth a late stamp and a low-pass look alike)"
-    other, dbic, apart = shape
-    alt = "a first-order low-pass" if other == "force_sensor_lowpass" else "a late stamp"
-    if apart:
-        return head + f"; {alt} fits worse (BIC higher by {dbic:.3g})"
-    return head + f"; these data do not tell it from {alt} (its BIC higher by only {dbic:.2g}: it does not add to it)"
-
-
-BOUND_HINT = {
-    "measurement_delay": "the motion leads the logged force, as it does behind force sensors that lag "
-                         "(force_sensor_lag, force_sensor_lowpass)",
-    "force_sensor_lag": "the logged force leads the motion, as it does with velocities measured late "
-                        "(measurement_delay)",
-    "force_sensor_lowpass": "the logged force leads the motion, as it does with velocities measured late "
-                            "(measurement_delay)",
-}
-
-
-def _at_bound(name: str, p: float) -> str:
-    """The line for a non-negative candidate held at 0 by a fit that wants it negative."""
-    hint = BOUND_HINT.get(name, "a negative value no physical effect of its kind has: the residual holds something "
-                                "else, outside the vocabulary")
-    return f"{name}: held at its bound 0, and the data want it below (score test p {p:.2g}): {hint}"
-
-
-FORCE_LAG = ("force_sensor_lag", "force_sensor_lowpass")
-
-
-def _force_lag_shape(pb: Problem, fit: Fit, accepted: list[str], alpha: float,
-                     say: Callable[[str], None]) -> tuple[Fit, tuple[str, float, bool] | None]:
-    """A force lag named in one shape (late rows, a first-order low-pass) refitted in the other, beside the
-    same effects: the one that fits better is kept (``accepted`` updated). Returns the fit and (the other shape,
-    its BIC above the kept one's, told apart: the kept shape adds to the other at level ``alpha``), or None
-    when no single force lag is named."""
-    named = [c for c in FORCE_LAG if c in accepted]
-    if len(named) != 1:
-        return fit, None
-    c = named[0]
-    other = FORCE_LAG[1 - FORCE_LAG.index(c)]
-    say(f"{c}: refitted as {other}")
-    lay2 = fit.lay.with_effects(tuple(other if e == c else e for e in fit.lay.effects))
-    g2 = expand(lay2, fit.g, fit.lay, {other: float(fit.g[fit.lay.slot(c)][0])})
-    alt = lm_fit(pb, lay2, g2, fit.x)
-    if alt.rss < fit.rss:  # the same number of parameters: the lower residual is the lower BIC
-        accepted[accepted.index(c)] = other
-        fit, alt, c, other = alt, fit, other, c
-    lay3 = fit.lay.with_effects(fit.lay.effects + (other,))
-    joint = lm_fit(pb, lay3, expand(lay3, fit.g, fit.lay), fit.x)
-    adds = stats.nested_f(alt.rss, joint.rss, 1, joint.N, joint.P)[1] < alpha  # the kept shape beside the other
-    return fit, (other, alt.bic - fit.bic, adds)
 
 
 SAME_FORCE = ("force_bias", "force_sensor_offset")
