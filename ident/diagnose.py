@@ -22,7 +22,7 @@ from ident.fit import states_of, window_valid
 from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
 from ident.glitches import GLITCH_FLOORS, force_spikes, spike_response
 from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS
-from ident.offsets import offsets_drift, offsets_together, unname_drifting
+from ident.offsets import drift_text, drifting_agent, offsets_drift, offsets_together, unname_drifting
 from ident.prepare import without_glitches
 from ident.recording import Recording, RecordingError
 from ident.recording import read_recording as _read
@@ -141,8 +141,21 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                       "their own kinematics plus its mounting angle relative to agent 0 (value, "
                                       "deg), and the team by the angle the forces' direction gives")  # fmt: skip
     drift = offsets_drift(result, options or DiagnoseOptions())
+    alpha = (options or DiagnoseOptions()).alpha
+    who = drifting_agent(drift[1], result.problem, alpha) if drift is not None else None
+    if who is not None and not who["p_constant"] < alpha:
+        # read as per-robot offsets (their sum and moment) the quarters agree: the form fitted (a body-frame
+        # offset for world-frame ones) changes with the angles each quarter covers, the offsets do not drift
+        result.warnings.append("the offsets fitted to each quarter of the recording apart differ, but read as force "
+                               "offsets of each robot's own (their sum and moment) the quarters agree (p "
+                               f"{who['p_constant']:.2g}): the offsets do not drift; the form fitted stands in for "
+                               "offsets of each robot's own")
+        drift = None
     if drift is not None:
-        unname_drifting(result, drift)
+        unname_drifting(result, drift[0])
+        if who is not None:
+            result.offset_drift = who
+            result.warnings.append(drift_text(who))
     else:
         offsets_together(result)
     if vscale is not None and vscale["scaled"]:

@@ -586,6 +586,24 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     white = whiteness(pb, current, opt, modes1, theta=theta_w)
     excess0 = nominal.rss - nominal.N
     share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
+    if white <= opt.alpha_white and share < opt.explained:
+        alt = _robot_offsets(pb, rec, nominal, current, accepted, cands, opt, say)
+        if alt is not None:
+            before = list(accepted)
+            current, accepted = alt
+            for c in [c for c in accepted if c not in table]:
+                val, ci = current.param(c)
+                table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
+                            "ci95": _value(ci, current.lay, c, ci=True), "on_top_of": [e for e in accepted if e != c]}
+            st1 = states_of(pb, current)
+            theta_w = st1[..., 3]
+            modes1 = residual_modes(pb, current, theta=theta_w)
+            white = whiteness(pb, current, opt, modes1, theta=theta_w)
+            share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
+            warns.append(f"the selection's {', '.join(before)} left a structured residual; with its offsets replaced "
+                         "by force_bias and force_sensor_offset together (per-robot force offsets: a sum and a moment "
+                         "that turns with the load, four parameters that no single offset of the vocabulary spans, "
+                         f"added one at a time) the model is {', '.join(accepted)}")
     ambiguous_names = {c for pair in ambiguous for c in pair}
     walk = None if white > opt.alpha_white or pb.win.vel is None else significant_walk(
         pb, current, st1, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
@@ -709,7 +727,9 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         identifiable={"m": resolved["m"], "J": resolved["J"], "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip
-        fits={"nominal": nominal, "augmented": final}, problem=pb,
+        # the effects kept but not named on a structured residual: the offsets' drift check reads them
+        fits={"nominal": nominal, "augmented": final} | ({"rejected": current} if unexplained and accepted else {}),
+        problem=pb,
         random_force=walk_info if final is current else None,
     )  # fmt: skip
 
@@ -718,6 +738,48 @@ SAME_FORCE = ("force_bias", "force_sensor_offset")
 TRANSLATION = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "force_bias", "force_sensor_offset",
                "sensor_offset_body")
 ROTATION = ("rotational_damping", "torque_bias")
+
+
+OFFSET_FORMS = ("force_bias", "torque_bias", "force_sensor_offset", "sensor_offset_body")
+ROBOT_OFFSETS = ("force_bias", "force_sensor_offset")
+
+
+def _robot_offsets(pb: Problem, rec: Recording, nominal: Fit, fit: Fit, accepted: list[str], cands: list[str],
+                   opt: DiagnoseOptions, say: Callable[[str], None]) -> tuple[Fit, list[str]] | None:
+    """Per-robot force offsets in the world frame give the load their sum and a moment that turns with it:
+    force_bias and force_sensor_offset together, four parameters. Forward selection adds one effect at a time
+    and can take another offset's form first (sensor_offset_body under correlated velocity noise), leaving a
+    structured residual. Where the selection's model holds an offset and is not explained, its offsets are
+    replaced by the pair, the other effects that then add nothing at level ``opt.alpha`` (nested F-tests) are
+    dropped, and the pair's model is returned with its effects when both of the pair add at that level, its
+    BIC is the lower and its residual is white or explains ``opt.explained`` of the nominal model's excess;
+    else None."""
+    offs = [c for c in accepted if c in OFFSET_FORMS]
+    if not offs or not pb.base.rotation or not set(ROBOT_OFFSETS) <= set(cands) or set(ROBOT_OFFSETS) <= set(offs):
+        return None
+    rest = [c for c in accepted if c not in OFFSET_FORMS]
+    effs = rest + list(ROBOT_OFFSETS)
+    lay = fit.lay.with_effects(tuple(effs))
+    say(f"{', '.join(offs)}: refitted as per-robot force offsets (force_bias and force_sensor_offset)")
+    alt = lm_fit(pb, lay, expand(lay, fit.g, fit.lay), fit.x)
+    try:
+        g1, x1, _ = initial_guess(pb, rec, effects=lay.effects)
+        f1 = lm_fit(pb, lay, g1, x1)
+        alt = f1 if f1.lin.cost < alt.lin.cost else alt
+    except FitError:
+        pass
+    for c in rest:  # an effect that stood in for the offsets' moment (a rotational damping) adds nothing now
+        without, p = _without(pb, alt, c)
+        if p >= opt.alpha:
+            say(f"{c}: adds nothing beside the per-robot force offsets: dropped")
+            alt, effs = without, [e for e in effs if e != c]
+    if alt.bic >= fit.bic or any(_without(pb, alt, c)[1] >= opt.alpha for c in ROBOT_OFFSETS):
+        return None
+    excess0 = nominal.rss - nominal.N
+    share = (nominal.rss - alt.rss) / excess0 if excess0 > 0 else 0.0
+    if share < opt.explained and whiteness(pb, alt, opt) <= opt.alpha_white:
+        return None
+    return alt, effs
 
 
 def _unresolved_effects(fit: Fit, accepted: list[str]) -> list[str]:
