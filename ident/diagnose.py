@@ -144,10 +144,10 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
     alpha = (options or DiagnoseOptions()).alpha
     who = drifting_agent(drift[1], result.problem, alpha) if drift is not None else None
     if who is not None and not who["p_constant"] < alpha:
-        # read as per-robot offsets (their sum and moment) the quarters agree: the form fitted (a body-frame
+        # read as per-robot offsets (their sum and moment) the windows agree: the form fitted (a body-frame
         # offset for world-frame ones) changes with the angles each quarter covers, the offsets do not drift
         result.warnings.append("the offsets fitted to each quarter of the recording apart differ, but read as force "
-                               "offsets of each robot's own (their sum and moment) the quarters agree (p "
+                               "offsets of each robot's own (their sum and moment) the windows agree (p "
                                f"{who['p_constant']:.2g}): the offsets do not drift; the form fitted stands in for "
                                "offsets of each robot's own")
         drift = None
