@@ -13,10 +13,10 @@ from scipy import stats as sst
 from ident.fit import Fit, Problem, lm_fit, subset
 from ident.model import expand
 from ident.report import Diagnosis
-from ident.select import DiagnoseOptions
+from ident.select import OFFSET_FORMS, DiagnoseOptions
 from ident.stats import Z95
 
-OFFSETS = ("force_bias", "force_sensor_offset", "sensor_offset_body", "torque_bias")
+OFFSETS = OFFSET_FORMS  # the constant offsets of the vocabulary
 PARTS = 4  # runs of windows the named offsets are fitted to apart
 
 

@@ -740,8 +740,8 @@ TRANSLATION = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "
 ROTATION = ("rotational_damping", "torque_bias")
 
 
-OFFSET_FORMS = ("force_bias", "torque_bias", "force_sensor_offset", "sensor_offset_body")
-ROBOT_OFFSETS = ("force_bias", "force_sensor_offset")
+OFFSET_FORMS = ("force_bias", "force_sensor_offset", "sensor_offset_body", "torque_bias")
+ROBOT_OFFSETS = SAME_FORCE  # the pair that spans per-robot offsets in the world frame
 
 
 def _robot_offsets(pb: Problem, rec: Recording, nominal: Fit, fit: Fit, accepted: list[str], cands: list[str],
