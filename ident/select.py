@@ -601,9 +601,10 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             white = whiteness(pb, current, opt, modes1, theta=theta_w)
             share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
             warns.append(f"the selection's {', '.join(before)} left a structured residual; with its offsets replaced "
-                         "by force_bias and force_sensor_offset together (per-robot force offsets: a sum and a moment "
-                         "that turns with the load, four parameters that no single offset of the vocabulary spans, "
-                         f"added one at a time) the model is {', '.join(accepted)}")
+                         "by force_bias and force_sensor_offset together the model is "
+                         f"{', '.join(accepted)} (force offsets of each robot's own give the load a sum and a moment "
+                         "that turns with it: four parameters, which the selection, adding one effect at a time, "
+                         "took in other forms)")
     ambiguous_names = {c for pair in ambiguous for c in pair}
     walk = None if white > opt.alpha_white or pb.win.vel is None else significant_walk(
         pb, current, st1, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
