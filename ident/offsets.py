@@ -153,8 +153,8 @@ def drift_text(d: dict) -> str:
     if d["agent"] is None:
         return ("which robot's offset drifts is not told: the offsets' sum and moment per window, "
                 f"fitted as one robot's changing offset, leave chi-square {chis} on {d['dof']} degrees of freedom "
-                f"(a robot is named where every other's is above {d['ratio_critical']:.3g} x its own, the F-test at the "
-                f"selection's level; here {d['ratio']:.3g} x)")
+                f"(a robot is named where every other's is above {d['ratio_critical']:.3g} x its own, the F-test at "
+                f"the selection's level; here {d['ratio']:.3g} x)")
     i = d["agent"]
     steps = "; ".join(f"{a:.3g}-{b:.3g} s: ({x:.3g}, {y:.3g})" for (a, b), (x, y) in
                       zip(d["spans"][1:], d["change_per_part"]))

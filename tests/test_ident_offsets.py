@@ -84,8 +84,9 @@ def test_per_robot_offsets_beside_friction_are_named_as_their_sum(tmp_path):
     """4 robots, each force sensor its own offset (sd 0.3 N per axis, sum (0.281, -0.531) N), viscous 8, 12 s, the
     load turning (0.5 rad/s at the start): the effects are viscous_friction and force_offsets_sum (measured:
     (0.286, -0.532) +- 0.011 N, moment 0.588 +- 0.014 N m), no per-robot value (force_sensor_offset, force_bias)
-    among them; m +0.02 %, J +0.30 % (within 2 %); ~50 s CPU (88 s wall on the shared machine). (A load that hardly turns, the plant's seed 1 with J
-    73 kg m^2, sees the moment as a constant torque: sensor_offset_body is named there, docs' Limits.)"""
+    among them; m +0.02 %, J +0.30 % (within 2 %); ~50 s CPU (88 s wall on the shared machine). (A load that
+    hardly turns, the plant's seed 1 with J 73 kg m^2, sees the moment as a constant torque: sensor_offset_body
+    is named there, docs' Limits.)"""
     truth = plant.record(tmp_path, n=4, dur=12.0, b=8.0, soffsets=0.3, spin=0.5, seed=3)
     d = diagnose_dir(tmp_path)
     named = {e["name"]: e for e in d.effects}
@@ -100,7 +101,8 @@ def test_the_robot_whose_offset_warms_up_is_named(tmp_path):
     """4 robots, agent 1's force sensor warming up by (0.8, 0.6) N with a time constant of 5 s, viscous 5, 20 s,
     the load turning (0.5 rad/s at the start): `unexplained` (the drift is outside the vocabulary), and agent 1
     named as the one whose offset drifts (measured: its window-by-window misfit chi-square 7.4 on 14 degrees of
-    freedom, every other robot's 20.9 x or more; its last window's offset (0.64, 0.45) N above its first's, the truth's means (0.61, 0.46)); ~50 s CPU (107 s wall on the shared machine)."""
+    freedom, every other robot's 20.9 x or more; its last window's offset (0.64, 0.45) N above its first's, the
+    truth's means (0.61, 0.46)); ~50 s CPU (107 s wall on the shared machine)."""
     plant.record(tmp_path, n=4, dur=20.0, b=5.0, sdrift=(1, 0.8, 0.6, 5.0), spin=0.5, seed=3)
     d = diagnose_dir(tmp_path)
     assert d.unexplained and d.offset_drift is not None and d.offset_drift["agent"] == 1, (d.offset_drift, d.warnings)
