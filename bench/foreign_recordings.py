@@ -85,7 +85,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            vel_robot: bool = False, vcolor: float = 0.0, aniso: tuple[float, float] | None = None, flp: float = 0.0,
            flate: float = 0.0, fspikes: tuple[float, float] | None = None, fspikes_applied: bool = False,
            vscale: tuple[int, float] | None = None, soffsets: float | None = None,
-           vfilter: tuple[str, float] | None = None) -> dict:  # fmt: skip
+           vfilter: tuple[str, float] | None = None,
+           sdrift: tuple[int, float, float, float] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -115,7 +116,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     filtered otherwise than ``vcolor``, rescaled to ``sigma``: ``"butter2"`` a digital second-order Butterworth
     low-pass of cutoff 1 / (2 pi tau) (the commonest filter on a lab's velocity estimate), ``"boxcar"`` the mean
     over the last tau (a moving average); stationary from the first sample (run in on draws apart from the
-    plant's stream)."""
+    plant's stream); ``sdrift`` (agent, x, y, tau): that agent's force sensor's
+    offset warms up from 0 to (x, y) N (world frame) as 1 - exp(-t / tau) (a thermal drift)."""
     if flp and hold_hz:
         raise ValueError("flp: the low-pass of a held wrench is not written here (smooth pushes only)")
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
@@ -246,6 +248,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             elif soffset:
                 fl = fl + soffset
             fl = fl + own[i]
+            if sdrift and i == sdrift[0]:
+                fl = fl + np.asarray(sdrift[1:3]) * (1.0 - np.exp(-tk / sdrift[3]))
             if fclip:
                 fl = np.clip(fl, -fclip, fclip)
             w = ",," if wrench_hz else f"{fl[0]:.9g},{fl[1]:.9g},0"
@@ -275,6 +279,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
         effects["sensor_offset_body"] = [float(np.hypot(*sum(turned))), float(torque)]  # |B| (its frame's zero is the model's), T
     if soffsets:
         effects["force_offsets_sum"] = own.sum(axis=0).tolist()
+    if sdrift:
+        effects["force_offset_drift"] = sdrift[0]
     return {"m": m, "J": J, "effects": {k: v for k, v in effects.items() if v}, "change": change, "drift": drift,
             "fclip": fclip,
             "force_noise": fnoise * frms * np.sqrt(n), "mounting_deg": np.degrees(phi).tolist()}

@@ -79,6 +79,7 @@ class Diagnosis:
     change: dict[str, Any] | None = None  # ident/change.py: a change of the load, and each side's diagnosis
     random_force: dict[str, Any] | None = None  # ident/random_force.py: the residual's walk, in N and N m
     saturation: list[dict[str, Any]] = field(default_factory=list)  # ident/saturation.py: forces at a limit
+    offset_drift: dict[str, Any] | None = None  # ident/offsets.py: which robot's force offset drifts
     fits: dict[str, Any] = field(default_factory=dict, repr=False)
     problem: Any = field(default=None, repr=False)
 
@@ -112,6 +113,8 @@ class Diagnosis:
         out["saturation"] = _jsonable(self.saturation)
         out["frames"] = _jsonable(self.frames)
         out["velocity_frames"] = _jsonable(self.velocity_frames)
+        if self.offset_drift is not None:
+            out["offset_drift"] = _jsonable(self.offset_drift)
         return out
 
 
@@ -143,7 +146,7 @@ def format_diagnosis(r: Diagnosis) -> str:
     if r.effects:
         for e in r.effects:
             lines.append(f"effect    {e['name']}: {_fmt(e['value'])} +- {_fmt(e['ci95'])} {e['unit']}{_agents(e)}"
-                         + _principal(e))
+                         + _principal(e) + _moment(e))
     else:
         lines.append("effect    none named")
     lines.append(f"unexplained: {str(r.unexplained).lower()}")
@@ -204,6 +207,14 @@ def _principal(e: dict[str, Any]) -> str:
         return ""
     return (f" (viscous friction {p['along']:.4g} N s/m along the load's axis at {p['axis_deg']:.3g} deg, "
             f"{p['across']:.4g} across it)")
+
+
+def _moment(e: dict[str, Any]) -> str:
+    """Per-robot force offsets' reading: their sum is the value, their moment is said beside it."""
+    if "moment_Nm" not in e:
+        return ""
+    return (f" (the robots' force offsets summed, and their moment {e['moment_Nm']:.3g} +- {e['moment_ci95']:.2g} N m "
+            "turning with the load; each robot's own offset is not identifiable)")
 
 
 def _fmt(v: Any) -> str:

@@ -59,6 +59,7 @@ from ident.random_force import (
 )
 from ident.recording import Recording
 from ident.report import Diagnosis, ModelReport
+from ident.timing import FORCE_LAG, at_bound, force_lag_shape, lag_text
 
 Z95 = stats.Z95
 
@@ -565,7 +566,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     current = _drop_idle(pb, current, list(accepted) if len(accepted) > 1 else [], accepted, table, opt.alpha, say,
                          lambda c: ", ".join(e for e in accepted if e != c),
                          "adds nothing beside the effects named after it")
-    current, shape = _force_lag_shape(pb, current, accepted, opt.alpha, say)
+    current, shape = force_lag_shape(pb, current, accepted, opt.alpha, say)
     for c in [c for c in accepted if c not in table]:  # the shape kept at the end, not fitted in a round
         val, ci = current.param(c)
         table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
@@ -586,6 +587,25 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
     white = whiteness(pb, current, opt, modes1, theta=theta_w)
     excess0 = nominal.rss - nominal.N
     share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
+    if white <= opt.alpha_white and share < opt.explained:
+        alt = _robot_offsets(pb, rec, nominal, current, accepted, cands, opt, say)
+        if alt is not None:
+            before = list(accepted)
+            current, accepted = alt
+            for c in [c for c in accepted if c not in table]:
+                val, ci = current.param(c)
+                table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
+                            "ci95": _value(ci, current.lay, c, ci=True), "on_top_of": [e for e in accepted if e != c]}
+            st1 = states_of(pb, current)
+            theta_w = st1[..., 3]
+            modes1 = residual_modes(pb, current, theta=theta_w)
+            white = whiteness(pb, current, opt, modes1, theta=theta_w)
+            share = (nominal.rss - current.rss) / excess0 if excess0 > 0 else 0.0
+            warns.append(f"the selection's {', '.join(before)} left a structured residual; with its offsets replaced "
+                         "by force_bias and force_sensor_offset together the model is "
+                         f"{', '.join(accepted)} (force offsets of each robot's own give the load a sum and a moment "
+                         "that turns with it: four parameters, which the selection, adding one effect at a time, "
+                         "took in other forms)")
     ambiguous_names = {c for pair in ambiguous for c in pair}
     walk = None if white > opt.alpha_white or pb.win.vel is None else significant_walk(
         pb, current, st1, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
@@ -632,7 +652,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         if c in NONNEGATIVE and not (c in TIMING and set(TIMING) & set(named)):
             sc = score(pb, final, c)
             if sc.step[0] < 0 and sc.p < level:
-                warns.append(_at_bound(c, sc.p))
+                warns.append(at_bound(c, sc.p))
                 if c in table:
                     table[c]["at_bound_p"] = sc.p
     effects = []
@@ -645,7 +665,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             effects[-1]["principal"] = _principal(val, final.param("viscous_friction")[0][0]
                                                   if "viscous_friction" in named else 0.0)
         if c in TIMING:
-            warns.append(_lag_text(c, float(val[0]), float(ci[0]), shape))
+            warns.append(lag_text(c, float(val[0]), float(ci[0]), shape))
         if c in PER_AGENT:
             effects[-1]["reference"] = final.lay.ref
             effects[-1]["agents"] = _agents_off(effects[-1]["value"], effects[-1]["ci95"], c)
@@ -709,81 +729,59 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         identifiable={"m": resolved["m"], "J": resolved["J"], "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
                "max_step": pb.max_step},  # fmt: skip
-        fits={"nominal": nominal, "augmented": final}, problem=pb,
+        # the effects kept but not named on a structured residual: the offsets' drift check reads them
+        fits={"nominal": nominal, "augmented": final} | ({"rejected": current} if unexplained and accepted else {}),
+        problem=pb,
         random_force=walk_info if final is current else None,
     )  # fmt: skip
-
-
-def _lag_text(name: str, d: float, h: float, shape: tuple[str, float, bool] | None = None) -> str:
-    """A named timing effect in words: which sensor lags, by how much, and what the data tell of its shape
-    (``shape``: :func:`_force_lag_shape`'s comparison with the other shape of a force lag)."""
-    val = f"{1e3 * d:.3g} +- {1e3 * h:.2g} ms"
-    if name == "measurement_delay":
-        return (f"measurement_delay: the velocities are measured {val} after the forces that moved the load: their "
-                "rows are stamped that late, or the velocity sensors low-pass with a time constant of about that "
-                "(below their bandwidth the two look alike)")
-    head = (f"force_sensor_lag: the logged forces lag the ones that moved the load by {val}: the force rows are "
-            "stamped that late, or the force sensors filter with about that delay (a filter of higher order than "
-            "the first: its group delay)" if name == "force_sensor_lag" else
-            f"force_sensor_lowpass: the force sensors low-pass the force that moved the load with a time constant "
-            f"of {val} (first order): the logged forces lag it by about that")
-    if shape is None:
-        return head + " (below the sensors' bandwidth a late stamp and a low-pass look alike)"
-    other, dbic, apart = shape
-    alt = "a first-order low-pass" if other == "force_sensor_lowpass" else "a late stamp"
-    if apart:
-        return head + f"; {alt} fits worse (BIC higher by {dbic:.3g})"
-    return head + f"; these data do not tell it from {alt} (its BIC higher by only {dbic:.2g}: it does not add to it)"
-
-
-BOUND_HINT = {
-    "measurement_delay": "the motion leads the logged force, as it does behind force sensors that lag "
-                         "(force_sensor_lag, force_sensor_lowpass)",
-    "force_sensor_lag": "the logged force leads the motion, as it does with velocities measured late "
-                        "(measurement_delay)",
-    "force_sensor_lowpass": "the logged force leads the motion, as it does with velocities measured late "
-                            "(measurement_delay)",
-}
-
-
-def _at_bound(name: str, p: float) -> str:
-    """The line for a non-negative candidate held at 0 by a fit that wants it negative."""
-    hint = BOUND_HINT.get(name, "a negative value no physical effect of its kind has: the residual holds something "
-                                "else, outside the vocabulary")
-    return f"{name}: held at its bound 0, and the data want it below (score test p {p:.2g}): {hint}"
-
-
-FORCE_LAG = ("force_sensor_lag", "force_sensor_lowpass")
-
-
-def _force_lag_shape(pb: Problem, fit: Fit, accepted: list[str], alpha: float,
-                     say: Callable[[str], None]) -> tuple[Fit, tuple[str, float, bool] | None]:
-    """A force lag named in one shape (late rows, a first-order low-pass) refitted in the other, beside the
-    same effects: the one that fits better is kept (``accepted`` updated). Returns the fit and (the other shape,
-    its BIC above the kept one's, told apart: the kept shape adds to the other at level ``alpha``), or None
-    when no single force lag is named."""
-    named = [c for c in FORCE_LAG if c in accepted]
-    if len(named) != 1:
-        return fit, None
-    c = named[0]
-    other = FORCE_LAG[1 - FORCE_LAG.index(c)]
-    say(f"{c}: refitted as {other}")
-    lay2 = fit.lay.with_effects(tuple(other if e == c else e for e in fit.lay.effects))
-    g2 = expand(lay2, fit.g, fit.lay, {other: float(fit.g[fit.lay.slot(c)][0])})
-    alt = lm_fit(pb, lay2, g2, fit.x)
-    if alt.rss < fit.rss:  # the same number of parameters: the lower residual is the lower BIC
-        accepted[accepted.index(c)] = other
-        fit, alt, c, other = alt, fit, other, c
-    lay3 = fit.lay.with_effects(fit.lay.effects + (other,))
-    joint = lm_fit(pb, lay3, expand(lay3, fit.g, fit.lay), fit.x)
-    adds = stats.nested_f(alt.rss, joint.rss, 1, joint.N, joint.P)[1] < alpha  # the kept shape beside the other
-    return fit, (other, alt.bic - fit.bic, adds)
 
 
 SAME_FORCE = ("force_bias", "force_sensor_offset")
 TRANSLATION = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "force_bias", "force_sensor_offset",
                "sensor_offset_body")
 ROTATION = ("rotational_damping", "torque_bias")
+
+
+OFFSET_FORMS = ("force_bias", "force_sensor_offset", "sensor_offset_body", "torque_bias")
+ROBOT_OFFSETS = SAME_FORCE  # the pair that spans per-robot offsets in the world frame
+
+
+def _robot_offsets(pb: Problem, rec: Recording, nominal: Fit, fit: Fit, accepted: list[str], cands: list[str],
+                   opt: DiagnoseOptions, say: Callable[[str], None]) -> tuple[Fit, list[str]] | None:
+    """Per-robot force offsets in the world frame give the load their sum and a moment that turns with it:
+    force_bias and force_sensor_offset together, four parameters. Forward selection adds one effect at a time
+    and can take another offset's form first (sensor_offset_body under correlated velocity noise), leaving a
+    structured residual. Where the selection's model holds an offset and is not explained, its offsets are
+    replaced by the pair, the other effects that then add nothing at level ``opt.alpha`` (nested F-tests) are
+    dropped, and the pair's model is returned with its effects when both of the pair add at that level, its
+    BIC is the lower and its residual is white or explains ``opt.explained`` of the nominal model's excess;
+    else None."""
+    offs = [c for c in accepted if c in OFFSET_FORMS]
+    if not offs or not pb.base.rotation or not set(ROBOT_OFFSETS) <= set(cands) or set(ROBOT_OFFSETS) <= set(offs):
+        return None
+    rest = [c for c in accepted if c not in OFFSET_FORMS]
+    effs = rest + list(ROBOT_OFFSETS)
+    lay = fit.lay.with_effects(tuple(effs))
+    say(f"{', '.join(offs)}: refitted as per-robot force offsets (force_bias and force_sensor_offset)")
+    alt = lm_fit(pb, lay, expand(lay, fit.g, fit.lay), fit.x)
+    try:
+        g1, x1, _ = initial_guess(pb, rec, effects=lay.effects)
+        f1 = lm_fit(pb, lay, g1, x1)
+        alt = f1 if f1.lin.cost < alt.lin.cost else alt
+    except FitError:
+        pass
+    for c in rest:  # an effect that stood in for the offsets' moment (a rotational damping) adds nothing now
+        without, p = _without(pb, alt, c)
+        if p >= opt.alpha:
+            say(f"{c}: adds nothing beside the per-robot force offsets: dropped")
+            alt, effs = without, [e for e in effs if e != c]
+    if alt.bic >= fit.bic or any(_without(pb, alt, c)[1] >= opt.alpha for c in ROBOT_OFFSETS):
+        return None
+    excess0 = nominal.rss - nominal.N
+    share = (nominal.rss - alt.rss) / excess0 if excess0 > 0 else 0.0
+    if share < opt.explained and whiteness(pb, alt, opt) <= opt.alpha_white:
+        return None
+    return alt, effs
 
 
 def _unresolved_effects(fit: Fit, accepted: list[str]) -> list[str]:
