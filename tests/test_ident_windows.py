@@ -49,7 +49,7 @@ def test_robots_on_their_own_clocks_get_the_windows_of_synchronised_ones(tmp_pat
     """Four robots at 200 Hz, each sampling on its own clock (stamps 1.3 ms apart, or each instant jittered
     +-2 ms): the period is each robot's 5 ms, not the union's; the windows are those of the synchronised twin
     (2.5 s, all linked: no interleaved or jittered interval is a gap)."""
-    kw = dict(n=4, rate=200.0, dur=10.0, b=5.0, seed=12)
+    kw = {"n": 4, "rate": 200.0, "dur": 10.0, "b": 5.0, "seed": 12}
     plant.record(tmp_path / "sync", **kw)
     plant.record(tmp_path / "own", own_clock=clock, **kw)
     sync, own = read_recording(tmp_path / "sync"), read_recording(tmp_path / "own")
