@@ -86,7 +86,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            flate: float = 0.0, fspikes: tuple[float, float] | None = None, fspikes_applied: bool = False,
            vscale: tuple[int, float] | None = None, soffsets: float | None = None,
            vfilter: tuple[str, float] | None = None,
-           sdrift: tuple[int, float, float, float] | None = None) -> dict:  # fmt: skip
+           sdrift: tuple[int, float, float, float] | None = None,
+           own_clock: tuple[float, float] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -117,7 +118,9 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     low-pass of cutoff 1 / (2 pi tau) (the commonest filter on a lab's velocity estimate), ``"boxcar"`` the mean
     over the last tau (a moving average); stationary from the first sample (run in on draws apart from the
     plant's stream); ``sdrift`` (agent, x, y, tau): that agent's force sensor's
-    offset warms up from 0 to (x, y) N (world frame) as 1 - exp(-t / tau) (a thermal drift)."""
+    offset warms up from 0 to (x, y) N (world frame) as 1 - exp(-t / tau) (a thermal drift); ``own_clock`` (phase,
+    jitter): each robot samples and stamps on its own clock, agent i's k-th
+    row at k/rate + i phase + U(-jitter, jitter) (s; drawn apart from the plant's stream), the stamps exact."""
     if flp and hold_hz:
         raise ValueError("flp: the low-pass of a held wrench is not written here (smooth pushes only)")
     sig = np.broadcast_to(np.asarray(sigma, float), (n,))
@@ -211,9 +214,14 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     y0 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, spin])  # x, y, theta, vx, vy, omega
     sol = solve_ivp(rhs, (-1.0, dur + 0.1), y0, dense_output=True, rtol=1e-10, atol=1e-12,
                     max_step=0.5 / hold_hz if hold_hz else 0.25 / rate if fspikes_applied else 0.01)  # fmt: skip
+    at = np.repeat(t[:, None], n, axis=1)  # each agent's sample instants
+    if own_clock:
+        at = at + np.arange(n) * own_clock[0] + np.random.default_rng(seed + 15485863).uniform(
+            -own_clock[1], own_clock[1], at.shape)
     rows = []
-    for tk in t:
+    for k_row in range(t.size):
         for i in range(n):
+            tk = at[k_row, i]
             px, py, th, vx, vy, om = sol.sol(max(tk - lag[i] - delay, -1.0))
             rw = arms(th)
             f = logged(tk - lag[i])
@@ -240,7 +248,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
                 if vel_robot:
                     thf = th + phi[i]
                     y = np.array([np.cos(thf) * y[0] + np.sin(thf) * y[1], -np.sin(thf) * y[0] + np.cos(thf) * y[1]])
-            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0) + spikes[round(tk * rate), i]
+            fl = f[i] + (rng.normal(0, fnoise * frms, 2) if fnoise else 0.0) + spikes[k_row, i]
             if soffset and soffset_robot:  # the offset in the robot's frame, turning with the load
                 thf = sol.sol(tk)[2] + phi[i]
                 fl = fl + [np.cos(thf) * soffset[0] - np.sin(thf) * soffset[1],

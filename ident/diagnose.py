@@ -24,7 +24,7 @@ from ident.glitches import GLITCH_FLOORS, force_spikes, spike_response
 from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS
 from ident.offsets import drift_text, drifting_agent, offsets_drift, offsets_together, unname_drifting
 from ident.prepare import without_glitches
-from ident.recording import Recording, RecordingError
+from ident.recording import Recording, RecordingError, agent_period
 from ident.recording import read_recording as _read
 from ident.report import (
     Diagnosis,
@@ -286,7 +286,7 @@ def _check_window(rec: Recording, opt: DiagnoseOptions) -> float:
     """The frame checks' window (s): at most ``FRAME_WINDOW_S``, at most the fit's."""
     # windows of 1 s are the checks' units (their t-test has one degree of freedom per window less one): the
     # fit's 2.5 s windows leave a 10 s recording 3, where no t-test reaches the selection's level
-    return min(FRAME_WINDOW_S, opt.fit.window_stamps * float(np.median(np.diff(rec.t))))
+    return min(FRAME_WINDOW_S, opt.fit.window_stamps * agent_period(rec))
 
 
 def _robot_frames(rec: Recording, opt: DiagnoseOptions, progress, angle=None) -> tuple[Recording, dict | None]:

@@ -21,7 +21,7 @@ import numpy as np
 
 from ident import stats
 from ident.model import Layout, Windows, simulate
-from ident.recording import Recording
+from ident.recording import Recording, agent_period
 
 Z95 = 1.959963984540054
 
@@ -104,7 +104,7 @@ def make_problem(rec: Recording, sigma_v: float, sigma_p: float, opt: FitOptions
     """Cut ``rec`` into windows (and at its gaps); channel weights 1/sigma; rotation modelled when n >= 2."""
     t = rec.t
     dts = np.diff(t)
-    med = float(np.median(dts))
+    med = agent_period(rec)  # each robot's own period: interleaved stamps of robots on their own clocks are no gaps
     wlen = min(opt.window_s, opt.window_stamps * med)
     gapset = set((np.flatnonzero(dts > opt.gap_factor * med) + 1).tolist())
     cuts = [0]
@@ -570,7 +570,8 @@ def _moving_sum(t: np.ndarray, x: np.ndarray, width: float) -> tuple[np.ndarray,
     return c[hi] - c[lo], cn[hi] - cn[lo]
 
 
-def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 0.5, gap_factor: float = 5.0):
+def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 0.5, gap_factor: float = 5.0,
+                         period: float | None = None):
     """theta(t), omega(t) and the contact geometry about the centroid (body frame = world at t[0]) from the
     rank-1 structure of the relative contact velocities (or positions). Returns (theta, omega, z, good).
 
@@ -579,7 +580,8 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
     the sum of h^2 over a short window, halved (circular noise leaves that sum unbiased, and omega's sign
     drops out of h^2); the signed rate p = Re(h e^{-i psi}) = omega |C| follows, and psi - psi(t0) =
     P(t) / |C| with P the running integral of p: one linear least-squares fit gives the scale, hence
-    theta and omega, without differentiating anything.
+    theta and omega, without differentiating anything. A gap is an interval of the stamps over
+    ``gap_factor`` x ``period`` (the agents' own sample period, :func:`ident.recording.agent_period`).
     """
     t = rec.t
     T = t.size
@@ -614,7 +616,7 @@ def _rotation_kinematics(rec: Recording, min_snr: float = 4.0, width_s: float = 
         # a gap in the stamps (as the fit's windows see one) breaks the angle's unwrapping: each stretch
         # between gaps gets its own offset, and its own half turn (the sign of C) below
         dts = np.diff(t)
-        seg = np.concatenate(([0], np.cumsum(dts > gap_factor * float(np.median(dts)))))
+        seg = np.concatenate(([0], np.cumsum(dts > gap_factor * (period or agent_period(rec)))))
         psi = np.unwrap(np.angle(s2[idx])) / 2
         p = np.real(h * np.exp(-1j * np.interp(t, t[idx], psi)))
         # psi is known modulo a half turn and its unwrapping cannot cross a gap, so a stretch may continue
@@ -686,6 +688,34 @@ def _filled(rec: Recording, gap_factor: float) -> Recording:
     return replace(rec, vel=out[0], pos=out[1])
 
 
+def _lstsq_blocks(group: np.ndarray, local: np.ndarray, shared: np.ndarray, y: np.ndarray,
+                  G: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares min |local_r . x_(group_r) + shared_r . c - y_r| over the shared coefficients c (p,)
+    and each group's local ones x (G, l): row r has the local design ``local`` (R, l) in its group's
+    columns only. Each group's local columns are eliminated within the group (the rows' projection on
+    them removed), the shared ones fitted on what is left, and the local ones solved back per group:
+    memory and time linear in the rows, where the dense design (R, G l + p) grows as the rows times the
+    windows. A group without rank in its local columns takes its minimum-norm local coefficients."""
+    nl = local.shape[1]
+
+    def sums(v):  # (G, nl, k): each group's sum of local_r v_r^T
+        return np.stack([np.stack([np.bincount(group, local[:, a] * v[:, b], minlength=G) for b in range(v.shape[1])],
+                                  axis=-1) for a in range(nl)], axis=1)  # fmt: skip
+
+    ginv = np.linalg.pinv(sums(local), hermitian=True)
+
+    def project(v):  # the part of the columns of v (R, k) in each row's group's local span, and its coefficients
+        coef = ginv @ sums(v)
+        return np.einsum("rl,rlk->rk", local, coef[group]), coef
+
+    rhs = np.concatenate((shared, y[:, None]), axis=1)
+    fitted, _ = project(rhs)
+    rest = rhs - fitted
+    c = np.linalg.lstsq(rest[:, :-1], rest[:, -1], rcond=None)[0]
+    _, x = project((y - shared @ c)[:, None])
+    return c, x[:, :, 0]
+
+
 def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """(g0, x0, warnings) for the nominal layout ``pb.base`` with ``effects``: equation error, linear least
     squares on the measured kinematics. From velocities, viscous and Coulomb friction and a force bias
@@ -693,6 +723,7 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
     rotational damping the rate's (the integral of the rate); the other effects start at 0."""
     lay = pb.base.with_effects(effects)
     warns: list[str] = []
+    period = agent_period(rec)  # of the rows as logged: the filled recording has every agent at every stamp
     rec = _filled(rec, pb.gap_factor)
     t = rec.t
     T, n = t.size, rec.n
@@ -703,7 +734,7 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
     t0w = starts[wid]
     F = rec.wrench[:, :, :2].sum(axis=1)
     if lay.rotation:
-        theta, omega, z, good = _rotation_kinematics(rec, gap_factor=pb.gap_factor)
+        theta, omega, z, good = _rotation_kinematics(rec, gap_factor=pb.gap_factor, period=period)
         e = 1j * omega * np.exp(1j * theta)
     else:
         theta = omega = np.zeros(T)
@@ -731,7 +762,10 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
             cols_eff[name] = k_
             k_ += width
     ncol = k_ + (2 if lay.rotation else 0)
-    Ar = np.zeros((2 * T, ncol))
+    # the window columns (each window's v0 [and p0] per axis) are local to its rows: solved per window by
+    # _lstsq_blocks, the dense design would be 2 T x 2 S (quadratic in the length)
+    k0 = 2 * nloc * S
+    As = np.zeros((2 * T, ncol - k0))
     if cols_eff:
         ok_y = ~np.isnan(yb)
         yf = np.interp(t, t[ok_y], yb[ok_y].real) + 1j * np.interp(t, t[ok_y], yb[ok_y].imag)
@@ -740,27 +774,30 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
         Ic = _cumint_windows(t, wid, yc, "foh")
     for c in range(2):  # real part (x) rows 0..T-1, imaginary (y) rows T..2T-1
         rows = np.arange(T) + c * T
-        if use_vel:
-            Ar[rows, 2 * wid + c] = 1.0
-            Ar[rows, 2 * nloc * S] = Sint[:, c]
-        else:
-            Ar[rows, 4 * wid + c] = 1.0
-            Ar[rows, 4 * wid + 2 + c] = t - t0w
-            Ar[rows, 2 * nloc * S] = SSint[:, c]
+        As[rows, 0] = Sint[:, c] if use_vel else SSint[:, c]
         part = (lambda z: z.real) if c == 0 else (lambda z: z.imag)  # noqa: E731
         if "viscous_friction" in cols_eff:
-            Ar[rows, cols_eff["viscous_friction"]] = -part(Iv)
+            As[rows, cols_eff["viscous_friction"] - k0] = -part(Iv)
         if "coulomb_friction" in cols_eff:
-            Ar[rows, cols_eff["coulomb_friction"]] = -part(Ic)
+            As[rows, cols_eff["coulomb_friction"] - k0] = -part(Ic)
         if "force_bias" in cols_eff and axes[c]:
-            Ar[rows, cols_eff["force_bias"] + int(np.sum(axes[:c]))] = t - t0w
+            As[rows, cols_eff["force_bias"] - k0 + int(np.sum(axes[:c]))] = t - t0w
     if lay.rotation:
         rot = e if use_vel else np.exp(1j * theta)
-        Ar[:T, -2], Ar[T:, -2] = rot.real, rot.imag  # zc real part
-        Ar[:T, -1], Ar[T:, -1] = (1j * rot).real, (1j * rot).imag
+        As[:T, -2], As[T:, -2] = rot.real, rot.imag  # zc real part
+        As[:T, -1], As[T:, -1] = (1j * rot).real, (1j * rot).imag
+    # local columns: v0 (velocities), or p0 and v0 times the time since the window's start (positions)
+    local = np.ones((2 * T, 1)) if use_vel else np.stack((np.ones(2 * T), np.tile(t - t0w, 2)), axis=1)
+    group = np.concatenate((2 * wid, 2 * wid + 1))
     yr = np.concatenate((yb.real, yb.imag))
     rowok = np.concatenate((okb & axes[0], okb & axes[1]))
-    coef = np.linalg.lstsq(Ar[rowok], yr[rowok], rcond=None)[0]
+    cs, xl = _lstsq_blocks(group[rowok], local[rowok], As[rowok], yr[rowok], 2 * S)
+    coef = np.zeros(ncol)
+    coef[k0:] = cs
+    if use_vel:
+        coef[:k0] = xl[:, 0]  # column 2 s + c
+    else:
+        coef[:k0] = xl.reshape(S, 2, 2).transpose(0, 2, 1).ravel()  # columns 4 s + c (p0) and 4 s + 2 + c (v0)
     a = float(coef[2 * nloc * S])
     if not a > 0:
         warns.append("initial mass estimate non-positive (weak force excitation); starting from m = 1e3 kg")
@@ -797,14 +834,14 @@ def initial_guess(pb: Problem, rec: Recording, effects: tuple[str, ...] = ()) ->
         C = _cumint_windows(t, wid, Tq, rec.hold)
         damp = "rotational_damping" in lay.effects
         tbias = "torque_bias" in lay.effects
-        Ab = np.zeros((T, S + 1 + damp + tbias))
-        Ab[np.arange(T), wid] = 1.0
-        Ab[:, S] = C
+        Ab = np.zeros((T, 1 + damp + tbias))  # shared columns; each window's omega_0 is local (_lstsq_blocks)
+        Ab[:, 0] = C
         if damp:  # b c_r multiplies -int omega
-            Ab[:, S + 1] = -_cumint_windows(t, wid, omega, "foh")
+            Ab[:, 1] = -_cumint_windows(t, wid, omega, "foh")
         if tbias:  # b T_0 multiplies the time since the window's start
-            Ab[:, S + 1 + damp] = t - t0w
-        cb = np.linalg.lstsq(Ab[good], omega[good], rcond=None)[0]
+            Ab[:, 1 + damp] = t - t0w
+        cshared, w0 = _lstsq_blocks(wid[good], np.ones((int(good.sum()), 1)), Ab[good], omega[good], S)
+        cb = np.concatenate((w0[:, 0], cshared))
         b = float(cb[S])
         if not b > 0:
             warns.append("initial 1/J non-positive (weak torque excitation); starting from J = 100 kg m^2")

@@ -18,7 +18,7 @@ from scipy import stats as sst
 from scipy.optimize import minimize_scalar
 
 from ident.fit import FitError, _cumint_windows, _filled, _rotation_kinematics
-from ident.recording import Recording
+from ident.recording import Recording, agent_period
 
 
 @dataclass(frozen=True)
@@ -107,7 +107,7 @@ def frame_check(rec: Recording, window_s: float, gap_factor: float = 5.0,
         good = np.isfinite(theta)
     else:
         try:
-            theta, omega, _, good = _rotation_kinematics(filled, gap_factor=gap_factor)
+            theta, omega, _, good = _rotation_kinematics(filled, gap_factor=gap_factor, period=agent_period(rec))
         except FitError:
             return None
     t = rec.t

@@ -331,6 +331,22 @@ def read_recording(path: str | Path) -> Recording:
     return rec
 
 
+def agent_period(rec: Recording) -> float:
+    """The recording's sample period: the median interval between the stamps of one agent's own rows (a
+    measured velocity or position, or its own wrench), the median over the agents. Robots that log on their
+    own clocks interleave their stamps: the union's median interval is a fraction of any robot's period, and
+    one robot's jitter makes intervals of the union several times that median that are no gap in any
+    robot's stream. With one stamp per sample for all agents it is the union's median interval."""
+    own = np.zeros((rec.T, rec.n), bool)
+    for arr in (rec.vel, rec.pos):
+        if arr is not None:
+            own |= np.isfinite(arr).all(axis=2)
+    if rec.wrench_logged is not None:
+        own |= rec.wrench_logged
+    per_agent = [np.median(np.diff(rec.t[have])) for have in own.T if have.sum() > 1]
+    return float(np.median(per_agent)) if per_agent else float(np.median(np.diff(rec.t)))
+
+
 def _stream_periods(stamps: np.ndarray, streams: dict[str, np.ndarray | None]) -> dict[str, float]:
     """Each logged stream's sample period: the median interval of the stamps at which one agent logged it,
     the median over the agents. A logger writing velocities and forces in rows of their own (a 120 Hz

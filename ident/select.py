@@ -57,7 +57,7 @@ from ident.random_force import (
     walk_values,
     walk_warning,
 )
-from ident.recording import Recording
+from ident.recording import Recording, agent_period
 from ident.report import Diagnosis, ModelReport
 from ident.timing import FORCE_LAG, at_bound, force_lag_shape, lag_text
 
@@ -351,7 +351,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             warns.append(f"the agents' {key} noise differs ({own.min():.3g} to {own.max():.3g} {unit}): each agent's "
                          "samples are weighted by its own noise floor")  # fmt: skip
             sv_w, sp_w = (own, sp_w) if key == "velocity" else (sv_w, own)
-    dtm = float(np.median(np.diff(rec.t)))
+    dtm = agent_period(rec)  # as make_problem's windows
     fopt = opt.fit
     wlen = min(fopt.window_s, fopt.window_stamps * dtm)
     cs = fopt.coulomb_speed
