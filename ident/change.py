@@ -159,24 +159,30 @@ def mass_per_part(pb: Problem, fit: Fit, parts: int = 4) -> list[dict[str, float
     return out
 
 
-def _trend(parts: list[dict[str, float]], key: str) -> float | None:
-    """The relative change of ``key`` from the first run to the last where it moves one way over the runs and
-    its ends differ beyond their intervals; None otherwise."""
+def _ends(parts: list[dict[str, float]], key: str) -> float | None:
+    """The relative change of ``key`` from the first run to the last where the two differ beyond their
+    intervals; None otherwise (or where a run has no value)."""
     v = np.array([p.get(key, math.nan) for p in parts])
     ci = np.array([p.get(f"{key}_ci95", math.nan) for p in parts])
     if v.size < 3 or not np.all(np.isfinite(v)) or not np.all(np.isfinite(ci)):
         return None
-    d = np.diff(v)
-    if not (np.all(d > 0) or np.all(d < 0)) or abs(v[-1] - v[0]) <= ci[0] + ci[-1]:
-        return None
-    return float(v[-1] / v[0] - 1)
+    return float(v[-1] / v[0] - 1) if abs(v[-1] - v[0]) > ci[0] + ci[-1] else None
+
+
+def _one_way(parts: list[dict[str, float]], key: str) -> bool:
+    d = np.diff([p[key] for p in parts])
+    return bool(np.all(d > 0) or np.all(d < 0))
 
 
 def drift_hint(parts: list[dict[str, float]]) -> str | None:
     """A warning when m or J per run of windows moves one way and its ends differ beyond their intervals: a
-    mass that changes gradually moves both alike, a payload sliding across the load (its mass distribution)
-    moves J far more than m."""
-    dm, dj = _trend(parts, "m"), _trend(parts, "J")
+    mass that changes moves both alike, a payload sliding across the load (its mass distribution) moves J far
+    more than m, and not always one way (its arm about the moving centre of mass first grows). J's ends count
+    beside an m that drifts even where J does not move one way."""
+    dm, dj = _ends(parts, "m"), _ends(parts, "J")
+    dm = dm if dm is not None and _one_way(parts, "m") else None
+    if dj is not None and dm is None and not _one_way(parts, "J"):
+        dj = None
     if dm is None and dj is None:
         return None
     said = [q for q, d in (("m", dm), ("J", dj)) if d is not None]
@@ -187,5 +193,5 @@ def drift_hint(parts: list[dict[str, float]]) -> str | None:
                "shifting across it) fits that better than a mass that changes")
     else:
         why = "a load whose mass (and inertia) changes gradually fits that"
-    return (f"{' and '.join(said)} drift{'s' if len(said) == 1 else ''}: fitted on its own to each quarter of the "
-            f"recording it reads {runs}; a change at one time leaves each side structured here, {why}")
+    return (f"{' and '.join(said)} {'drifts' if len(said) == 1 else 'change'}: fitted on its own to each quarter of "
+            f"the recording it reads {runs}; a change at one time leaves each side structured here, {why}")

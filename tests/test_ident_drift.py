@@ -25,5 +25,5 @@ def test_a_mass_that_drifts_is_not_read_as_a_step_and_the_drift_is_named(tmp_pat
         mean = m0 * (1 - 0.2 * (p["from_s"] + p["to_s"]) / 2 / dur)
         assert abs(p["m"] / mean - 1) < 0.02, (p, mean)
     # m and J scale alike here: a mass that changes, not a payload that slides (J would move more than m)
-    assert any(w.startswith(("m drifts: ", "m and J drift: ")) and "mass (and inertia) changes gradually" in w
+    assert any(w.startswith(("m drifts: ", "m and J change: ")) and "mass (and inertia) changes gradually" in w
                for w in d.warnings), d.warnings
