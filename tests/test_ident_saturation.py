@@ -4,7 +4,6 @@ flagged; a held or smooth wrench is not. Recordings from bench/foreign_recording
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from ident.diagnose import diagnose_dir, read_recording
 from ident.recording import recording_from_arrays
@@ -42,7 +41,6 @@ def test_a_switching_force_of_two_levels_is_not_a_limit():
     assert saturated(rec) == []
 
 
-@pytest.mark.long
 def test_one_clipped_sensor_s_stamps_are_left_out_of_the_fit(tmp_path):
     """Agent 0's force sensor clipped at +-10 N (the plant gets the true force; 38 % of the stamps), viscous 8:
     those stamps are left out as a missing wrench's are, and the fit names the viscous friction within its
