@@ -87,7 +87,8 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
            vscale: tuple[int, float] | None = None, soffsets: float | None = None,
            vfilter: tuple[str, float] | None = None,
            sdrift: tuple[int, float, float, float] | None = None,
-           own_clock: tuple[float, float] | None = None) -> dict:  # fmt: skip
+           own_clock: tuple[float, float] | None = None,
+           fclip_agents: tuple[int, ...] | None = None) -> dict:  # fmt: skip
     """Write one recording to ``out``; return the truth. ``wrench_hz``: the wrench in rows of its own at
     that rate (a topic per row), ``dropout`` (agent, from, to): that agent's logger writes nothing then;
     ``change`` (t, factor): m and J are multiplied by factor from t on (a payload on the load's CoM);
@@ -102,7 +103,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
     the plant gets the true force); ``drift``: m and J change linearly from their values at t = 0 to ``drift``
     times them at the recording's end; ``vel_robot``: each robot logs its velocity in its own frame (as
     ``robot_frame`` the force: wheel odometry); ``fclip``: the logged force saturates at
-    +-fclip per axis (the plant gets the true force); ``vcolor``: the velocity noise is a first-order low-pass
+    +-fclip per axis (the plant gets the true force), every agent's or ``fclip_agents``' only; ``vcolor``: the velocity noise is a first-order low-pass
     of white noise with this correlation time (s; a filtered velocity estimate), of standard deviation
     ``sigma``; ``aniso`` (b_x, b_y): viscous friction b_x along the load's own x axis and b_y along its y axis
     (a cart on wheels; the axes as at the integration's start); ``fs``: static friction (Stribeck: the Coulomb
@@ -258,7 +259,7 @@ def record(out: Path, *, n: int = 4, rate: float = 100.0, dur: float = 20.0, sig
             fl = fl + own[i]
             if sdrift and i == sdrift[0]:
                 fl = fl + np.asarray(sdrift[1:3]) * (1.0 - np.exp(-tk / sdrift[3]))
-            if fclip:
+            if fclip and (fclip_agents is None or i in fclip_agents):
                 fl = np.clip(fl, -fclip, fclip)
             w = ",," if wrench_hz else f"{fl[0]:.9g},{fl[1]:.9g},0"
             rows.append((tk, i, f"{tk:.6f},{i},{y[0]:.9g},{y[1]:.9g},{w}"))

@@ -22,7 +22,14 @@ from ident.fit import states_of, window_valid
 from ident.frames import frame_check, to_world, velocities_to_world, velocity_frame_check
 from ident.glitches import GLITCH_FLOORS, force_spikes, spike_response
 from ident.model import EFFECTS, PER_AGENT, PLANAR, VECTOR_EFFECTS
-from ident.offsets import drift_text, drifting_agent, offsets_drift, offsets_together, unname_drifting
+from ident.offsets import (
+    drift_text,
+    drifting_agent,
+    offset_as_external_force,
+    offsets_drift,
+    offsets_together,
+    unname_drifting,
+)
 from ident.prepare import without_glitches
 from ident.recording import Recording, RecordingError, agent_period
 from ident.recording import read_recording as _read
@@ -34,7 +41,7 @@ from ident.report import (
     plot_diagnosis,
     residual_panels,
 )
-from ident.saturation import saturated, saturation_warning
+from ident.saturation import at_limit, saturated, saturation_warning, without_limits
 from ident.select import DiagnoseError, DiagnoseOptions, diagnose, predict
 from ident.stats import Z95, autocorrelation, block_average, ljung_box
 from ident.vscale import agents_off, rescaled, scale_check
@@ -79,6 +86,9 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         w = rec.wrench.copy()
         w[..., :2] -= dep  # each spike replaced by the line through its neighbours
         rec = raw = replace(rec, wrench=w)
+    found = saturated(rec)
+    hit_share = float(at_limit(rec, found).mean())
+    rec, left_out = without_limits(rec, found)
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)
@@ -123,9 +133,9 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
                                        "run.toml if the wrench is smooth and the delay is real")
                 result = alt
     result.model["hold_source"] = rec.hold_source
-    result.saturation = saturated(raw)
-    if result.saturation:
-        result.warnings.insert(0, saturation_warning(result.saturation))
+    result.saturation = found
+    if found:
+        result.warnings.insert(0, saturation_warning(found, left_out, hit_share))
     if vframes is not None:
         result.velocity_frames = vframes
         if vframes["robot_frame"]:
@@ -158,6 +168,7 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
             result.warnings.append(drift_text(who))
     else:
         offsets_together(result)
+        offset_as_external_force(result)
     if vscale is not None and vscale["scaled"]:
         off = vscale["agents"]
         result.effects.insert(0, {"name": "velocity_scale", "value": vscale["scales"], "unit": "-",

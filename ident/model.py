@@ -47,7 +47,7 @@ EFFECTS: dict[str, tuple[str, str]] = {
     "sensor_offset_body": ("N, N, N m", "the same offset on every agent's logged force in its own frame, the robot "
                            "fixed to the load: the team's offset as a force fixed in the load's frame and a torque"),
     "force_sensor_offset": ("N", "the same offset on every agent's logged force (world frame): a force at the "
-                            "contacts' centroid"),
+                            "contacts' centroid (or an external force there: the same model)"),
     "agent_actuator_gain": ("-", "one agent's force scaled (its share of the acceleration)"),
     "agent_clock_offset": ("s", "one agent's rows shifted in time (its force and its velocity)"),
 }

@@ -257,3 +257,25 @@ def offsets_together(result: Diagnosis) -> None:
                            "plus a force_bias; a force on the load that does not turn, a slope or a tether, reads "
                            "as part of the sum)" + (" (with friction in the model a velocity offset times it also "
                            "reads as part of it: force_bias and velocity_bias are not told apart)" if amb else ""))
+
+
+def offset_as_external_force(result: Diagnosis) -> None:
+    """force_sensor_offset named without force_bias: the same offset o on every robot's logged force is, in the
+    equations, an external force -n o at the contacts' centroid (wind on a symmetric load, a hose, a cable):
+    one model, two readings the data cannot tell apart. The equivalent force, with its 95 % half-widths, is
+    added to the entry and both readings are said; no number changes."""
+    fit = result.fits.get("augmented")
+    e = next((e for e in result.effects if e["name"] == "force_sensor_offset"), None)
+    if e is None or fit is None or "force_bias" in fit.lay.effects:
+        return
+    n = fit.lay.n
+    e["external_force_at_centroid"] = [None if v is None else -n * v for v in e["value"]]
+    e["external_force_at_centroid_ci95"] = [None if h is None else n * h for h in e["ci95"]]
+    off = ", ".join(f"{v:.4g}" for v in e["value"] if v is not None)
+    ext = ", ".join(f"{v:.4g}" for v in e["external_force_at_centroid"] if v is not None)
+    half = ", ".join(f"{h:.2g}" for h in e["external_force_at_centroid_ci95"] if h is not None)
+    result.warnings.append(f"force_sensor_offset: every robot's force sensor reads ({off}) N too high (world "
+                           f"frame), or, the same model, an external force of ({ext}) +- ({half}) N acts at the "
+                           f"contacts' centroid (n x -offset, n = {n}: wind on a load symmetric about that point, "
+                           "a hose or a cable pulling there). The data do not tell the two apart; a sensor check "
+                           "(each robot's reading with no load) does")

@@ -11,6 +11,8 @@ recur in more runs than any value between. A force of exactly 0 is an idle actua
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ident.recording import Recording
@@ -54,8 +56,37 @@ def saturated(rec: Recording) -> list[dict]:
     return sorted(out, key=lambda d: -d["share"])
 
 
-def saturation_warning(found: list[dict]) -> str:
-    """One warning naming each saturated agent and axis with its value and share of rows."""
+def at_limit(rec: Recording, found: list[dict]) -> np.ndarray:
+    """(T,) True at each stamp where some agent's logged force sits at one of its found limits."""
+    hit = np.zeros(rec.T, bool)
+    for d in found:
+        hit |= rec.wrench[:, d["agent"], AXES.index(d["axis"])] == d["value"]
+    return hit
+
+
+# the share of stamps a cut must leave: a limit hit by most stamps leaves fragments of a few samples between
+# its hits, each a window of its own whose free start takes what little motion it holds (the bench's
+# clipped_forces, every agent clipped: 89 % of the stamps hit, fragments of 6 stamps; cut, J read -39 %)
+MIN_KEPT_SHARE = 0.5
+
+
+def without_limits(rec: Recording, found: list[dict]) -> tuple[Recording, int]:
+    """``rec`` without the stamps where a found limit is hit, and how many were left out. A sensor at its
+    limit logs less than the load felt: the team's force is unknown there, as where an agent's wrench is
+    missing (ident/recording.py leaves those stamps out too). Left as it is when less than
+    ``MIN_KEPT_SHARE`` of the stamps would remain."""
+    hit = at_limit(rec, found)
+    if not hit.any() or (~hit).mean() < MIN_KEPT_SHARE:
+        return rec, 0
+    keep = ~hit
+    cut = {k: getattr(rec, k)[keep] for k in ("t", "wrench", "vel", "pos", "wrench_logged")
+           if getattr(rec, k) is not None}
+    return replace(rec, **cut), int(hit.sum())
+
+
+def saturation_warning(found: list[dict], left_out: int = 0, hit_share: float = 0.0) -> str:
+    """One warning naming each saturated agent and axis with its value and share of rows, and how many stamps
+    the fit leaves out for it (``left_out``) or, with none left out, the share of stamps that hit a limit."""
     by: dict[tuple[int, str], list[dict]] = {}
     for d in found:
         by.setdefault((d["agent"], d["axis"]), []).append(d)
@@ -64,8 +95,12 @@ def saturation_warning(found: list[dict]) -> str:
     return (f"saturated forces: {each}. A logged force that recurs at one extreme value is at a limit: a force "
             "sensor's range (the applied force went beyond it: the log is wrong there) or an actuator's (the log "
             "is what was applied where it records the limited force, or wrong where it records the command). "
-            "The fit takes the log as the applied force (the rows are kept: the force beyond a sensor's limit is in no "
-            "row); m, J and the effects hold only as far as it is")
+            + (f"Read as a sensor's limit: the team's force is unknown at a stamp where one is hit, and the fit "
+               f"leaves those {left_out} stamps out (as for a missing wrench; were it an actuator's limit logged "
+               "as applied, this costs only their information)" if left_out else
+               f"The fit takes the log as the applied force (the rows are kept: a limit is hit at "
+               f"{100 * hit_share:.0f} % of the stamps, and the fragments between would be too short to fit); m, "
+               "J and the effects hold only as far as it is"))
 
 
-__all__ = ["saturated", "saturation_warning"]
+__all__ = ["at_limit", "saturated", "saturation_warning", "without_limits"]

@@ -607,6 +607,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                          "that turns with it: four parameters, which the selection, adding one effect at a time, "
                          "took in other forms)")
     ambiguous_names = {c for pair in ambiguous for c in pair}
+    shape = None  # a named friction whose leftover depends on the speed
     walk = None if white > opt.alpha_white or pb.win.vel is None else significant_walk(
         pb, current, st1, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
     walk_white = walk is not None and walk.p_white > opt.alpha_white and walk.p_motion > opt.alpha_white
@@ -626,6 +627,17 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                        "vocabulary)")
             warns.append(f"the residual with {', '.join(accepted)} is not white (Ljung-Box p {white:.2g}, "
                          f"{math.sqrt(current.sigma2):.3g} x the noise floor), but the effects remove {removed}")
+            friction = [c for c in accepted if c in FRICTIONS]
+            if friction and walk is not None and walk.p_motion <= opt.alpha_white:
+                # the leftover force follows the speed: the friction named has the wrong shape, which the other
+                # parameters absorb (a Stribeck friction read as Coulomb pulls m off by several of its
+                # intervals); the values are that model's, as a rejected model's are
+                shape = {"p": walk.p_motion, "friction": friction}
+                warns.append(f"{', '.join(friction)}: the friction's shape is outside the vocabulary: what the "
+                             f"model leaves depends on the speed (p {walk.p_motion:.2g}; a friction stronger at "
+                             "low speed, Stribeck or static friction, leaves this). m, J, the friction and their "
+                             "95 % intervals are this model's, which the data reject: they hold only as far as "
+                             "it does")
     elif not accepted and (white > opt.alpha_white or walk_white):
         unexplained, named, final = False, [], nominal
     else:
@@ -728,7 +740,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp, **floors},
         identifiable={"m": resolved["m"], "J": resolved["J"], "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
-               "max_step": pb.max_step},  # fmt: skip
+               "max_step": pb.max_step, **({"friction_shape_outside": shape} if shape else {})},  # fmt: skip
         # the effects kept but not named on a structured residual: the offsets' drift check reads them
         fits={"nominal": nominal, "augmented": final} | ({"rejected": current} if unexplained and accepted else {}),
         problem=pb,
@@ -737,6 +749,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
 
 
 SAME_FORCE = ("force_bias", "force_sensor_offset")
+FRICTIONS = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "rotational_damping")
 TRANSLATION = ("viscous_friction", "anisotropic_friction", "coulomb_friction", "force_bias", "force_sensor_offset",
                "sensor_offset_body")
 ROTATION = ("rotational_damping", "torque_bias")

@@ -78,3 +78,7 @@ def test_a_common_sensor_offset_is_named_and_j_stays_right(tmp_path, robot):
         assert list(named) == ["force_sensor_offset"]
         e = named["force_sensor_offset"]
         assert np.all(np.abs(np.array(e["value"]) - B) < 2 * np.array(e["ci95"]))
+        # the same model read as an external force at the contacts' centroid (the seventh probe's wind_centroid)
+        assert np.allclose(e["external_force_at_centroid"], -4 * np.array(e["value"]))
+        assert any(w.startswith("force_sensor_offset: every robot's force sensor reads") and "external force" in w
+                   for w in d.warnings)
