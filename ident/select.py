@@ -474,14 +474,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
             f = lm_fit(pb, lay, g, current.x)
             if f.sigma2 > opt.restart_misfit**2 or not screened or c in blind:
                 # the model without the candidate may have moved far to make up for it (a large J for a
-                # strong damping), and a fit from there can stop halfway: start again from the
-                # kinematics' equation error with the candidate, and keep the better
-                try:
-                    g1, x1, _ = initial_guess(pb, rec, effects=lay.effects)
-                    f1 = lm_fit(pb, lay, g1, x1)
-                    f = f1 if f1.lin.cost < f.lin.cost else f
-                except FitError:
-                    pass
+                # strong damping), and a fit from there can stop halfway
+                f = _or_restarted(pb, rec, f)
             F, pF = stats.nested_f(current.rss, f.rss, lay.G - current.lay.G, f.N, f.P)
             st = states_of(pb, f)
             wp = whiteness(pb, f, opt, theta=st[..., 3])
@@ -759,6 +753,17 @@ OFFSET_FORMS = ("force_bias", "force_sensor_offset", "sensor_offset_body", "torq
 ROBOT_OFFSETS = SAME_FORCE  # the pair that spans per-robot offsets in the world frame
 
 
+def _or_restarted(pb: Problem, rec: Recording, f: Fit) -> Fit:
+    """``f``, or the same model fitted again from the kinematics' equation error (:func:`initial_guess`), whichever
+    costs less: a fit started from another model's optimum can stop halfway."""
+    try:
+        g1, x1, _ = initial_guess(pb, rec, effects=f.lay.effects)
+        f1 = lm_fit(pb, f.lay, g1, x1)
+    except FitError:
+        return f
+    return f1 if f1.lin.cost < f.lin.cost else f
+
+
 def _robot_offsets(pb: Problem, rec: Recording, nominal: Fit, fit: Fit, accepted: list[str], cands: list[str],
                    opt: DiagnoseOptions, say: Callable[[str], None]) -> tuple[Fit, list[str]] | None:
     """Per-robot force offsets in the world frame give the load their sum and a moment that turns with it:
@@ -776,13 +781,7 @@ def _robot_offsets(pb: Problem, rec: Recording, nominal: Fit, fit: Fit, accepted
     effs = rest + list(ROBOT_OFFSETS)
     lay = fit.lay.with_effects(tuple(effs))
     say(f"{', '.join(offs)}: refitted as per-robot force offsets (force_bias and force_sensor_offset)")
-    alt = lm_fit(pb, lay, expand(lay, fit.g, fit.lay), fit.x)
-    try:
-        g1, x1, _ = initial_guess(pb, rec, effects=lay.effects)
-        f1 = lm_fit(pb, lay, g1, x1)
-        alt = f1 if f1.lin.cost < alt.lin.cost else alt
-    except FitError:
-        pass
+    alt = _or_restarted(pb, rec, lm_fit(pb, lay, expand(lay, fit.g, fit.lay), fit.x))
     for c in rest:  # an effect that stood in for the offsets' moment (a rotational damping) adds nothing now
         without, p = _without(pb, alt, c)
         if p >= opt.alpha:

@@ -21,6 +21,7 @@ from __future__ import annotations
 import subprocess
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import msgpack
@@ -98,6 +99,18 @@ def _team(tmp_path: Path, *sets: str):
     return procs, endpoint, run, agent
 
 
+@contextmanager
+def _foreign_sim(endpoint: str, run: str, *, token: bool):
+    """A plain zenoh session playing the simulator (with its liveliness token or without), once agent 0 is up."""
+    with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
+        plant = Plant(session, run)
+        alive = session.liveliness().declare_token(f"coload/{run}/alive/sim/0") if token else None
+        plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+        yield session, plant
+        if alive is not None:
+            alive.undeclare()
+
+
 def test_a_foreign_plant_runs_a_secure_team_and_its_load_is_learnt(tmp_path):
     endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
     run, team, n = "foreign-plant", tmp_path / "team", 5
@@ -130,10 +143,7 @@ def test_malformed_input_from_a_foreign_simulator_is_said_once_and_counted(tmp_p
     procs, endpoint, run, agent = _team(tmp_path)
     log = tmp_path / "agent0.log"
     try:
-        with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
-            plant = Plant(session, run)
-            token = session.liveliness().declare_token(f"coload/{run}/alive/sim/0")
-            plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+        with _foreign_sim(endpoint, run, token=True) as (session, plant):
             meas = f"coload/{run}/agent/0/meas"
             ctl = f"coload/{run}/sim/control"
             for k in range(3):  # three of each: said once, counted three times
@@ -153,7 +163,6 @@ def test_malformed_input_from_a_foreign_simulator_is_said_once_and_counted(tmp_p
             assert plant.report["drops"] == {"bad_schema": 6, "bad_control": 3}
             assert plant.wrench_ticks == []  # it never stepped: nothing it got was a measurement
             assert agent.wait(30) == 0
-            del token
     finally:
         procs.kill_all()
 
@@ -162,9 +171,7 @@ def test_an_agent_whose_tokenless_simulator_stops_without_done_gives_up(tmp_path
     procs, endpoint, run, agent = _team(tmp_path, "timing.sim_lost_timeout_s=3.0")
     log = tmp_path / "agent0.log"
     try:
-        with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
-            plant = Plant(session, run)  # no liveliness token, on purpose
-            plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+        with _foreign_sim(endpoint, run, token=False) as (session, plant):  # no liveliness token, on purpose
             _put(session, f"coload/{run}/sim/control", "control", {"kind": "start", "tick": 0, "ticks": TICKS})
             for k in range(20):
                 _put(session, f"coload/{run}/agent/0/meas", "meas", {"tick": k, "agent": 0, "vx": 0.0, "vy": 0.0})
@@ -186,10 +193,7 @@ def test_a_simulator_that_numbers_its_ticks_from_1_is_joined_and_nothing_is_coun
     counted as `future` and taken back: the report does not list it (before: `"future": 0`)."""
     procs, endpoint, run, agent = _team(tmp_path)
     try:
-        with zenoh.open(zenoh_config(mode="client", connect=[endpoint])) as session:
-            plant = Plant(session, run)
-            token = session.liveliness().declare_token(f"coload/{run}/alive/sim/0")
-            plant.wait(lambda: plant.agent_up, 60, "agent 0's token")
+        with _foreign_sim(endpoint, run, token=True) as (session, plant):
             ctl = f"coload/{run}/sim/control"
             _put(session, ctl, "control", {"kind": "start", "tick": 0, "ticks": TICKS})
             # the start notice is handled before the first measurement (not a late joiner's start): a notice
@@ -205,7 +209,6 @@ def test_a_simulator_that_numbers_its_ticks_from_1_is_joined_and_nothing_is_coun
             assert plant.report["drops"] == {"bad_control": 1}
             assert plant.report["ticks"] == 5
             assert agent.wait(30) == 0
-            del token
     finally:
         procs.kill_all()
     assert "measurements 0..0 never came; rejoining at tick 1" in (tmp_path / "agent0.log").read_text()
