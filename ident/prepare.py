@@ -80,13 +80,13 @@ NOISE_ORDER = 30  # the longest autoregression of the noise (a digital Butterwor
 REGULAR = 0.1  # intervals within this share of the median are one sample period (a logger rounding its stamps)
 
 
-def remainder_whiteness(rec: Recording, noise: NoiseAR, block_s: float, lags: int) -> float:
-    """Ljung-Box p of the rigid-body kinematics' remainder whitened for ``noise`` (the fit's whitening,
-    :func:`ident.fit.whiten_ar`), on its 2(n - 2) independent components, ``block_s`` block means and
-    ``lags`` lags as the fit's whiteness test: whether the noise model leaves the sensors' noise white."""
-    r, idx = stats.kinematic_columns(rec.vel)
-    x = whiten_ar(r[None, :, :, None], rec.t[idx][None], np.ones((1,) + r.shape), noise)[0, :, :, 0]
-    dims = 2 * (rec.n - 2)
+def remainder_whiteness(r: np.ndarray, t: np.ndarray, noise: NoiseAR, block_s: float, lags: int) -> float:
+    """Ljung-Box p of the rigid-body kinematics' remainder (:func:`ident.stats.kinematic_columns`' ``r`` at the
+    stamps ``t``) whitened for ``noise`` (the fit's whitening, :func:`ident.fit.whiten_ar`), on its 2(n - 2)
+    independent components, ``block_s`` block means and ``lags`` lags as the fit's whiteness test: whether
+    the noise model leaves the sensors' noise white."""
+    x = whiten_ar(r[None, :, :, None], t[None], np.ones((1,) + r.shape), noise)[0, :, :, 0]
+    dims = r.shape[1] - 4  # 2(n - 2): r holds each agent's x and y
     x = x @ np.linalg.svd(x, full_matrices=False)[2][:dims].T  # the remainder's own subspace
     block = max(1, round(block_s / noise.dt))
     return stats.ljung_box(stats.block_average(x, block), lags)[2]
@@ -115,9 +115,11 @@ def correlated_velocities(rec: Recording, warns: list[str], block_s: float, lags
     The model must leave the remainder white (:func:`remainder_whiteness` at the same level, ``block_s``
     and ``lags`` the fit's whiteness test's): a moving average (a boxcar) has zeros in its spectrum that no
     finite autoregression inverts, and is then treated as white, with a warning."""
-    if rec.vel is None or rec.n < 3:
+    got = None if rec.vel is None else stats.kinematic_columns(rec.vel)
+    if got is None:
         return None
-    acf, pairs = stats.kinematic_acf(rec.vel, CORRELATED_LAGS)
+    r, idx = got  # the remainder once: its correlation, its autoregression and the whitened check read it
+    acf, pairs = stats.kinematic_acf(r, idx, CORRELATED_LAGS)
     if not np.isfinite(acf[0]) or pairs[0] < 50:
         return None
     dims = 2 * (rec.n - 2)  # the remainder's independent real components per stamp
@@ -131,18 +133,18 @@ def correlated_velocities(rec: Recording, warns: list[str], block_s: float, lags
            "coefficients": [], "tau_s": 0.0, "ar1": False, "partial2_z": math.nan, "whitened_p": math.nan}  # fmt: skip
     if not (p < CORRELATED_LEVEL and CORRELATED_MIN <= phi < 1.0):
         return out
-    kappa = stats.burg(stats.kinematic_segments(rec.vel), NOISE_ORDER if regular else 2)
+    kappa = stats.burg(stats.kinematic_segments(r, idx), NOISE_ORDER if regular else 2)
     z2 = float(kappa[1] * math.sqrt(N))  # kappa_2's standard error is 1/sqrt(N) for an AR(1)
     out["partial2_z"] = z2
     if z2 > NormalDist().inv_cdf(1.0 - CORRELATED_LEVEL):
         return out
-    v = np.cumprod(1.0 - kappa * kappa)
-    order = int(np.argmin(N * np.log(v) + np.arange(1, kappa.size + 1) * math.log(N))) + 1 if regular else 1
-    A, var = stats.ar_table(kappa[:order])
+    A, var = stats.ar_table(kappa)  # every order's predictors and innovation variance: the BIC picks one
+    order = int(np.argmin(N * np.log(var[1:]) + np.arange(1, kappa.size + 1) * math.log(N))) + 1 if regular else 1
+    A = A[: order + 1, :order]
     factor = float(var[order] / (1.0 - A[order].sum()) ** 2)  # slow signals: this many samples per independent one
     tau = -dtm / math.log(kappa[0]) if order == 1 else 0.5 * dtm * factor
-    p_white = remainder_whiteness(rec, NoiseAR(tuple(kappa[:order].tolist()), dtm, tau if order == 1 else 0.0),
-                                  block_s, lags)  # fmt: skip
+    noise = NoiseAR(tuple(kappa[:order].tolist()), dtm, tau if order == 1 else 0.0)
+    p_white = remainder_whiteness(r, rec.t[idx], noise, block_s, lags)
     out["whitened_p"] = p_white
     if p_white < CORRELATED_LEVEL:
         warns.append(f"the velocities' noise is correlated in time (lag-1 correlation {phi:.3g}, measured on the "

@@ -90,18 +90,14 @@ def kinematic_noise(vel: np.ndarray) -> float:
                      * n / max(n - 2, 1))
 
 
-def kinematic_acf(vel: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
-    """Autocorrelation r_1..r_lags along time of the rigid-body kinematics' remainder (:func:`kinematic_noise`),
-    over pairs of stamps ``lag`` apart where every agent measured, and the number of such pairs per lag. The
+def kinematic_acf(r: np.ndarray, idx: np.ndarray, lags: int) -> tuple[np.ndarray, np.ndarray]:
+    """Autocorrelation r_1..r_lags along time of the rigid-body kinematics' remainder (:func:`kinematic_columns`:
+    its columns ``r`` at the stamps ``idx``), over pairs of stamps ``lag`` apart where every agent measured, and
+    the number of such pairs per lag. The
     remainder is the noise through one projection per stamp across the agents, the same at every stamp, so
     it keeps the noise's correlation in time: ~0 for white sensor noise, -1/2 at lag 1 for velocities that
     are differences of noisy positions, phi^k for noise that is an AR(1) of per-sample correlation phi (a
-    low-passed velocity). NaN (and no pairs) for n < 3 or too little data."""
-    got = _kinematic_remainder(vel, 50)
-    if got is None:
-        return np.full(lags, math.nan), np.zeros(lags, int)
-    resid, idx = got
-    r = np.concatenate((resid.real, resid.imag), axis=1)
+    low-passed velocity)."""
     den = float((r * r).sum()) / r.shape[0]
     acf, pairs = np.full(lags, math.nan), np.zeros(lags, int)
     for k in range(1, lags + 1):
@@ -123,12 +119,8 @@ def kinematic_columns(vel: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return np.concatenate((resid.real, resid.imag), axis=1), idx
 
 
-def kinematic_segments(vel: np.ndarray) -> list[np.ndarray]:
-    """:func:`kinematic_columns` cut into runs of consecutive stamps; empty for n < 3 or too little data."""
-    got = kinematic_columns(vel)
-    if got is None:
-        return []
-    r, idx = got
+def kinematic_segments(r: np.ndarray, idx: np.ndarray) -> list[np.ndarray]:
+    """:func:`kinematic_columns`' ``r`` at the stamps ``idx`` cut into runs of consecutive stamps."""
     return [s for s in np.split(r, np.flatnonzero(np.diff(idx) != 1) + 1) if s.shape[0] > 1]
 
 
@@ -138,8 +130,7 @@ def burg(segments: list[np.ndarray], order: int) -> np.ndarray:
     forward and backward prediction errors' power summed over them. |kappa| < 1 always, so the filter is
     stable; Yule-Walker's equations on a sample autocorrelation are not, where the spectrum is steep (a
     second-order low-pass's lag-1 correlation 0.996 gave a negative innovation variance)."""
-    f = [s - 0.0 for s in segments]
-    b = [s - 0.0 for s in segments]
+    f = b = segments  # the forward and backward prediction errors of order 0 (rebound, never written to)
     kappa = np.zeros(order)
     for k in range(order):
         num = sum(float((fi[1:] * bi[:-1]).sum()) for fi, bi in zip(f, b))
@@ -168,8 +159,10 @@ def ar_table(kappa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def kinematic_lag1(vel: np.ndarray) -> float:
-    """Lag-1 autocorrelation of the rigid-body kinematics' remainder (:func:`kinematic_acf`)."""
-    return float(kinematic_acf(vel, 1)[0][0])
+    """Lag-1 autocorrelation of the rigid-body kinematics' remainder (:func:`kinematic_acf`); NaN for n < 3 or
+    too little data."""
+    got = kinematic_columns(vel)
+    return math.nan if got is None else float(kinematic_acf(*got, 1)[0][0])
 
 
 def block_average(x: np.ndarray, block: int) -> np.ndarray:
