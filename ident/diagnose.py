@@ -87,8 +87,9 @@ def diagnose_dir(path: str | Path, *, options: DiagnoseOptions | None = None,
         w[..., :2] -= dep  # each spike replaced by the line through its neighbours
         rec = raw = replace(rec, wrench=w)
     found = saturated(rec)
-    hit_share = float(at_limit(rec, found).mean())
-    rec, left_out = without_limits(rec, found)
+    hit = at_limit(rec, found)
+    hit_share = float(hit.mean())
+    rec, left_out = without_limits(rec, hit)
     with warnings.catch_warnings():
         # a stamp where no agent has a value is NaN by design; numpy's warning about it says nothing to a user
         warnings.filterwarnings("ignore", "Mean of empty slice", RuntimeWarning)

@@ -70,12 +70,11 @@ def at_limit(rec: Recording, found: list[dict]) -> np.ndarray:
 MIN_KEPT_SHARE = 0.5
 
 
-def without_limits(rec: Recording, found: list[dict]) -> tuple[Recording, int]:
-    """``rec`` without the stamps where a found limit is hit, and how many were left out. A sensor at its
-    limit logs less than the load felt: the team's force is unknown there, as where an agent's wrench is
-    missing (ident/recording.py leaves those stamps out too). Left as it is when less than
+def without_limits(rec: Recording, hit: np.ndarray) -> tuple[Recording, int]:
+    """``rec`` without the stamps ``hit`` where a found limit is hit (:func:`at_limit`), and how many were left
+    out. A sensor at its limit logs less than the load felt: the team's force is unknown there, as where an
+    agent's wrench is missing (ident/recording.py leaves those stamps out too). Left as it is when less than
     ``MIN_KEPT_SHARE`` of the stamps would remain."""
-    hit = at_limit(rec, found)
     if not hit.any() or (~hit).mean() < MIN_KEPT_SHARE:
         return rec, 0
     keep = ~hit
