@@ -343,22 +343,23 @@ def agent_period(rec: Recording) -> float:
             own |= np.isfinite(arr).all(axis=2)
     if rec.wrench_logged is not None:
         own |= rec.wrench_logged
-    per_agent = [np.median(np.diff(rec.t[have])) for have in own.T if have.sum() > 1]
-    return float(np.median(per_agent)) if per_agent else float(np.median(np.diff(rec.t)))
+    period = _own_period(rec.t, own)
+    return float(np.median(np.diff(rec.t))) if period is None else period
+
+
+def _own_period(stamps: np.ndarray, have: np.ndarray) -> float | None:
+    """The median over the agents of the median interval between the stamps at which each agent has a value
+    (``have`` (T, n)); None where no agent has two."""
+    per_agent = [np.median(np.diff(stamps[h])) for h in have.T if h.sum() > 1]
+    return float(np.median(per_agent)) if per_agent else None
 
 
 def _stream_periods(stamps: np.ndarray, streams: dict[str, np.ndarray | None]) -> dict[str, float]:
     """Each logged stream's sample period: the median interval of the stamps at which one agent logged it,
     the median over the agents. A logger writing velocities and forces in rows of their own (a 120 Hz
     mocap beside 100 Hz force sensors) has stamps at the union of both rates, which is neither's period."""
-    out = {}
-    for name, a in streams.items():
-        if a is None:
-            continue
-        per_agent = [np.median(np.diff(stamps[have])) for have in np.isfinite(a).all(axis=2).T if have.sum() > 1]
-        if per_agent:
-            out[name] = float(np.median(per_agent))
-    return out
+    periods = {name: _own_period(stamps, np.isfinite(a).all(axis=2)) for name, a in streams.items() if a is not None}
+    return {name: p for name, p in periods.items() if p is not None}
 
 
 def _stamps_in_seconds(t: np.ndarray, cfg: dict, path: Path) -> tuple[np.ndarray, list[str]]:
