@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from ident import stats
-from ident.fit import Fit, Lin, Problem, lm_fit, subset
+from ident.fit import Fit, Lin, Problem, fit_parts, lm_fit, subset
 from ident.recording import Recording, RecordingError, recording_from_arrays
 from ident.report import Diagnosis
 from ident.select import DiagnoseError, DiagnoseOptions, diagnose
@@ -148,10 +148,8 @@ def mass_per_part(pb: Problem, fit: Fit, parts: int = 4) -> list[dict[str, float
     """The model fitted to each of ``parts`` runs of consecutive windows on its own (from ``fit``): each run's
     time span, m, J and their 95 % half-widths (a load whose mass drifts shows m trending from run to run, a
     payload that slides across it J more than m; J is NaN without rotation)."""
-    S = pb.win.S
     out = []
-    for idx in np.array_split(np.arange(S), min(parts, S)):
-        f = lm_fit(subset(pb, idx), fit.lay, fit.g, fit.x[idx], max_iter=15)
+    for idx, f in fit_parts(pb, fit.lay, fit.g, fit.x, parts):
         mj = f.mj()
         t1 = float(pb.win.t[idx[-1]][pb.win.t[idx[-1]] > -np.inf].max())
         out.append({"from_s": float(pb.t0[idx[0]]), "to_s": t1, "m": mj["m"], "m_ci95": mj["m_ci95"],

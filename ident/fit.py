@@ -508,6 +508,14 @@ def subset(pb: Problem, idx: np.ndarray) -> Problem:
     return replace(pb, win=_pick(pb.win, idx), t0=pb.t0[idx], last=pb.last[idx], link=link)
 
 
+def fit_parts(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, parts: int) -> list[tuple[np.ndarray, Fit]]:
+    """The model ``lay`` refitted from ``g`` (its window states from ``x``) to each of ``parts`` runs of
+    consecutive windows on its own (at most one run per window): each run's window indices and its fit. What
+    changes from run to run over a recording (a drifting mass, a drifting offset) shows in these fits."""
+    runs = np.array_split(np.arange(pb.win.S), min(parts, pb.win.S))
+    return [(idx, lm_fit(subset(pb, idx), lay, g, x[idx], max_iter=15)) for idx in runs]
+
+
 def refit_states(pb: Problem, lay: Layout, g: np.ndarray, x: np.ndarray, iters: int = 3) -> np.ndarray:
     """Gauss-Newton on the window states only (globals fixed): to predict other data with a fitted model."""
     G = lay.G

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats as sst
 
-from ident.fit import Fit, Problem, lm_fit, subset
+from ident.fit import Fit, Problem, fit_parts
 from ident.model import expand
 from ident.report import Diagnosis
 from ident.select import OFFSET_FORMS, DiagnoseOptions
@@ -41,8 +41,7 @@ def offsets_drift(result: Diagnosis, opt: DiagnoseOptions) -> tuple[str, Fit] | 
         # floor (a real machine's dynamics outside the vocabulary) moves every quarter's offset with it
         return None
     vals, ses, spans = [], [], []
-    for idx in _parts(pb):
-        f = lm_fit(subset(pb, idx), fit.lay, fit.g, fit.x[idx], max_iter=15)
+    for idx, f in fit_parts(pb, fit.lay, fit.g, fit.x, PARTS):
         v = np.concatenate([f.param(c)[0] for c in named])
         se = np.concatenate([f.param(c)[1] for c in named]) / Z95
         vals.append(v)
@@ -63,11 +62,6 @@ def offsets_drift(result: Diagnosis, opt: DiagnoseOptions) -> tuple[str, Fit] | 
             "named"), fit
 
 
-def _parts(pb: Problem) -> list[np.ndarray]:
-    """The ``PARTS`` runs of consecutive windows the offsets are fitted to apart."""
-    return np.array_split(np.arange(pb.win.S), PARTS)
-
-
 def drifting_agent(fit: Fit, pb: Problem, alpha: float) -> dict | None:
     """Which robot's force offset drifts (:func:`which_agent`), from the offsets' sum and moment
     (:func:`offsets_reading`) fitted to each window apart: the model with force_bias and force_sensor_offset,
@@ -81,8 +75,7 @@ def drifting_agent(fit: Fit, pb: Problem, alpha: float) -> dict | None:
     # each window apart: the shorter the run, the less a drift within it (a warm-up) moves its reading off one
     # robot's form (drift_visc's warm-up of 8 s: in quarters of 7.5 s agent 1's misfit was 9.4 x below the
     # others', chi-square 163 on 6 degrees of freedom; window by window 10.5 x, 27.5 on 22: its form fits)
-    for idx in np.array_split(np.arange(pb.win.S), pb.win.S):
-        f = lm_fit(subset(pb, idx), lay_q, g0, fit.x[idx], max_iter=15)
+    for idx, f in fit_parts(pb, lay_q, g0, fit.x, pb.win.S):
         y, C = offsets_reading(f)
         ys.append(y)
         covs.append(C)
