@@ -601,7 +601,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                          "that turns with it: four parameters, which the selection, adding one effect at a time, "
                          "took in other forms)")
     ambiguous_names = {c for pair in ambiguous for c in pair}
-    shape = None  # a named friction whose leftover depends on the speed
+    friction_shape = None  # a named friction whose leftover depends on the speed
     walk = None if white > opt.alpha_white or pb.win.vel is None else significant_walk(
         pb, current, st1, alpha=opt.alpha, lags=opt.lags, block=_block(pb, opt))
     walk_white = walk is not None and walk.p_white > opt.alpha_white and walk.p_motion > opt.alpha_white
@@ -626,7 +626,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                 # the leftover force follows the speed: the friction named has the wrong shape, which the other
                 # parameters absorb (a Stribeck friction read as Coulomb pulls m off by several of its
                 # intervals); the values are that model's, as a rejected model's are
-                shape = {"p": walk.p_motion, "friction": friction}
+                friction_shape = {"p": walk.p_motion, "friction": friction}
                 warns.append(f"{', '.join(friction)}: the friction's shape is outside the vocabulary: what the "
                              f"model leaves depends on the speed (p {walk.p_motion:.2g}; a friction stronger at "
                              "low speed, Stribeck or static friction, leaves this). m, J, the friction and their "
@@ -734,7 +734,8 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         truth=rec.truth, block_s=block * dtm, lags=opt.lags, noise_floor={"velocity": sv, "position": sp, **floors},
         identifiable={"m": resolved["m"], "J": resolved["J"], "geometry": base.rotation},
         model={"hold": rec.hold, "window_s": wlen, "coulomb_speed": cs, "integrator": "RK4",
-               "max_step": pb.max_step, **({"friction_shape_outside": shape} if shape else {})},  # fmt: skip
+               "max_step": pb.max_step,
+               **({"friction_shape_outside": friction_shape} if friction_shape else {})},  # fmt: skip
         # the effects kept but not named on a structured residual: the offsets' drift check reads them
         fits={"nominal": nominal, "augmented": final} | ({"rejected": current} if unexplained and accepted else {}),
         problem=pb,

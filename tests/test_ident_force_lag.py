@@ -25,3 +25,6 @@ def test_a_force_sensor_low_pass_is_named_with_the_friction_and_nothing_else(tmp
     assert abs(named["viscous_friction"]["value"] / 8.0 - 1) < 0.05
     assert abs(d.augmented.m / truth["m"] - 1) < 0.02 and abs(d.augmented.J / truth["J"] - 1) < 0.02
     assert any(w.startswith(f"{lag[0]}: the ") and " ms" in w for w in d.warnings), d.warnings
+    # the lag's two shapes were fitted side by side: the text says how they compare
+    assert any(w.startswith(f"{lag[0]}: the ") and ("fits worse (BIC" in w or "do not tell it from" in w)
+               for w in d.warnings), d.warnings
