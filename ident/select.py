@@ -561,10 +561,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
                          lambda c: ", ".join(e for e in accepted if e != c),
                          "adds nothing beside the effects named after it")
     current, shape = force_lag_shape(pb, current, accepted, opt.alpha, say)
-    for c in [c for c in accepted if c not in table]:  # the shape kept at the end, not fitted in a round
-        val, ci = current.param(c)
-        table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
-                    "ci95": _value(ci, current.lay, c, ci=True), "on_top_of": [e for e in accepted if e != c]}
+    _enter(table, current, accepted)  # the force lag's shape kept at the end, not fitted in a round
     for c in _unresolved_effects(current, accepted):
         # the effect acts through a 1/m (1/J) the data do not resolve from zero: they see only its product
         # with 1/m, so its value is not determined and it is not named (it stays in the candidates' table)
@@ -586,10 +583,7 @@ def diagnose(rec: Recording, *, options: DiagnoseOptions | None = None, progress
         if alt is not None:
             before = list(accepted)
             current, accepted = alt
-            for c in [c for c in accepted if c not in table]:
-                val, ci = current.param(c)
-                table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, current.lay, c),
-                            "ci95": _value(ci, current.lay, c, ci=True), "on_top_of": [e for e in accepted if e != c]}
+            _enter(table, current, accepted)
             st1 = states_of(pb, current)
             theta_w = st1[..., 3]
             modes1 = residual_modes(pb, current, theta=theta_w)
@@ -752,6 +746,15 @@ ROTATION = ("rotational_damping", "torque_bias")
 
 OFFSET_FORMS = ("force_bias", "force_sensor_offset", "sensor_offset_body", "torque_bias")
 ROBOT_OFFSETS = SAME_FORCE  # the pair that spans per-robot offsets in the world frame
+
+
+def _enter(table: dict, fit: Fit, accepted: list[str]) -> None:
+    """The candidates' table entry of each effect of ``accepted`` that no round of the selection fitted (it came
+    in at the end): its value and interval in ``fit``, on top of the other accepted effects."""
+    for c in [c for c in accepted if c not in table]:
+        val, ci = fit.param(c)
+        table[c] = {"name": c, "unit": EFFECTS[c][0], "value": _value(val, fit.lay, c),
+                    "ci95": _value(ci, fit.lay, c, ci=True), "on_top_of": [e for e in accepted if e != c]}
 
 
 def _or_restarted(pb: Problem, rec: Recording, f: Fit) -> Fit:
