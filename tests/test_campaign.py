@@ -263,6 +263,18 @@ def test_local_relative_errors_in_the_summary(tmp_path):
     assert err["J_rel"] == pytest.approx(0.0, abs=1e-12)  # the consensus estimates are exact here
 
 
+def test_a_run_logged_by_a_killed_invocation_and_redone_counts_once(tmp_path):
+    """A kill after a run's log line and before its files land: the next invocation redoes and logs it
+    again; both segments' time counts, the run once."""
+    log = tmp_path / cp.LOG_NAME
+    log.write_text("".join(json.dumps(rec) + "\n" for rec in (
+        {"segment": "a", "run": "r0", "elapsed_s": 5.0},
+        {"segment": "a", "run": "r1", "elapsed_s": 9.0},
+        {"segment": "b", "run": "r1", "elapsed_s": 4.5},
+        {"segment": "b", "run": "r2", "elapsed_s": 8.0})) + '{"segment": "b", "ru', encoding="utf-8")
+    assert cp.logged_wall(log) == (17.0, 3, 2)
+
+
 def test_cli_rejects_a_bad_grid(tmp_path, capsys):
     assert cli_main(["campaign", "--out", str(tmp_path), "--n", "5,x"]) == 2
     assert "--n" in capsys.readouterr().err
@@ -286,7 +298,7 @@ def test_table_of_a_campaign_directory_without_running(tmp_path, capsys):
     del rows[-1]["J_rel"]  # n8-s0.9-r4: its agents never estimated J
     cp.write_csv(tmp_path / cp.CSV_NAME, rows)
     (tmp_path / cp.LOG_NAME).write_text("".join(
-        json.dumps({"segment": seg, "run": f"r{k}", "elapsed_s": 10.0 * (k + 1)}) + "\n"
+        json.dumps({"segment": seg, "run": f"{seg}{k}", "elapsed_s": 10.0 * (k + 1)}) + "\n"
         for seg in ("a", "b") for k in range(3)), encoding="utf-8")
     assert cli_main(["campaign", "--out", str(tmp_path), "--table"]) == 0
     text = capsys.readouterr().out

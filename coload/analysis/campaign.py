@@ -429,8 +429,10 @@ class CampaignResult:
 
 def logged_wall(path: Path) -> tuple[float, int, int]:
     """(wall seconds, runs, segments) of a campaign log: per segment the elapsed time at its last
-    finished run (a killed segment counts up to there; the run it was in is redone and counted then)."""
-    last: dict[str, tuple[float, int]] = {}
+    finished run (a killed segment counts up to there; the run it was in is redone and counted then).
+    A run logged twice (killed after its line, before its files landed) counts once."""
+    last: dict[str, float] = {}
+    runs: set[str] = set()
     try:
         lines = path.read_text(encoding="utf-8").splitlines()
     except OSError:
@@ -438,12 +440,12 @@ def logged_wall(path: Path) -> tuple[float, int, int]:
     for line in lines:
         try:
             rec = json.loads(line)
-            seg, el = str(rec["segment"]), float(rec["elapsed_s"])
+            seg, el, run = str(rec["segment"]), float(rec["elapsed_s"]), str(rec["run"])
         except (ValueError, KeyError, TypeError):
             continue  # a line cut by a kill
-        _, k = last.get(seg, (0.0, 0))
-        last[seg] = (el, k + 1)
-    return sum(e for e, _ in last.values()), sum(k for _, k in last.values()), len(last)
+        last[seg] = el
+        runs.add(run)
+    return sum(last.values()), len(runs), len(last)
 
 
 def run_campaign(
@@ -508,12 +510,14 @@ def run_campaign(
         try:
             files = files_of()
             summary = json.loads(files["summary.json"])
-            unpack_dir(files, r.run_dir)
-            table.put(r.run_dir.name, row_of(r, summary))
-            table.write()
+            # logged before the run's files land: a kill between the two leaves a logged run that is
+            # redone (counted once, see logged_wall), never a finished run that no segment counted
             with (out / LOG_NAME).open("a", encoding="utf-8") as log:
                 log.write(json.dumps({"segment": segment, "run": r.run_dir.name,
                                       "elapsed_s": round(time.perf_counter() - t0, 3)}) + "\n")
+            unpack_dir(files, r.run_dir)
+            table.put(r.run_dir.name, row_of(r, summary))
+            table.write()
         except Exception as exc:  # noqa: BLE001  a failed run must not stop the campaign
             failed.append((r.run_dir.name, f"{type(exc).__name__}: {exc}"))
         done += 1
