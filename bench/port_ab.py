@@ -5,7 +5,7 @@
 
 Runs every gate case (``--list``) with ``coload run CASE --engine inproc`` once in BASE and once in this
 tree (each run imports its own tree's packages), then compares ``estimates.csv, pairs.csv, samples.csv,
-truth.csv`` byte for byte and ``summary.json`` without its timings. A case that differs is followed by the
+truth.csv`` byte for byte and ``summary.json`` without its timings and versions. A case that differs is followed by the
 largest relative difference of each numeric column of estimates.csv and the rows where the stage column
 first differs, so that a last-bit change (expected from a slice that reorders arithmetic) is told from a
 moved decision (docs/fast-core-plan.md, section 4 rule b). Exit status 0 when every case is identical, 1
@@ -29,7 +29,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parents[1]
 FILES = ("estimates.csv", "pairs.csv", "samples.csv", "truth.csv")
-TIMINGS = ("wall_s", "agent_step_us", "sim_per_wall", "wall_per_tick_us")
+TIMINGS = ("wall_s", "agent_step_us", "sim_per_wall", "wall_per_tick_us", "versions")  # and the commit
 
 # name -> (scenario, overrides): each case reaches a part of the agent the others do not
 CASES: dict[str, tuple[str, list[str]]] = {
