@@ -100,7 +100,8 @@ def explain(a: Path, b: Path) -> list[str]:
     for k, d in sorted(worst.items(), key=lambda kv: -kv[1]):
         lines.append(f"    {k}: max relative difference {d:.3g}")
     if stage_at:
-        lines.append(f"    first stage difference: tick {stage_at[0]} agent {stage_at[1]}: {stage_at[2]} -> {stage_at[3]}")
+        tick, agent, was, now = stage_at
+        lines.append(f"    first stage difference: tick {tick} agent {agent}: {was} -> {now}")
     return lines
 
 

@@ -22,6 +22,15 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "config" / "scenarios"
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """The compiled core is compiled once, in the controller (or the only process), before the xdist
+    workers and the tests' daemons start: they load its cache instead of compiling it each."""
+    if not hasattr(config, "workerinput"):
+        from agents.kernels import warm
+
+        warm()
+
+
 @pytest.fixture
 def scenarios_dir() -> Path:
     return SCENARIOS

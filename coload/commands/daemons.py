@@ -23,6 +23,9 @@ def cmd_agent(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     check_law(scenario, args.scenario, [args.id])
+    from agents.kernels import warm
+
+    warm()  # before the session opens: no tick of a realtime team waits on a compile or cache load
     daemon: list[AgentDaemon] = []
 
     def build(t):

@@ -303,8 +303,11 @@ def process_run(run_dir: Path, verbose: int = 0, listen: str | None = None) -> t
     """What every multi-process run starts from: ``run_dir/logs``, the embedded router's endpoint
     (``listen``, or a free loopback port), the run name (the key-expression namespace), the command
     that starts a ``coload`` child process and the supervisor of the children."""
+    from agents.kernels import warm
     from net.zenoh_transport import free_tcp_port
 
+    # the compiled core is compiled here once, so that the children only load its cache
+    warm()
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
     endpoint = listen or f"tcp/127.0.0.1:{free_tcp_port()}"
     py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)

@@ -75,6 +75,9 @@ class LocalPool(Pool):
     """``jobs`` spawned worker processes on this machine."""
 
     def __init__(self, jobs: int) -> None:
+        from agents.kernels import warm
+
+        warm()  # compiled once here: the workers only load the cache
         ctx = multiprocessing.get_context("spawn")  # no fork of a possibly threaded parent
         self.jobs = jobs
         self.executor = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx)
@@ -102,6 +105,11 @@ class DaskPool(Pool):
             self.client = Client(address, timeout=timeout_s, set_as_default=False)
         except (OSError, TimeoutError) as exc:
             raise ExecutorError(f"--executor: cannot reach the Dask scheduler at {address} ({exc})") from None
+        from agents.kernels import warm
+
+        # each worker compiles the kernels (or loads a cache it shares with others on its node) before
+        # its first run, not inside it
+        self.client.run(warm)
         # pure=False: every submission is a run of its own, never merged with an equal-looking one
         self.executor = self.client.get_executor(pure=False)
 
