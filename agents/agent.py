@@ -76,6 +76,8 @@ class AgentCore:
             self._dyn = dynamic_phase.DynamicPhase(self.id, sorted(self._kin.nbrs), self.n, self.dt, sig, dynamics,
                                                    estimator.history_ticks, law=law, law_ref=control.law)
         self._fb = DynamicFeedback()  # the dynamical phase's feedback to the next tick
+        self.stage = SPINUP  # the stage of the last tick stepped
+        self._last: tuple | None = None  # what that tick's estimate needs (advance)
 
     # the kinematic phase's state, read by tests and tools
     @property
@@ -118,6 +120,12 @@ class AgentCore:
         return {j: nb.pair for j, nb in self._kin.nbrs.items()}
 
     def step(self, tick: int, vx: float, vy: float, inbox: Sequence[StateMsg]) -> StepResult:
+        state, wrench = self.advance(tick, vx, vy, inbox)
+        return StepResult(state, wrench, self.estimate())
+
+    def advance(self, tick: int, vx: float, vy: float, inbox: Sequence[StateMsg]) -> tuple[StateMsg, Wrench]:
+        """:meth:`step` without the estimate, which :meth:`estimate` builds on demand (an engine needs it only
+        on recorded ticks)."""
         dyn = self._dyn
         kin = self._kin.step(tick, vx, vy, inbox, self._fb, None if dyn is None else dyn.decode)
         shared = {"om": kin.omega, "oi": 1.0 if kin.om_init else 0.0, "ph": kin.phi, "yx": kin.y.real, "yy": kin.y.imag}
@@ -125,7 +133,7 @@ class AgentCore:
             stage = KINEMATIC if kin.om_init else SPINUP
             fx, fy, tau = kin.wrench
             pairs = {j: (z.real, z.imag, f.real, f.imag) for j, z, f in kin.pairs}
-            dyn_est = _NO_DYN
+            est = None
         else:
             out = dyn.step(kin)
             self._fb = out.feedback
@@ -133,15 +141,26 @@ class AgentCore:
             fx, fy, tau = out.wrench
             shared.update(out.shared)
             pairs = {j: (z.real, z.imag, f.real, f.imag, *out.flows[j]) for j, z, f in kin.pairs}
-            trust = self._trust
-            trust.observe(tick, stage, [(m.sender, m.tick) for m in kin.inbox])  # type: ignore[union-attr]
+            self._trust.observe(tick, stage, [(m.sender, m.tick) for m in kin.inbox])  # type: ignore[union-attr]
             est = out.estimates
+        self.stage = stage
+        # what the estimate of this tick needs beyond the phases' state, which the next advance changes
+        self._last = (tick, kin, est, pairs)
+        return StateMsg(tick, self.id, vx, vy, stage, shared, pairs), Wrench(tick, self.id, fx, fy, tau)
+
+    def estimate(self) -> Estimate:
+        """The estimate of the last :meth:`advance`'s tick (valid until the next advance)."""
+        tick, kin, est, pairs = self._last  # type: ignore[misc]
+        dyn = self._dyn
+        if dyn is None:
+            dyn_est = _NO_DYN
+        else:
             m_sd, j_sd = dyn.uncertainties()
-            dyn_est = {**est, **trust.entries(est["m"], m_sd, est["J"], j_sd),  # type: ignore[union-attr]
+            dyn_est = {**est, **self._trust.entries(est["m"], m_sd, est["J"], j_sd),  # type: ignore[union-attr]
                        **dyn.monitor_entries()}
         zi = kin.zi
         values = {
-            "phase": float(stage),
+            "phase": float(self.stage),
             "omega": kin.omega,
             "omega_local": kin.u,
             "zi_x": zi.real,
@@ -151,8 +170,4 @@ class AgentCore:
             "dropped_stale": float(kin.dropped_stale),
             **dyn_est,
         }
-        return StepResult(
-            StateMsg(tick, self.id, vx, vy, stage, shared, pairs),
-            Wrench(tick, self.id, fx, fy, tau),
-            Estimate(tick, self.id, values, {j: (p[0], p[1]) for j, p in pairs.items()}),
-        )
+        return Estimate(tick, self.id, values, {j: (p[0], p[1]) for j, p in pairs.items()})

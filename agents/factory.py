@@ -1,8 +1,9 @@
 """Builds an agent from a scenario, the same way for every engine.
 
-The in-process engine and the daemons both call :func:`build_agent` on the agent's view of the
-scenario (``Scenario.agent_view``; and ``net.link.build_in_links`` for the links), so a lockstep
-run over Zenoh and an in-process run with the same seed start identical. A control law of the user's (``control.law``, agents/laws.py) is imported here.
+The in-process engine (:func:`build_team`, every agent in one team) and the daemons both call
+:func:`build_agent` on the agent's view of the scenario (``Scenario.agent_view``; and
+``net.link.build_in_links`` for the links), so a lockstep run over Zenoh and an in-process run with the
+same seed start identical. A control law of the user's (``control.law``, agents/laws.py) is imported here.
 """
 
 from __future__ import annotations
@@ -11,10 +12,12 @@ import hashlib
 import importlib
 import importlib.util
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from agents.agent import AgentCore
 from agents.laws import ControlLawError, LawFactory, LawSetup
+from agents.team import TeamCore
 from config.agent_params import LAW_REF
 from config.scenario import AgentView
 
@@ -31,6 +34,12 @@ def build_agent(view: AgentView) -> AgentCore:
         dynamics=view.dynamics,
         law=build_law(view),
     )
+
+
+def build_team(views: Sequence[AgentView], ring: int = 2) -> TeamCore:
+    """The agents of ``views`` as one team (rows in that order), each built by :func:`build_agent`; ``ring``:
+    the slots of its OUT ring (agents.team.TeamCore)."""
+    return TeamCore([build_agent(v) for v in views], ring)
 
 
 def build_law(view: AgentView):

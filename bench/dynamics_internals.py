@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from agents import dynamic_phase as D  # noqa: E402
-from agents.factory import build_agent  # noqa: E402
+from agents.factory import build_team  # noqa: E402
 from agents.rigid_filter import RigidEKF  # noqa: E402
 from coload.runs.team import team_ticks  # noqa: E402
 from config.loader import load_scenario  # noqa: E402
@@ -33,7 +33,8 @@ def run(sc) -> dict[str, np.ndarray]:
     """Steps plant and agents like coload.runs.engine.run_inproc (one-tick links) and records internals."""
     n, T = sc.n, sc.ticks
     plant = Plant(sc)
-    agents = [build_agent(sc.agent_view(i)) for i in range(n)]
+    team = build_team([sc.agent_view(i) for i in range(n)])
+    agents = [team.agent(i) for i in range(n)]
     seen: dict[int, float] = {}
     predict = RigidEKF.predict
 
@@ -51,7 +52,7 @@ def run(sc) -> dict[str, np.ndarray]:
         rec["om"][k], rec["vc"][k] = t.omega, t.vc
 
     try:
-        for k, wr in team_ticks(sc, plant, agents):
+        for k, wr in team_ticks(sc, plant, team):
             truth(k)
             for i, a in enumerate(agents):
                 dyn = a._dyn

@@ -393,12 +393,13 @@ def test_algorithm_1_at_high_noise_keeps_omega_locked(tmp_path):
 def _own_masses_at_the_end_of_the_m_stage(sc) -> tuple[list[float], list[int]]:
     """Runs ``sc`` like the in-process engine (one-tick links) until the m stage ends; every agent's own m
     error and its lock-check restarts."""
-    from agents.factory import build_agent
+    from agents.factory import build_team
     from coload.runs.team import team_ticks
 
     plant = Plant(sc)
-    agents = [build_agent(sc.agent_view(i)) for i in range(sc.n)]
-    for _ in team_ticks(sc, plant, agents):
+    team = build_team([sc.agent_view(i) for i in range(sc.n)])
+    agents = [team.agent(i) for i in range(sc.n)]
+    for _ in team_ticks(sc, plant, team):
         if agents[0]._dyn.stage == D.M_AVERAGE:
             break
     else:

@@ -1,5 +1,5 @@
-"""The in-process engine's ring buffer for fault-free lockstep links hands every agent the inbox that
-``DelayLine`` would."""
+"""The in-process engine's fixed inboxes for fault-free lockstep links (agents.team.lockstep_inboxes) hand every
+agent the inbox that ``DelayLine`` would."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ def _hashes(run_dir) -> dict[str, str]:  # type: ignore[no-untyped-def]
 
 
 @pytest.mark.parametrize("delay", [0, 2])
-def test_engine_ring_buffer_equals_delay_line(tmp_path, monkeypatch, delay: int) -> None:
+def test_fixed_lockstep_inboxes_equal_the_delay_line(tmp_path, monkeypatch, delay: int) -> None:
     sc = load_scenario(SCENARIOS / "paper-fig4.toml", ["duration=6", "initial.omega=0", "record.every_ticks=1",
                                                        f"link.delay_ticks={delay}"])
     fast = run_inproc(sc, tmp_path / "fast")

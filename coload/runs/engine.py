@@ -12,7 +12,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from agents.factory import build_agent
+from agents.factory import build_team
+from agents.team import empty_inbox, handle_inbox, lockstep_inboxes
 from coload.analysis.summary import complete_summary
 from coload.rundir.recorder import Recorder
 from config.scenario import Scenario
@@ -77,6 +78,20 @@ class LinkNetwork:
             for copy, d in enumerate(delays):
                 push(deliver_tick(k, d, dt, mode), sender, k, copy, state)
 
+    @property
+    def reach(self) -> int:
+        """The most ticks from a message's send tick to its delivery: 1 + the longest delay a link draws."""
+        longest = 0
+        for row in self.links:
+            for link in row.values():
+                s = link.spec
+                if self.mode == "lockstep":
+                    d = s.delay_ticks + s.jitter_ticks
+                else:
+                    d = int((s.delay_s + s.jitter_s) // self.dt)
+                longest = max(longest, d)
+        return 1 + longest
+
     def close(self, ticks: int) -> dict[str, dict[str, int]]:
         """Settles the counters of a run of ``ticks`` ticks; the summary's ``links`` block."""
         for st in self.stats.values():
@@ -118,31 +133,29 @@ def run_inproc(
     pace = (mode == "realtime") if pace is None else pace
     plant = Plant(scenario)
     rng = sensor_rng(scenario.seed)
-    agents = [build_agent(scenario.agent_view(i)) for i in range(n)]
     neighbours = scenario.neighbours()
     net = LinkNetwork(scenario, mode)
-    links = net.links
+    team = build_team([scenario.agent_view(i) for i in range(n)], ring=1 + net.reach)
     rec = Recorder(run_dir, scenario, ESTIMATE_NAMES) if run_dir is not None else None
     pops = net.pops
     send = net.send
-    lockstep = mode == "lockstep"
     keeps = rec.keeps if rec is not None else None
-    # Fast path: lockstep with fault-free links (the common case). Every message then arrives
-    # after the same whole number of ticks, so a receiver's inbox at tick k is just the messages
-    # sent at k - 1 - delay, in send (= sender) order: exactly what DelayLine.pop_due returns, whose
-    # order is (deliver tick, sender, send tick, copy). A ring of lists replaces the heap.
-    fates = {m.fixed_delays for row in links for m in row.values()}
-    ring: list[list[list[Any]]] | None = None
-    if lockstep and len(fates) == 1 and None not in fates:
+    # Fault-free lockstep links (the common case): every message is due the same whole number of ticks
+    # after it is sent, so each tick's inboxes are known in advance (DelayLine's order: by sender).
+    # Otherwise the link models decide each message's fate, and its handle (send tick, sender) goes
+    # through the receivers' DelayLines.
+    fates = {m.fixed_delays for row in net.links for m in row.values()}
+    fixed = None
+    if mode == "lockstep" and len(fates) == 1 and None not in fates:
         (fate,) = fates
         (delay,) = fate  # type: ignore[misc]
-        span = 2 + int(delay)  # slots: due ticks k .. k + 1 + delay
-        ring = [[[] for _ in range(span)] for _ in range(n)]
-        nbr_rings = [[ring[j] for j in neighbours[i]] for i in range(n)]
+        age = 1 + int(delay)
+        fixed = lockstep_inboxes(team, [[i for i in range(n) if r in neighbours[i]] for r in range(n)], age)
+        nothing = empty_inbox(team)
 
     stop = done_stop(scenario)
     every = scenario.record.every_ticks
-    step_s = 0.0  # time inside AgentCore.step, for the per-agent cost in the summary
+    step_s = 0.0  # time inside TeamCore.step, for the per-agent cost in the summary
     clock = time.perf_counter
     wall0 = clock()
     report_every = max(1, ticks // 100)
@@ -155,42 +168,29 @@ def run_inproc(
                 if lag > 0:
                     time.sleep(lag)
             meas = plant.measure(rng)
-            # only recorded ticks need the truth and the (lazily built) estimates
+            # only recorded ticks need the truth and the estimates
             keep = keeps is not None and keeps(k)
             watch = stop is not None and k % every == 0  # the agents' stages, on the recording grid
             if keep:
                 rec.truth(plant.truth())  # type: ignore[union-attr]
-            wrenches = []
-            k1 = k + 1
-            if ring is not None:
-                now = k % span
-                due = (k1 + delay) % span
-            for i in range(n):
-                vx, vy = meas[i]
-                if ring is not None:
-                    mine = ring[i]
-                    inbox = mine[now]
-                    mine[now] = []
-                else:
-                    inbox = pops[i](k)
-                c0 = clock()
-                res = agents[i].step(k, vx, vy, inbox)
-                step_s += clock() - c0
-                w = res.wrench
-                wr = (w.fx, w.fy, w.tau)
-                wrenches.append(wr)
-                state = res.state
-                if ring is not None:
-                    for r in nbr_rings[i]:
-                        r[due].append(state)
-                else:
-                    send(i, k, state)
-                if keep:
-                    rec.estimate(res.estimate)  # type: ignore[union-attr]
-                if watch:
-                    stop.see(k, i, res.estimate.values["phase"])  # type: ignore[union-attr]
+            if fixed is not None:
+                inbox = fixed[k % team.ring] if k >= age else nothing
+            else:
+                inbox = handle_inbox(team, k, [pop(k) for pop in pops])
+            c0 = clock()
+            wrenches = team.step(k, meas, inbox)
+            step_s += clock() - c0
+            if fixed is None:
+                for i in range(n):
+                    send(i, k, (k, i))
+            if keep:
+                for est in team.estimates():
+                    rec.estimate(est)  # type: ignore[union-attr]
+            if watch:
+                for i, stage in enumerate(team.stages):
+                    stop.see(k, i, float(stage))  # type: ignore[union-attr]
             if rec is not None:
-                rec.samples(k, meas, wrenches)
+                rec.samples(k, meas, wrenches.tolist())
             plant.apply_and_step(wrenches)
             if progress is not None and (k % report_every == 0 or k == ticks - 1):
                 progress(k + 1, ticks)

@@ -2,31 +2,27 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 
-from agents.agent import AgentCore
+import numpy as np
+
+from agents.team import TeamCore, empty_inbox, lockstep_inboxes
 from config.scenario import Scenario
 from simulator.plant import Plant, sensor_rng
 
 
-def team_ticks(scenario: Scenario, plant: Plant, agents: Sequence[AgentCore]
-               ) -> Iterator[tuple[int, list[tuple[float, float, float]]]]:
-    """Steps ``agents`` on ``plant`` with fault-free one-tick links (every state reaches the neighbours
-    on the next tick, as on the in-process engine without faults), for diagnostics and tests that look
-    inside the agents. Yields (tick, wrenches) after the agents' step, before the plant applies the
-    wrenches: the plant still holds that tick's truth then. Stop iterating to stop."""
+def team_ticks(scenario: Scenario, plant: Plant, team: TeamCore) -> Iterator[tuple[int, np.ndarray]]:
+    """Steps ``team`` (agents.factory.build_team of the scenario's agents) on ``plant`` with fault-free
+    one-tick links (every state reaches the neighbours on the next tick, as on the in-process engine without
+    faults), for diagnostics and tests that look inside the agents (``team.agent(i)``). Yields (tick,
+    wrenches (n, 3)) after the team's step, before the plant applies the wrenches: the plant still holds
+    that tick's truth then. Stop iterating to stop."""
     nbrs = scenario.neighbours()
+    n = len(nbrs)
     rng = sensor_rng(scenario.seed)
-    inbox: list[list] = [[] for _ in agents]
+    inboxes = lockstep_inboxes(team, [[i for i in range(n) if r in nbrs[i]] for r in range(n)], 1)
     for k in range(scenario.ticks):
         meas = plant.measure(rng)
-        nxt: list[list] = [[] for _ in agents]
-        wr = []
-        for i, a in enumerate(agents):
-            res = a.step(k, meas[i][0], meas[i][1], inbox[i])
-            for j in nbrs[i]:
-                nxt[j].append(res.state)
-            wr.append((res.wrench.fx, res.wrench.fy, res.wrench.tau))
-        inbox = nxt
+        wr = team.step(k, meas, inboxes[k % team.ring] if k >= 1 else empty_inbox(team))
         yield k, wr
         plant.apply_and_step(wr)

@@ -1,0 +1,119 @@
+"""The team core: one team of n agents steps every agent as n teams of one fed the same inboxes do, to the last
+bit of every output (message, wrench, estimate) at every tick; and the inboxes the engines build name the
+messages a DelayLine releases, in its order."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agents.factory import build_team
+from agents.team import Inbox, TeamCore, empty_inbox, handle_inbox, inbox_rows, lockstep_inboxes
+from coload.runs.engine import LinkNetwork
+from config.loader import load_scenario
+from config.scenario import Scenario
+from net.link import DelayLine
+from simulator.plant import Plant, sensor_rng
+from tests.conftest import SCENARIOS
+
+FAULTY = ["link.delay_ticks=2", "link.jitter_ticks=3", 'link.loss.model="bernoulli"', "link.loss.p=0.2",
+          "link.duplicate=0.1"]
+ONLINE = ["plant.friction.viscous=5", "dynamics.online_detection=true"]
+
+
+def _team_equals_teams_of_one(sc: Scenario) -> int:
+    """Steps the scenario's agents as one team (B = n, its inboxes from handles through the link models, as the
+    in-process engine does with faults) and each as a team of its own (B = 1) fed the same inbox from the
+    messages of the teams of one; asserts their outputs equal at every tick; returns the ticks stepped."""
+    n = sc.n
+    plant = Plant(sc)
+    rng = sensor_rng(sc.seed)
+    net = LinkNetwork(sc, sc.mode)
+    views = [sc.agent_view(i) for i in range(n)]
+    team = build_team(views, ring=1 + net.reach)
+    alone = [build_team([v], ring=1 + net.reach) for v in views]
+    sent: dict[int, list] = {}  # the teams of one's messages by tick (not a ring: independent of its slots)
+    for k in range(sc.ticks):
+        meas = plant.measure(rng)
+        due = [pop(k) for pop in net.pops]
+        wrenches = team.step(k, meas, handle_inbox(team, k, due))
+        estimates = team.estimates()
+        states = team.states(k)
+        sent[k] = []
+        for i in range(n):
+            inbox = Inbox(sent, *inbox_rows([0, len(due[i])], [(t, s, 0) for t, s in due[i]]))
+            w = alone[i].step(k, meas[i:i + 1], inbox)
+            assert w.shape == (1, 3)
+            assert repr(w[0].tolist()) == repr(wrenches[i].tolist()), (k, i)
+            assert repr(alone[i].states(k)[0]) == repr(states[i]), (k, i)
+            assert repr(alone[i].estimates()[0]) == repr(estimates[i]), (k, i)
+            assert alone[i].stages[0] == team.stages[i]
+            sent[k].append(alone[i].states(k)[0])
+        sent.pop(k - team.ring, None)
+        for i in range(n):
+            net.send(i, k, (k, i))
+        plant.apply_and_step(wrenches)
+    return sc.ticks
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sets, seconds", [
+    (FAULTY, 16),  # into the m stage (from 14 s) with held, reordered and duplicated states
+    (ONLINE, 27),  # past the monitor's first windows and the team's detection decision (at 26 s)
+], ids=["faulty-links", "online-detection"])
+def test_one_team_equals_teams_of_one(sets, seconds):
+    sc = load_scenario(SCENARIOS / "quick-dynamics.toml", [f"duration={seconds}", *sets])
+    assert _team_equals_teams_of_one(sc) == 100 * seconds
+
+
+def test_one_team_equals_teams_of_one_kinematic():
+    sc = load_scenario(SCENARIOS / "quick.toml", ["duration=1.5", *FAULTY])
+    assert _team_equals_teams_of_one(sc) == 150
+
+
+def _three(ring: int) -> TeamCore:
+    sc = load_scenario(SCENARIOS / "quick.toml", ["n=3"])
+    return build_team([sc.agent_view(i) for i in range(3)], ring)
+
+
+def test_lockstep_inboxes_name_what_a_delay_line_releases():
+    team = _three(ring=4)
+    senders = [[1], [0, 2], [1]]
+    fixed = lockstep_inboxes(team, senders, age=3)
+    lines = [DelayLine() for _ in senders]
+    for k in range(12):
+        for s in (2, 0, 1):  # pushed out of order: the line sorts by sender
+            for r, row in enumerate(senders):
+                if s in row:
+                    lines[r].push(k + 3, s, k, 0, (k, s))
+        want = handle_inbox(team, k, [line.pop_due(k) for line in lines])
+        got = fixed[k % team.ring] if k >= 3 else empty_inbox(team)
+        assert got.ptr.tolist() == want.ptr.tolist()
+        assert got.ref.tolist() == want.ref.tolist()
+        assert got.msgs is team.out
+
+
+def test_inboxes_refuse_what_the_ring_cannot_hold():
+    team = _three(ring=3)
+    assert handle_inbox(team, 5, [[(3, 1)], [], [(4, 1), (4, 1)]]).ref.tolist() == [[0, 1, 0], [1, 1, 0], [1, 1, 0]]
+    with pytest.raises(ValueError, match="beyond the OUT ring"):
+        handle_inbox(team, 5, [[(2, 1)], [], []])
+    with pytest.raises(ValueError, match="ring of more than 3"):
+        lockstep_inboxes(team, [[1], [0, 2], [1]], age=3)
+    with pytest.raises(ValueError):
+        TeamCore([], ring=1)
+
+
+def test_messages_land_after_every_agent_read_its_inbox():
+    team = _three(ring=2)
+    meas = [(0.1, 0.0), (0.0, 0.1), (-0.1, 0.0)]
+    fixed = lockstep_inboxes(team, [[1], [0, 2], [1]], age=1)
+    w0 = team.step(0, meas, empty_inbox(team))
+    assert w0.shape == (3, 3) and w0.dtype == np.float64
+    first = team.states(0)
+    assert [m.tick for m in first] == [0, 0, 0] and [m.sender for m in first] == [0, 1, 2]
+    team.step(1, meas, fixed[1])
+    assert team.states(0) is first  # tick 1 wrote the other slot
+    assert [m.tick for m in team.states(1)] == [1, 1, 1]
+    assert [e.tick for e in team.estimates()] == [1, 1, 1]
+    assert team.agent(1) is team.cores[1]
