@@ -315,12 +315,13 @@ def test_filter_sensitivity_is_the_derivative_of_its_estimate_in_the_rate(k):
     spec = DynamicsSpec(algorithm="sequential", online_detection=True)
     kf = RigidEKF(0.1, spec, False)
     kf.start(complex(0.3, -0.2), complex(1.5, 0.4), 0.8)
-    kf.s = kf.s.copy()
-    kf.s[4], kf.s[6] = 1 / 50, 1 / 87  # 1/m, 1/J known roughly
+    s = kf.s  # a copy of the state: written back whole
+    s[4], s[6] = 1 / 50, 1 / 87  # 1/m, 1/J known roughly
+    kf.s = s
     twin = copy.copy(kf)
     eps = 1e-7
-    twin.s = kf.s.copy()
-    twin.s[7 + k] = eps
+    s[7 + k] = eps
+    twin.s = s
     dt = 0.01
     for t in range(400):
         force = 150 * complex(math.cos(0.02 * t), math.sin(0.013 * t))

@@ -200,8 +200,9 @@ def test_the_filter_carries_a_constant_force_and_finds_it():
     spec = DynamicsSpec(algorithm="sequential", online_detection=True)
     kf = RigidEKF(0.05, spec, False)
     kf.start(complex(0.0, 0.0), complex(1.5, 0.4), 0.0)
-    kf.s = kf.s.copy()
-    kf.s[4] = 1 / 50
+    s = kf.s  # a copy of the state: written back whole
+    s[4] = 1 / 50
+    kf.s = s
     kf.release_effect(SLOPE)
     rng = np.random.default_rng(9)
     dt, vc, f = 0.01, 0j, 2.0 * complex(0.6, -0.8)
