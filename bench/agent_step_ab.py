@@ -64,22 +64,25 @@ def main() -> None:
         scn = mods["campaign"].campaign_scenario(base, a.n, 0.3, 12345)
         return scn if a.duration is None else scn.model_copy(update={"duration": a.duration})
 
-    # record one agent's inputs and outputs with the other tree's engine
+    # record one agent's inputs and outputs with the other tree's engine, which calls ``advance`` (the
+    # estimate built only on recorded ticks) or, in older trees, ``step``
     core = other["agent"].AgentCore
-    plain_step = core.step
+    entry = "advance" if hasattr(core, "advance") else "step"
+    plain = getattr(core, entry)
     rows: list[tuple] = []
 
-    def recording_step(self, tick, vx, vy, inbox):  # noqa: ANN001, ANN202
-        res = plain_step(self, tick, vx, vy, inbox)
+    def recording(self, tick, vx, vy, inbox):  # noqa: ANN001, ANN202
+        out = plain(self, tick, vx, vy, inbox)
         if self.id == who:
-            rows.append((tick, vx, vy, list(inbox), repr(res.state), repr(res.wrench), repr(res.estimate)))
-        return res
+            state, wrench, est = (*out, self.estimate()) if entry == "advance" else out
+            rows.append((tick, vx, vy, list(inbox), repr(state), repr(wrench), repr(est)))
+        return out
 
-    core.step = recording_step
+    setattr(core, entry, recording)
     try:
         other["engine"].run_inproc(scenario(other), None)  # no run directory: nothing imported late
     finally:
-        core.step = plain_step
+        setattr(core, entry, plain)
 
     clock = time.perf_counter
     best_o = best_m = float("inf")
