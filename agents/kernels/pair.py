@@ -468,5 +468,6 @@ def warm() -> None:
     pair_sample(P, cps, prm, 0, 0, 0, 1j, 1 + 0j, 0.0, 0.01)
     pair_sample(P, cps, prm, 0, 0, 1, 1j, 1 + 0j, 0.0, 0.01)
     pair_predict(P, 0, 0, 1 + 0j)
+    circle_add(P, 0, 0, 1.0, 0.0)
     circle_fit(P, 0, 0)
     solve3(1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 1.0, 1.0)
