@@ -1,8 +1,9 @@
-"""The hot-path rewrites of the kinematic estimators compute exactly (bit for bit) what the plain code does.
+"""The pair estimator's kernels compute exactly (bit for bit) what their plain forms do.
 
-Reference implementations of the textbook forms live here: the unrolled 3x3 solver against the
-pivoting loop, the deferred circle-fit moments against per-point accumulation, and the pair
-estimator's lazily folded window against a per-sample ``CircleSums.add`` and checkpoint list.
+The unrolled 3x3 solver (compiled) against the textbook pivoting loop; the compiled pair kernels against
+their own source run by the interpreter (``py_func``: CPython's arithmetic) on a long input with
+spin-up, bridged and window-restarting gaps and late samples; a batch of several pairs against each pair
+on its own bank.
 """
 
 from __future__ import annotations
@@ -12,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from agents.geometry import CircleSums, solve3
-from agents.pair_estimator import PairEstimator
+import agents.kernels.pair as pair
+from agents.kernels.pair import pair_bank, pair_checkpoints, pair_predict, pair_sample, set_pair_params, solve3
 from config.agent_params import EstimatorSpec
 
 
@@ -39,6 +40,11 @@ def _solve3_loop(a: list[list[float]], b: list[float]) -> tuple[float, float, fl
     return x0, x1, x2
 
 
+def _solve3_kernel(a: list[list[float]], b: list[float]) -> tuple[float, float, float] | None:
+    ok, x0, x1, x2 = solve3(*a[0], b[0], *a[1], b[1], *a[2], b[2])
+    return (x0, x1, x2) if ok else None
+
+
 def _outcome(fn, a, b):  # type: ignore[no-untyped-def]
     try:
         return repr(fn(a, b))
@@ -59,122 +65,99 @@ def test_unrolled_solve3_is_bit_identical_to_the_loop(kind: str) -> None:
             vals = rng.integers(-2, 3, 12).astype(float).tolist()
         a = [vals[0:3], vals[3:6], vals[6:9]]
         b = vals[9:12]
-        assert _outcome(solve3, a, b) == _outcome(_solve3_loop, a, b), (a, b)
+        assert _outcome(_solve3_kernel, a, b) == _outcome(_solve3_loop, a, b), (a, b)
 
 
-def test_circle_sums_extend_equals_add() -> None:
-    rng = np.random.default_rng(3)
-    pts = [complex(x, y) for x, y in rng.normal(size=(500, 2)) * 3.0]
-    one, many = CircleSums(), CircleSums()
-    for p in pts:
-        one.add(p)
-    many.extend(pts[:123])
-    many.extend(pts, 123)
-    names = CircleSums.__slots__
-    assert [getattr(one, s) for s in names] == [getattr(many, s) for s in names]
-    assert repr(one.fit()) == repr(many.fit())
+_KERNELS = [name for name, v in vars(pair).items() if hasattr(v, "py_func")]
 
 
-class _ReferencePair(PairEstimator):
-    """The former per-sample bookkeeping: moments added every sample, checkpoints in their own list."""
-
-    __slots__ = ("_cps", "_since_cp", "_wn")
-
-    def _restart(self, w: complex, t: int) -> None:
-        super()._restart(w, t)
-        self._sums.add(0j)
-        self._nfold = 1
-        self._wn = 1
-        self._cps = [0j]
-        self._since_cp = 0
-
-    def sample(self, t: int, w: complex, back: complex, omega_hat: float, dt: float) -> None:
-        last = self.last_t
-        self.last_t = t
-        if last < 0 or t - last > self._max_gap:
-            self._restart(w, t)
-        else:
-            gap = t - last - 1
-            s = self._s
-            wp = self._w_prev
-            if gap > 0:
-                if self.ready:
-                    wp = 1j * omega_hat * self.z * back
-                s += gap * dt * wp
-            s += 0.5 * dt * (wp + w)
-            self._s = s
-            self._w_prev = w
-            self._sums.add(s)
-            self._pts.append(s)
-            self._nfold = len(self._pts)
-            self._wn += 1
-            self._rot += abs(omega_hat) * dt * (gap + 1)
-            self._since_cp += 1
-            if self._since_cp >= self._check:
-                self._since_cp = 0
-                self._cps.append(s)
-                assert self._cps == self._pts[:: self._check]
-                if self._wn >= self._min_ticks and (
-                    omega_hat == 0.0 or self._rot >= 0.8 * self._arc or t - self._t0 >= self._max_ticks
-                ):
-                    self._try_fit(back, t)
-        if not self.ready:
-            return
-        r = self.r
-        sig2 = omega_hat * omega_hat * r * r
-        if sig2 < self._gate2 or sig2 <= 0.0:
-            return
-        zt = self.z * back
-        cr = zt.imag * w.real - zt.real * w.imag
-        ci = zt.real * w.real + zt.imag * w.imag
-        if cr < 0.0:
-            cr = -cr
-            ci = -ci
-        mag = math.sqrt(cr * cr + ci * ci)
-        if mag <= 0.0:
-            return
-        p = self._p
-        k = p / (p + self._noise2 / sig2)
-        self._p = p - k * p
-        z = self.z * complex(1.0, k * ci / mag)
-        self.z = z * (r / abs(z))
+@pytest.fixture
+def interpreted(monkeypatch: pytest.MonkeyPatch):  # type: ignore[no-untyped-def]
+    """The pair module with every kernel replaced by its Python source (callees too); the compiled
+    dispatchers are returned as they were, compiled first so that patched globals cannot reach them."""
+    pair.warm()
+    compiled = {name: getattr(pair, name) for name in _KERNELS}
+    for name in _KERNELS:
+        monkeypatch.setattr(pair, name, compiled[name].py_func)
+    return compiled
 
 
-def _make(cls):  # type: ignore[no-untyped-def]
+def _bank(B: int, D: int, axis: list[bool], sigma: list[float]):  # type: ignore[no-untyped-def]
     e = EstimatorSpec()
-    pe = cls(
-        dt=0.01, sigma_v=0.3, fit_arc=e.fit_arc, fit_min_ticks=e.fit_min_ticks, fit_max_ticks=e.fit_max_ticks,
-        fit_check_ticks=e.fit_check_ticks, max_gap_ticks=e.max_gap_ticks, angle_walk=e.angle_walk, gate_snr=e.gate_snr,
-    )
-    pe._axis = True  # the reference is the axis form of the angle correction (EstimatorSpec.angle_meas)
-    return pe
+    P, cps, prm = pair_bank(B, D, pair_checkpoints(e.fit_min_ticks, e.fit_max_ticks, e.fit_check_ticks))
+    for b in range(B):
+        set_pair_params(
+            P, prm, b, dt=0.01, sigma_v=sigma[b], fit_arc=e.fit_arc, fit_min_ticks=e.fit_min_ticks,
+            fit_max_ticks=e.fit_max_ticks, fit_check_ticks=e.fit_check_ticks, max_gap_ticks=e.max_gap_ticks,
+            angle_walk=e.angle_walk, gate_snr=e.gate_snr, angle_meas="axis" if axis[b] else "linear",
+        )  # fmt: skip
+    return P, cps, prm
 
 
-def test_pair_estimator_with_deferred_moments_matches_per_sample_moments() -> None:
-    """Spin-up from rest, lost samples (bridged and window-restarting gaps), late samples."""
-    rng = np.random.default_rng(11)
-    fast, ref = _make(PairEstimator), _make(_ReferencePair)
+def _inputs(seed: int, sigma: float, ticks: int = 7500):  # type: ignore[no-untyped-def]
+    """Rest (noise only: windows rejected), spin-up, lost samples (gaps bridged and gaps longer than
+    max_gap_ticks), late samples (back != 1 every 7th tick): yields (t, w, lag); the driver turns lag
+    into back with its omega_hat."""
+    rng = np.random.default_rng(seed)
     z = 1.2 - 0.4j
     dt = 0.01
-    om_hat = 0.0
     t = 0
-    while t < 6000:
-        om = min(1.2, 0.002 * t)
+    while t < ticks:
+        om = min(1.2, 0.002 * max(0, t - 2000))
         z *= complex(math.cos(om * dt), math.sin(om * dt))
-        if rng.random() < 0.004:
-            t += int(rng.integers(1, 40))  # a gap (some longer than max_gap_ticks)
+        if rng.random() < 0.004 and t >= 2000:
+            t += int(rng.integers(1, 40))
             continue
-        w = 1j * om * z + complex(*rng.normal(0.0, 0.3 * math.sqrt(2), 2))
-        back = complex(math.cos(-om_hat * dt), math.sin(-om_hat * dt)) if t % 7 == 0 else 1.0
-        fast.sample(t, w, back, om_hat, dt)
-        ref.sample(t, w, back, om_hat, dt)
-        if fast.ready and om_hat == 0.0:
-            om_hat = fast.omega_fit
-        rot = complex(math.cos(om_hat * dt), math.sin(om_hat * dt))
-        fast.predict(rot)
-        ref.predict(rot)
-        assert (fast.z, fast.r, fast._p, fast.windows, fast.rejected, fast.omega_fit) == (
-            ref.z, ref.r, ref._p, ref.windows, ref.rejected, ref.omega_fit
-        ), t
+        w = 1j * om * z + complex(*rng.normal(0.0, sigma * math.sqrt(2), 2))
+        yield t, w, (1 + t % 3 if t % 7 == 0 else 0)
         t += 1
-    assert fast.windows >= 3 and fast.ready
+
+
+class _Driver:
+    """One pair (b, k) of a bank driven as KinematicPhase drives it: omega_hat seeded by the first fit."""
+
+    def __init__(self, P, cps, prm, b: int, k: int) -> None:  # type: ignore[no-untyped-def]
+        self.P, self.cps, self.prm, self.b, self.k = P, cps, prm, b, k
+        self.om_hat = 0.0
+
+    def step(self, sample, predict, t: int, w: complex, lag: int) -> None:  # type: ignore[no-untyped-def]
+        dt = 0.01
+        a = self.om_hat * dt * lag
+        back = complex(math.cos(a), -math.sin(a)) if lag else 1 + 0j
+        sample(self.P, self.cps, self.prm, self.b, self.k, t, w, back, self.om_hat, dt)
+        row = self.P[self.b, self.k]
+        if row["ready"] and self.om_hat == 0.0:
+            self.om_hat = float(row["omega_fit"])
+        a = self.om_hat * dt
+        predict(self.P, self.b, self.k, complex(math.cos(a), math.sin(a)))
+
+
+@pytest.mark.parametrize("axis", [False, True])
+def test_compiled_pair_kernels_equal_their_python_source(interpreted, axis: bool) -> None:  # type: ignore[no-untyped-def]
+    banks = [_bank(1, 1, [axis], [0.3]) for _ in range(2)]
+    comp, interp = (_Driver(*bank, 0, 0) for bank in banks)
+    for t, w, lag in _inputs(11, 0.3):
+        comp.step(interpreted["pair_sample"], interpreted["pair_predict"], t, w, lag)
+        interp.step(pair.pair_sample, pair.pair_predict, t, w, lag)
+        assert comp.P.tobytes() == interp.P.tobytes(), t
+    assert comp.cps.tobytes() == interp.cps.tobytes()
+    row = comp.P[0, 0]
+    assert row["ready"] and row["windows"] >= 3 and row["rejected"] >= 1
+
+
+def test_a_batch_of_pairs_equals_each_pair_alone() -> None:
+    """B = 3 agents (linear and axis forms, three noise levels) x D = 2 pairs, stepped interleaved."""
+    axis, sigma = [False, True, False], [0.3, 0.1, 0.8]
+    P, cps, prm = _bank(3, 2, axis, sigma)
+    batch = {(b, k): _Driver(P, cps, prm, b, k) for b in range(3) for k in range(2)}
+    alone = {(b, k): _Driver(*_bank(1, 1, [axis[b]], [sigma[b]]), 0, 0) for b in range(3) for k in range(2)}
+    streams = {bk: list(_inputs(100 + 2 * bk[0] + bk[1], sigma[bk[0]], 4000)) for bk in batch}
+    for i in range(max(len(s) for s in streams.values())):
+        for bk in sorted(batch, key=lambda bk: (i * 7 + bk[0] * 3 + bk[1]) % 6):  # a varying order
+            if i < len(streams[bk]):
+                batch[bk].step(pair_sample, pair_predict, *streams[bk][i])
+                alone[bk].step(pair_sample, pair_predict, *streams[bk][i])
+    for (b, k), d in alone.items():
+        assert P[b, k].tobytes() == d.P[0, 0].tobytes(), (b, k)
+        assert cps[b, k].tobytes() == d.cps[0, 0].tobytes(), (b, k)
+    assert sum(int(P[b, k]["windows"]) for b, k in batch) >= 6
