@@ -165,3 +165,27 @@ def test_better_is_the_python_order(a, b):
 
     assert K.better(*a, *b) == K.better.py_func(*a, *b) == better(a, b)
 
+
+@SETTINGS
+@given(st.integers(2, 7), st.integers(0, 2**32 - 1), st.integers(1, 5))
+def test_flow_average_views_over_one_bank_equal_views_over_their_own(n, seed, nch):
+    """A team's FlowAverage views on the rows of one bank (the engine's layout) step bit for bit like views on
+    banks of one (the daemon's), on a ring with random losses."""
+    from agents.consensus import FlowAverage
+
+    rng = np.random.default_rng(seed)
+    nbrs = [sorted({(i - 1) % n, (i + 1) % n} - {i}) for i in range(n)]
+    bank = K.flow_average_bank(n, max(map(len, nbrs)), nch)
+    teams = [[FlowAverage(nbrs[i], nch, bank, i) for i in range(n)], [FlowAverage(nbrs[i], nch) for i in range(n)]]
+    for _ in range(20):
+        u = rng.standard_normal((n, nch)).tolist()
+        lost = rng.random((n, n)) < 0.3
+        for team in teams:
+            sent = [(a.x, a.flow) for a in team]
+            for i, a in enumerate(team):
+                for j in nbrs[i]:
+                    if not lost[i, j]:
+                        a.receive(j, sent[j][0], sent[j][1][i], len(nbrs[j]))
+                a.u[:] = u[i]
+                a.update()
+        assert [repr(a.x) for a in teams[0]] == [repr(a.x) for a in teams[1]]
