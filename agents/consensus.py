@@ -4,16 +4,32 @@
   (:func:`weighted_average_step`) the dynamical phase's body-frame angle psi.
 * :func:`lowpass_step` -- x_i + eps sum_j (x_j - x_i) + beta (u_i - x_i): omega_hat (a low-pass
   consensus filter: it averages the per-tick noise over time and over the graph).
-* :func:`flow_step` -- one edge of flow-updating average consensus, F_ij = (F_ij - F_ji)/2 + eps d_ij:
-  the centroid iteration (z_i) and every channel of :class:`FlowAverage` (the dynamical phase).
+* :func:`flow_step` -- one edge of flow-updating average consensus, F_ij = (F_ij - F_ji)/2 + eps d_ij,
+  d_ij = x_i - x_j (+ an edge term): the centroid iteration (z_i) and every channel of :class:`FlowAverage`
+  (the dynamical phase). x_i = u_i - sum_j F_ij. The mean of the two ends' flows, not -F_ji: both ends
+  update at once from each other's previous flows, and with -F_ji the asymmetry a lost message leaves
+  would flip sign every exchange and never decay; the mean removes it at the next exchange. While
+  messages flow the flows stay antisymmetric, so sum_i x_i = sum_i u_i at every tick.
 
-Scalars, complex numbers or numpy arrays alike. Why these forms: docs/agent-step.md.
+Scalars or complex numbers (the first three also numpy arrays). :func:`flow_step` and the update of
+:class:`FlowAverage` are compiled (:mod:`agents.kernels.agreement`). Why these forms: docs/agent-step.md.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from typing import TypeVar
+
+import numpy as np
+
+from agents.kernels import agreement
+from agents.kernels.agreement import DEG, FLOW, HEARD, U, X, flow_average_bank, flow_average_update
+
+# Python callers run the kernel's source interpreted: from Python a compiled call costs more than its
+# arithmetic (0.2 against 0.1 us); kernels call the compiled one
+flow_step = agreement.flow_step.py_func
+
+__all__ = ["FlowAverage", "average_step", "disagreement", "flow_step", "lowpass_step", "weighted_average_step"]
 
 T = TypeVar("T", float, complex)
 
@@ -51,57 +67,51 @@ def lowpass_step(x_i: T, neighbours: Iterable[T], eps: float, beta: float, u_i: 
     return x
 
 
-def flow_step(f_ij: T, f_ji: T, eps: float, d_ij: T | None) -> T:
-    """Agent i's new flow to j: (F_ij - F_ji)/2 + eps d_ij, d_ij = x_i - x_j (+ an edge term).
-
-    x_i = u_i - sum_j F_ij. The mean of the two ends' flows, not -F_ji: both ends update at once
-    from each other's previous flows, and with -F_ji the asymmetry a lost message leaves would flip
-    sign every exchange and never decay; the mean removes it at the next exchange. While messages
-    flow the flows stay antisymmetric, so sum_i x_i = sum_i u_i at every tick. ``d_ij`` None: no
-    new difference this tick (the flow only loses its asymmetry).
-    """
-    if d_ij is None:
-        return 0.5 * (f_ij - f_ji)
-    return 0.5 * (f_ij - f_ji) + eps * d_ij
-
-
 class FlowAverage:
-    """Flow-updating average consensus of ``nch`` real channels (one agent's side).
+    """Flow-updating average consensus of ``nch`` real channels (one agent's side): a view of row ``b``
+    of a bank (:mod:`agents.kernels.agreement`; its own bank of one unless given).
 
     Each tick: set the inputs ``u``, :meth:`receive` the neighbours' latest (x_j, F_ji, degree),
     :meth:`update`. eps_ij is the Metropolis weight 1 / (1 + max(d_i, d_j)); a neighbour not heard
-    from yet keeps its flows. ``x`` is replaced on every update, never changed in place.
+    from yet keeps its flows. ``x`` is a list replaced on every update, never changed in place.
     """
 
-    __slots__ = ("u", "x", "flow", "nx", "nf", "ndeg", "deg", "nch", "eps")
+    __slots__ = ("u", "x", "nx", "ndeg", "deg", "nch", "ids", "_slot", "_b", "_F", "_I", "_nf", "_nx", "_ndeg")
 
-    def __init__(self, nbr_ids: Sequence[int], nch: int) -> None:
+    def __init__(self, nbr_ids: Sequence[int], nch: int, bank: tuple[np.ndarray, np.ndarray] | None = None,
+                 b: int = 0) -> None:
         self.nch = nch
-        self.u = [0.0] * nch
-        self.x = [0.0] * nch
-        self.deg = len(nbr_ids)
-        self.flow = {j: [0.0] * nch for j in nbr_ids}  # F_ij, in neighbour order (updated in place)
-        self.nx: dict[int, list[float]] = {}  # x_j, latest received
-        self.nf = {j: [0.0] * nch for j in nbr_ids}  # F_ji, latest received
-        self.ndeg = {j: 1 for j in nbr_ids}
-        self.eps: dict[int, float] = {}  # eps_ij of the neighbours heard from
+        self.ids = tuple(nbr_ids)
+        self.deg = len(self.ids)
+        self._slot = {j: k for k, j in enumerate(self.ids)}
+        self._F, self._I = flow_average_bank(1, self.deg, nch) if bank is None else bank
+        self._b = b
+        D = (self._F.shape[1] - FLOW) // 3  # the bank's slots (>= deg)
+        self._nf, self._nx, self._ndeg = FLOW + D, FLOW + 2 * D, HEARD + D  # where slot 0's rows start
+        self._I[b, DEG] = self.deg
+        self.u = [0.0] * nch  # the inputs, written in place by the caller (a list: cheap to write from Python)
+        self.x = self._F[b, X].tolist()
+        # the latest received x_j and degree per neighbour, in first-heard order: what the Python readers
+        # of the phase iterate (the order reaches their sums); the kernel reads the bank's rows
+        self.nx: dict[int, list[float]] = {}
+        self.ndeg = dict.fromkeys(self.ids, 1)
+
+    @property
+    def flow(self) -> dict[int, list[float]]:
+        """F_ij per neighbour, in neighbour order (a copy)."""
+        return dict(zip(self.ids, self._F[self._b, FLOW:FLOW + self.deg].tolist(), strict=True))
 
     def receive(self, j: int, xj: list[float], fji: list[float], degj: int) -> None:
+        k, b = self._slot[j], self._b
+        self._F[b, self._nf + k] = fji
+        self._F[b, self._nx + k] = xj
+        self._I[b, HEARD + k] = 1
+        self._I[b, self._ndeg + k] = degj
         self.nx[j] = xj
-        self.nf[j] = fji
         self.ndeg[j] = degj
-        self.eps[j] = 1.0 / (1.0 + max(self.deg, degj))
 
     def update(self) -> None:
-        x = self.x
-        tot = [0.0] * self.nch
-        for j, fl in self.flow.items():
-            xj = self.nx.get(j)
-            if xj is not None:
-                eps = self.eps[j]
-                fji = self.nf[j]
-                for c in range(self.nch):
-                    fl[c] = flow_step(fl[c], fji[c], eps, x[c] - xj[c])
-            for c in range(self.nch):
-                tot[c] += fl[c]
-        self.x = [u - t for u, t in zip(self.u, tot, strict=True)]
+        b = self._b
+        self._F[b, U] = self.u
+        flow_average_update(b, self._F, self._I)
+        self.x = self._F[b, X].tolist()
