@@ -1,5 +1,5 @@
 """The agreement kernels (agents/kernels/agreement.py): compiled == interpreted bit for bit, a batch of n rows ==
-n batches of one, and the barrier and flood kernels == the Python classes the agent runs at a batch of one."""
+n batches of one."""
 
 import math
 
@@ -7,9 +7,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agents.effect_decision import N_EFF, DecisionFlood
 from agents.kernels import agreement as K
-from agents.stage_agreement import StageBarrier
 
 SETTINGS = settings(derandomize=True, max_examples=60, deadline=None)
 # values with signed zeros, exact ties and NaN: the cases where a changed operation order shows
@@ -82,88 +80,6 @@ def _barrier_state(S: np.ndarray, b: int) -> tuple[int, int, int]:
 
 def _chunks(mask: int, nbk: int) -> np.ndarray:
     return np.array([(mask >> (c * K.MASK_BITS)) & ((1 << K.MASK_BITS) - 1) for c in range(nbk)], np.int64)
-
-
-BARRIER_OPS = st.lists(st.tuples(st.sampled_from(["ready", "merge", "merge", "reset"]), st.integers(0, 10**6),
-                                 st.integers(-1, 300), st.integers(-1, 300)), max_size=25)
-
-
-@SETTINGS
-@given(st.lists(st.tuples(st.integers(1, 130), st.integers(0, 10**6), st.integers(1, 40)), min_size=1, max_size=4),
-       BARRIER_OPS)
-def test_barrier_kernels_equal_the_stage_barrier(teams, ops):
-    """Each row of one bank (teams of different sizes, so rows with spare chunks) steps like its own
-    StageBarrier, with the compiled and the interpreted kernels alike."""
-    nbk = max((n + K.MASK_BITS - 1) // K.MASK_BITS for n, _, _ in teams)
-    S, Sp = K.barrier_bank(len(teams), nbk), K.barrier_bank(len(teams), nbk)
-    bars = []
-    for b, (n, me, horizon) in enumerate(teams):
-        for bank in (S, Sp):
-            bank[b, K.ME], bank[b, K.N], bank[b, K.HORIZON] = me % n, n, horizon
-        bars.append(StageBarrier(me % n, n, horizon))
-    for kind, bits, tick, switch in ops:
-        for b, bar in enumerate(bars):
-            n = bar.n
-            if kind == "ready":
-                bar.set_ready(tick)
-                K.barrier_set_ready(b, S, tick)
-                K.barrier_set_ready.py_func(b, Sp, tick)
-            elif kind == "merge":
-                # some bits past n too: a malformed but decodable mask chunk carries them
-                mask = (bits * 0x9E3779B97F4A7C15) & ((1 << (K.MASK_BITS * ((n + K.MASK_BITS - 1) // K.MASK_BITS))) - 1)
-                bar.merge(mask, tick, switch)
-                row = _chunks(mask, (n + K.MASK_BITS - 1) // K.MASK_BITS)
-                K.barrier_merge(b, S, row, tick, switch)
-                K.barrier_merge.py_func(b, Sp, row, tick, switch)
-            else:
-                bar.reset()
-                K.barrier_reset(b, S)
-                K.barrier_reset.py_func(b, Sp)
-            assert _barrier_state(S, b) == (bar.mask, bar.tmax, bar.switch)
-            assert K.barrier_complete(b, S) == K.barrier_complete.py_func(b, S) == bar.complete
-    assert _bits(S) == _bits(Sp)
-
-
-PROPOSALS = st.lists(st.tuples(st.sampled_from(["merge", "merge", "merge", "due"]), st.integers(-1, 60),
-                               st.integers(-1, 2 * N_EFF - 1), st.one_of(st.sampled_from([0.0, -0.0, math.nan, 3.0,
-                                                                                          -3.0]), FLOATS)),
-                     max_size=30)
-
-
-@SETTINGS
-@given(PROPOSALS, st.integers(1, 3))
-def test_flood_kernels_equal_the_decision_flood(ops, B):
-    """Every row of a bank takes the same proposals as one DecisionFlood and picks and applies the same
-    ones, NaN and signed-zero z included (the tuple order's corner cases)."""
-    FI, FZ = K.flood_bank(B)
-    FIp, FZp = K.flood_bank(B)
-    flood = DecisionFlood()
-    for kind, s, e, z in ops:
-        if kind == "merge":
-            flood.merge((s, e, z))
-            for b in range(B):
-                K.flood_merge(b, FI, FZ, s, e, z)
-                K.flood_merge.py_func(b, FIp, FZp, s, e, z)
-        else:
-            want = flood.due(s)
-            for b in range(B):
-                got = K.flood_due(b, FI, FZ, s)
-                s_p, e_p, z_p = K.flood_due.py_func(b, FIp, FZp, s)  # numpy scalars, interpreted
-                assert repr(got) == repr((int(s_p), int(e_p), float(z_p)))
-                assert repr(None if got[0] < 0 else got) == repr(want)
-        for b in range(B):
-            best = (int(FI[b, K.BEST_S]), int(FI[b, K.BEST_E]), float(FZ[b]))
-            assert repr(best) == repr(flood.best) and int(FI[b, K.DONE]) == flood.done
-    assert _bits(FI, FZ) == _bits(FIp, FZp)
-
-
-@SETTINGS
-@given(st.tuples(st.integers(-1, 9), st.integers(-1, 9), FLOATS), st.tuples(st.integers(-1, 9), st.integers(-1, 9),
-                                                                           FLOATS))
-def test_better_is_the_python_order(a, b):
-    from agents.effect_decision import better
-
-    assert K.better(*a, *b) == K.better.py_func(*a, *b) == better(a, b)
 
 
 @SETTINGS
