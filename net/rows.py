@@ -40,6 +40,7 @@ PAIR_HEAD = 4  # zx, zy, Fx, Fy before a block's flows
 # (agents.stage_agreement.MASK_BITS), a flooded decision's effect codes [-1, 2 N_EFF) (agents.effect_decision)
 MASK_BITS = 50
 N_DECISION_CODES = 8
+_CHUNK_END = 2.0**MASK_BITS
 
 # the kernels' view of a Layout: lay[L_*] (int64)
 (L_DYNAMIC, L_NCH, L_NBK, L_DETECT, L_DEGREE, L_DG, L_SK, L_PS, L_B0, L_BT, L_BS, L_DS, L_DE, L_DZ, L_P0, L_BLOCK,
@@ -61,6 +62,8 @@ class Layout:
     detection: bool
     degree: int
     keys: tuple[str, ...] = field(init=False)  # the shared states' names, slots OM .. p0 - 1
+    ch_keys: tuple[str, ...] = field(init=False)  # the channels' names (c0 ..)
+    mask_keys: tuple[str, ...] = field(init=False)  # the barrier mask chunks' names (B0 ..)
     dg: int = field(init=False)  # slots of the dynamical states (-1 without them)
     sk: int = field(init=False)
     ps: int = field(init=False)
@@ -90,8 +93,9 @@ class Layout:
         p0 = OM + len(keys)
         block = PAIR_HEAD + nch
         put = object.__setattr__
-        for name, v in (("keys", tuple(keys)), ("dg", dg), ("sk", sk), ("ps", ps), ("b0", b0), ("bt", bt),
-                        ("bs", bs), ("ds", ds), ("p0", p0), ("block", block)):
+        for name, v in (("keys", tuple(keys)), ("ch_keys", tuple(f"c{c}" for c in range(nch))),
+                        ("mask_keys", tuple(f"B{c}" for c in range(nbk))), ("dg", dg), ("sk", sk), ("ps", ps),
+                        ("b0", b0), ("bt", bt), ("bs", bs), ("ds", ds), ("p0", p0), ("block", block)):
             put(self, name, v)
         lay = np.array([self.dynamic, nch, nbk, self.detection, self.degree, dg, sk, ps, b0, bt, bs, ds,
                         ds + 1 if ds >= 0 else -1, ds + 2 if ds >= 0 else -1, p0, block,
@@ -113,6 +117,8 @@ class Layout:
 def _num(x: object) -> float:
     """A kinematic value as the receiving kernel reads it: a number as is, anything else NaN (today it
     fails the finiteness sum, as NaN does)."""
+    if type(x) is float:
+        return x
     try:
         return float(x)  # type: ignore[arg-type]
     except (TypeError, ValueError, OverflowError):
@@ -120,14 +126,20 @@ def _num(x: object) -> float:
 
 
 def row_from_state(msg: StateMsg, me: int, lay: Layout) -> np.ndarray:
-    """The IN row of ``msg`` for receiver ``me``. Its statements are the receive path's (the inbox's
-    try-block, then the dynamical phase's decoder), in that order; the first raise decides ``STATUS``."""
-    row = np.zeros(lay.size_in)
-    row[TICK] = msg.tick
-    row[SENDER] = msg.sender
-    row[VX] = _num(msg.vx)
-    row[VY] = _num(msg.vy)
-    row[PHASE] = _num(msg.phase)
+    """The IN row of ``msg`` for receiver ``me`` (:func:`row_values`)."""
+    return np.array(row_values(msg, me, lay))
+
+
+def row_values(msg: StateMsg, me: int, lay: Layout) -> list[float]:
+    """The IN row of ``msg`` for receiver ``me``, as a list (many rows become one array at once). Its
+    statements are the receive path's (the inbox's try-block, then the dynamical phase's decoder), in
+    that order; the first raise decides ``STATUS``."""
+    v = [0.0] * lay.size_in
+    v[TICK] = msg.tick
+    v[SENDER] = msg.sender
+    v[VX] = _num(msg.vx)
+    v[VY] = _num(msg.vy)
+    v[PHASE] = _num(msg.phase)
     p = lay.p0
     try:
         sh = msg.shared
@@ -135,8 +147,7 @@ def row_from_state(msg: StateMsg, me: int, lay: Layout) -> np.ndarray:
         s_ph = sh["ph"]
         yx = sh["yx"]
         yy = sh["yy"]
-        oi = sh["oi"]
-        row[OI] = float(oi > 0.0)  # the one use of "oi": a bool, so store what it decides
+        v[OI] = 1.0 if sh["oi"] > 0.0 else 0.0  # the one use of "oi": a bool, so store what it decides
         pz = msg.pair.get(me)
         if not lay.dynamic:
             if pz is None:
@@ -149,32 +160,33 @@ def row_from_state(msg: StateMsg, me: int, lay: Layout) -> np.ndarray:
                 fl = None
             else:
                 zx, zy, fx, fy, *fl = pz
-            _decode_dynamic(row, lay, msg.phase, sh, fl)
+            _decode_dynamic(v, lay, msg.phase, sh, fl)
     except _MALFORMED:
-        row[STATUS] = MALFORMED
-        return row
-    row[HAS_PAIR] = pz is not None
-    try:
-        chk = s_om + s_ph + yx + yy + zx + zy + fx + fy + msg.vx + msg.vy
-        chk - chk  # noqa: B018 (the old finiteness test: raises on a type the sum let through)
-    except _MALFORMED:
-        row[STATUS] = KIN_MALFORMED
-    if not lay.dynamic:
-        row[OM] = _num(s_om)
-    row[PH] = _num(s_ph)
-    row[YX] = _num(yx)
-    row[YY] = _num(yy)
-    row[p:p + PAIR_HEAD] = _num(zx), _num(zy), _num(fx), _num(fy)
-    return row
+        v[STATUS] = MALFORMED
+    else:
+        v[HAS_PAIR] = 0.0 if pz is None else 1.0
+        try:
+            chk = s_om + s_ph + yx + yy + zx + zy + fx + fy + msg.vx + msg.vy
+            chk - chk  # noqa: B018 (the old finiteness test: raises on a type the sum let through)
+        except _MALFORMED:
+            v[STATUS] = KIN_MALFORMED
+        if not lay.dynamic:
+            v[OM] = _num(s_om)
+        v[PH] = _num(s_ph)
+        v[YX] = _num(yx)
+        v[YY] = _num(yy)
+        v[p:p + PAIR_HEAD] = _num(zx), _num(zy), _num(fx), _num(fy)
+    return v
 
 
-def _decode_dynamic(row: np.ndarray, lay: Layout, phase: object, sh: dict, fl: Sequence[float] | None) -> None:
+def _decode_dynamic(v: list[float], lay: Layout, phase: object, sh: dict, fl: Sequence[float] | None) -> None:
     """The dynamical states of ``sh`` (and the flows ``fl`` meant for the receiver, None: none sent yet)
-    into ``row``, checked as the dynamical phase's decoder checks them (it raises where that raises)."""
+    into the row values ``v``, checked as the dynamical phase's decoder checks them (it raises where that
+    raises)."""
     nch = lay.nch
     psi = float(sh["ps"])
     degj = sh["dg"]
-    xj = [float(sh[f"c{c}"]) for c in range(nch)]
+    xj = [float(sh[k]) for k in lay.ch_keys]
     if psi - psi != 0.0:
         raise ValueError("non-finite")
     om = float(sh.get("om", math.nan))
@@ -182,33 +194,30 @@ def _decode_dynamic(row: np.ndarray, lay: Layout, phase: object, sh: dict, fl: S
     flows = [0.0] * nch if fl is None else list(map(float, fl))
     if degj < 1 or len(flows) != nch:
         raise ValueError("bad dynamic state")
-    chunks = []
-    for c in range(lay.nbk):
-        v = sh[f"B{c}"]
-        if not (0.0 <= v < 2.0**MASK_BITS) or v != int(v):
+    b = lay.b0
+    for key in lay.mask_keys:
+        x = sh[key]
+        if not (0.0 <= x < _CHUNK_END) or x != int(x):
             raise ValueError("bad mask chunk")
-        chunks.append(int(v))
-    bt, bs = int(sh["Bt"]), int(sh["Bs"])
+        v[b] = int(x)
+        b += 1
+    v[lay.bt] = int(sh["Bt"])
+    v[lay.bs] = int(sh["Bs"])
     if not all(map(math.isfinite, xj)):
         raise ValueError("non-finite")
     if lay.detection:
         s, e, z = float(sh["Ds"]), float(sh["De"]), float(sh["Dz"])
         if s != int(s) or e != int(e) or not (-1 <= e < N_DECISION_CODES) or z - z != 0.0:
             raise ValueError("bad decision")
-        row[lay.ds:lay.ds + 3] = s, e, z
-    phase = int(phase)  # type: ignore[call-overload]
-    sk = int(sh["Sk"])
-    row[PHASE] = phase
-    row[OM] = om
-    row[C0:C0 + nch] = xj
-    row[lay.dg] = degj
-    row[lay.sk] = sk
-    row[lay.ps] = psi
-    row[lay.b0:lay.b0 + lay.nbk] = chunks
-    row[lay.bt] = bt
-    row[lay.bs] = bs
+        v[lay.ds:lay.ds + 3] = s, e, z
+    v[PHASE] = int(phase)  # type: ignore[call-overload]
+    v[lay.sk] = int(sh["Sk"])
+    v[OM] = om
+    v[C0:C0 + nch] = xj
+    v[lay.dg] = degj
+    v[lay.ps] = psi
     p = lay.p0 + PAIR_HEAD
-    row[p:p + nch] = flows
+    v[p:p + nch] = flows
 
 
 def state_from_row(row: np.ndarray, lay: Layout, nbr_ids: Sequence[int]) -> StateMsg:
