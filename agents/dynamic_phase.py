@@ -18,20 +18,18 @@ import copy
 import math
 import statistics
 from collections.abc import Callable, Sequence
-from math import cos, isfinite, sin
+from math import cos, sin
 
 import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
 from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
-from agents.effect_decision import decode as decode_decision
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import StageBarrier
-from agents.stage_agreement import decode as decode_barrier
 from agents.tick_records import DynamicFeedback, DynamicMsg, DynamicOut, KinematicTick
 from config.agent_params import DynamicsSpec
 from net.vocabulary import (
@@ -163,27 +161,6 @@ class DynamicPhase:
                        if spec.online_detection else None)
 
     # ------------------------------------------------------------------ messages
-    def decode(self, j: int, t: int, msg_phase: int, sh: dict[str, float], flows: Sequence[float] | None) -> DynamicMsg:
-        """Neighbour j's dynamical states of tick ``t`` (``flows`` None: it sent none for us yet);
-        raises KeyError, ValueError or TypeError if malformed. Changes nothing."""
-        nch = self.avg.nch
-        psi = float(sh["ps"])
-        degj = sh["dg"]
-        xj = [float(sh[k]) for k in self.ch_keys]
-        if psi - psi != 0.0:
-            raise ValueError("non-finite")
-        # its omega_hat (the agent's kinematic key in the same dict; the lock check's fallback seed)
-        om = float(sh.get("om", math.nan))
-        degj = int(degj)
-        flows = [0.0] * nch if flows is None else list(map(float, flows))
-        if degj < 1 or len(flows) != nch:
-            raise ValueError("bad dynamic state")
-        bar = decode_barrier(sh, self.barrier.mask_keys)
-        if not all(map(isfinite, xj)):
-            raise ValueError("non-finite")
-        dec = decode_decision(sh) if self.detect is not None else None
-        return DynamicMsg(j, t, int(msg_phase), psi, degj, xj, flows, bar, int(sh["Sk"]), om, dec)
-
     def _receive(self, m: DynamicMsg) -> None:
         """A decoded neighbour state (in arrival order: a later one of the same neighbour replaces it)."""
         j = m.sender

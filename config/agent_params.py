@@ -43,7 +43,8 @@ class _Strict(BaseModel):
 
 
 class EstimatorSpec(_Strict):
-    """Tuning of the kinematic-phase estimators (z_ij, z_i, omega; see ``agents/kinematic_phase.py`` and ``agents/pair_estimator.py``)."""
+    """Tuning of the kinematic-phase estimators (z_ij, z_i, omega; see ``agents/kernels/kinematic.py`` and
+    ``agents/kernels/pair.py``)."""
 
     sigma_v: float | None = Field(
         None, ge=0, description="velocity-sensor noise the agents assume (m/s); default: the scenario's noise"
@@ -100,7 +101,8 @@ class EstimatorSpec(_Strict):
 
 
 class ControlSpec(_Strict):
-    """The kinematic-phase control schedule (see ``agents/control.py``). Per-agent magnitudes."""
+    """The kinematic-phase control schedule (see ``kin_wrench`` in ``agents/kernels/kinematic.py``). Per-agent
+    magnitudes."""
 
     force: float = Field(1.0, ge=0, description="Prop. 6 common force magnitude per agent (N)")
     force_angle: float = Field(

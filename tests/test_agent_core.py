@@ -157,5 +157,5 @@ def test_cost_does_not_depend_on_n() -> None:
     """Per-agent state depends on the neighbours only."""
     small = AgentCore(1, [0, 2], 5, 0.01, 0.3, EstimatorSpec(), ControlSpec())
     large = AgentCore(1, [0, 2], 10_000, 0.01, 0.3, EstimatorSpec(), ControlSpec())
-    assert len(small._kin.vbuf) == len(large._kin.vbuf) == EstimatorSpec().history_ticks
+    assert small.vbuf.shape == large.vbuf.shape == (1, EstimatorSpec().history_ticks)
     assert len(small.pairs) == len(large.pairs) == 2

@@ -1,6 +1,6 @@
 """The kinematic estimator under delayed, reordered and lost neighbour messages (issue 5).
 
-Three mechanisms in ``agents/agent.py``, each tested against the rigid-body truth where it can fail:
+Three mechanisms in ``agents/kernels/kinematic.py``, each tested against the rigid-body truth where it can fail:
 
 * omega from delayed data: a neighbour's omega state of tick t, and an eq. (9) sample of tick t, are
   brought to the agent's tick by omega_hat's own measured trend plus the feed-forward increments of
@@ -14,17 +14,14 @@ Three mechanisms in ``agents/agent.py``, each tested against the rigid-body trut
 
 from __future__ import annotations
 
-import math
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
-
-from agents.agent import AgentCore
-from agents.tick_records import DynamicFeedback, DynamicOut, KinematicTick
-from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from rigid_truth import line_neighbours, reference_load, run_closed_loop
 from test_agent_core import Links
+
+from agents.agent import AgentCore
+from agents.tick_records import DynamicFeedback
+from config.agent_params import ControlSpec, EstimatorSpec
 
 DT = 0.01
 RAMP = 0.03  # rad/s^2
@@ -67,47 +64,25 @@ def test_omega_lag_on_a_ramp_does_not_grow_with_the_delay() -> None:
     assert abs(_ramp_bias(20, seed=3) - base) < 0.015
 
 
-class _FeedForward:
-    """Stands in for the dynamical phase: its only effect here is a known angular acceleration that
-    AgentCore feeds forward into omega_hat (``alpha``); the wrench passes through unchanged."""
-
-    def __init__(self) -> None:
-        self.alpha = 0.0
-
-    def decode(self, j: int, t: int, *rest: object) -> SimpleNamespace:
-        return SimpleNamespace(sender=j, tick=t)  # what the agent's estimate-trust count reads
-
-    def step(self, kin: KinematicTick) -> DynamicOut:
-        return DynamicOut(kin.wrench, 1, {}, {j: () for j, _, _ in kin.pairs}, {"m": math.nan, "J": math.nan},
-                          DynamicFeedback(alpha=self.alpha))
-
-    def uncertainties(self) -> tuple[float, float]:
-        return math.nan, math.nan
-
-    def monitor_entries(self) -> dict[str, float]:
-        return {}
-
-
 def _ramp_onset_error(delay: int, seed: int) -> float:
     """The load turns at 1 rad/s; at 15 s an external torque speeds it up at 0.3 rad/s^2 for 3 s and the
-    (stand-in) dynamical phase feeds that acceleration forward. Returns max |mean_i omega_hat_i - omega|
-    over [15 s, 18 s], i.e. how well omega_hat follows the start of a ramp it is told about."""
+    kinematic kernel is told of it as a dynamical phase's feed-forward would (``DynamicFeedback.alpha``). Returns
+    max |mean_i omega_hat_i - omega| over [15 s, 18 s], i.e. how well omega_hat follows the start of a
+    ramp it is told about."""
     rng = np.random.default_rng(seed)
     load = reference_load()
     load.omega = 1.0
     nbrs = line_neighbours(10)
     n = len(nbrs)
-    dyn = DynamicsSpec(algorithm="sequential")
-    agents = [AgentCore(i, nbrs[i], n, DT, 0.3, EstimatorSpec(), ControlSpec(), dyn) for i in range(n)]
+    agents = [AgentCore(i, nbrs[i], n, DT, 0.3, EstimatorSpec(), ControlSpec()) for i in range(n)]
     for a in agents:
-        a._dyn = _FeedForward()  # the dynamical phase replaced: a known feed-forward only
+        a.kin["dynamic"] = True  # the kinematic kernel's side of a dynamical phase: a known feed-forward only
     due: dict[int, list] = {}
     worst = 0.0
     zero_f = np.zeros(n, dtype=complex)
     for k in range(int(round(18.0 / DT))):
         ramp = 0.3 if k * DT >= 15.0 else 0.0
         for a in agents:
-            a._dyn.alpha = ramp
             a._fb = DynamicFeedback(alpha=ramp)  # this tick's, as the dynamical phase would have left it
         meas = load.contact_velocities() + rng.normal(0.0, 0.3, n) + 1j * rng.normal(0.0, 0.3, n)
         inboxes = due.pop(k, [[] for _ in range(n)])

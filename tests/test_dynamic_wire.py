@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-import pytest
+import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -30,28 +30,35 @@ def test_flow_edge_is_antisymmetric_after_one_exchange(f_ij: float, f_ji: float,
     assert flow_step(f_ij, f_ji, eps, None) == 0.5 * (f_ij - f_ji)
 
 
-def test_dynamic_decode_rejects_malformed_states_and_keeps_nothing() -> None:
+def test_dynamic_states_are_decoded_and_checked_at_the_edge() -> None:
+    """A neighbour's dynamical states are checked as a whole by the edge codec (net/rows.py): one bad
+    value or missing key marks the row malformed (nothing of it is taken); the flows default to zeros
+    when it sent none for us yet."""
+    from agents.agent import _dynamic_msg
     from config.agent_params import DynamicsSpec
+    from net import rows as R
+    from net.messages import StateMsg
 
     dyn = D.DynamicPhase(1, [0, 2], 3, 0.01, 0.1, DynamicsSpec())
-    out = dyn._shared()
+    out = {"om": 0.5, "oi": 1.0, "ph": 0.0, "yx": 0.0, "yy": 0.0, **dyn._shared()}
+    lay = R.Layout(True, dyn.avg.nch, len(dyn.barrier.mask_keys), False, 2)
     flows = [0.5] * dyn.avg.nch
-    m = dyn.decode(0, 5, D.KINEMATIC, dict(out), flows)
+
+    def row(sh: dict, fl: list | None = flows) -> np.ndarray:
+        return R.row_from_state(StateMsg(5, 0, 0.0, 0.0, D.KINEMATIC, sh, {} if fl is None else {1: (0, 0, 0, 0, *fl)}),
+                                1, lay)
+
+    m = _dynamic_msg(row(dict(out)).tolist(), lay)
     assert m.x == [float(out[k]) for k in dyn.ch_keys]
-    assert m.flows == flows and m.flows is not flows
-    assert (m.psi, m.tick) == (out["ps"], 5)
-    assert dyn.decode(0, 5, D.KINEMATIC, dict(out), None).flows == [0.0] * dyn.avg.nch  # none sent for us yet
+    assert m.flows == flows
+    assert (m.psi, m.tick, m.omega_hat) == (out["ps"], 5, 0.5)
+    assert _dynamic_msg(row(dict(out), None).tolist(), lay).flows == [0.0] * dyn.avg.nch  # none sent for us yet
     for bad in ({"c3": math.nan}, {"ps": math.inf}, {"dg": 0.0}, {"B0": 0.5}, {"B0": -1.0}):
-        with pytest.raises(ValueError):
-            dyn.decode(2, 6, D.KINEMATIC, {**out, **bad}, flows)
+        assert row({**out, **bad})[R.STATUS] == R.MALFORMED
     for missing in ("c0", "ps", "dg", "Bt", "Bs", "B0", "Sk"):
-        with pytest.raises(KeyError):
-            dyn.decode(2, 6, D.KINEMATIC, {k: v for k, v in out.items() if k != missing}, flows)
-    with pytest.raises(ValueError):
-        dyn.decode(2, 6, D.KINEMATIC, dict(out), flows[:-1])
-    with pytest.raises(ValueError):
-        dyn.decode(2, 6, D.KINEMATIC, dict(out), ["x"] * dyn.avg.nch)
-    assert not dyn.avg.nx and not dyn.nbr_stage  # decoding keeps nothing
+        assert row({k: v for k, v in out.items() if k != missing})[R.STATUS] == R.MALFORMED
+    assert row(dict(out), flows[:-1])[R.STATUS] == R.MALFORMED
+    assert row(dict(out), ["x"] * dyn.avg.nch)[R.STATUS] == R.MALFORMED
 
 
 @settings(max_examples=60, deadline=None)
@@ -72,5 +79,6 @@ def test_stage_barrier_wire_form_round_trips(n: int, steps: list[tuple[str, int,
             bar.reset()
         wire = bar.encode()
         assert set(wire) == {*SA.mask_keys(n), "Bt", "Bs"}
-        assert all(float(v).is_integer() and 0 <= v < 2.0**SA.MASK_BITS for k, v in wire.items() if k.startswith("B") and k[1:].isdigit())
+        assert all(float(v).is_integer() and 0 <= v < 2.0**SA.MASK_BITS
+                   for k, v in wire.items() if k.startswith("B") and k[1:].isdigit())
         assert other.decode(wire) == (bar.mask, bar.tmax, bar.switch)
