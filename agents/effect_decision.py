@@ -92,7 +92,8 @@ from statistics import NormalDist
 
 import numpy as np
 
-from agents.innovation_monitor import cholesky2, whiten
+import agents.kernels.window_stats as ws
+
 # candidate k: its rates EFFECT_PARAMS[k], filter states 7 + p (beta, gamma, kappa, a_x, a_y)
 from agents.rigid_filter import EFFECT_PARAMS, EFFECTS, N_EFF, N_PAR, RigidEKF
 
@@ -299,75 +300,71 @@ def judge(zp: float, zs: Sequence[float], alpha: float, on: int, held: int = 0,
 
 
 class WindowEvidence:
-    """One agent's sums over the current global window (module docstring)."""
+    """One agent's sums over the current global window (module docstring): a view over row ``b`` of the evidence
+    arrays (agents/kernels/window_stats.py); its own by default. ``close`` reads them at the window's end."""
 
-    __slots__ = ("lags", "hist", "k", "sw", "sg", "sww", "n", "acc", "den", "sh", "shh", "swh")
-    # sg: sum g_j.g_k per candidate pair (PAIRS order)
+    __slots__ = ("lags", "scored", "b", "_rows")
 
-    def __init__(self, lags: int) -> None:
+    def __init__(self, lags: int, cand: int = (1 << N_EFF) - 1, rows: tuple | None = None, b: int = 0) -> None:
+        """``cand``: the candidates (bit k: EFFECTS[k]) whose rates a filter update scores (:meth:`observe_update`);
+        ``rows``: the arrays of :func:`evidence_rows` to view row ``b`` of."""
         self.lags = lags
-        self.hist: list[tuple[float, float]] = []  # the last ``lags`` whitened innovations, newest last
-        self.clear()
+        # a rate of an effect that is no candidate is never scored
+        self.scored = np.ones(N_PAR, np.bool_)
+        for k, ps in enumerate(EFFECT_PARAMS):
+            if not (cand >> k) & 1:
+                self.scored[list(ps)] = False
+        self._rows = ws.evidence_rows(1, lags, N_PAR) if rows is None else rows
+        self.b = b
+
+    n = property(lambda self: int(self._rows[0][self.b, ws.EI_N]))
+    sww = property(lambda self: float(self._rows[1][self.b, ws.EF_WW]))
+    shh = property(lambda self: float(self._rows[1][self.b, ws.EF_HH]))
+    swh = property(lambda self: float(self._rows[1][self.b, ws.EF_WH]))
+    sw = property(lambda self: self._rows[2][self.b].tolist())
+    sh = property(lambda self: self._rows[3][self.b].tolist())  # g_p.h: each rate's sensitivity against h
+    sg = property(lambda self: self._rows[4][self.b].tolist())  # sum g_j.g_k per candidate pair (PAIRS order)
+    acc = property(lambda self: self._rows[5][self.b].tolist())  # sum over lags 1..h of the lag products
+    den = property(lambda self: self._rows[6][self.b].tolist())
 
     def clear(self) -> None:
         """A new window."""
-        self.sw = [0.0] * N_PAR
-        self.sg = [0.0] * len(PAIRS)
-        self.sww = 0.0
-        self.sh = [0.0] * N_PAR  # g_p.h: each rate's sensitivity against the force error's
-        self.shh = 0.0
-        self.swh = 0.0
-        self.n = 0
-        self.acc = [0.0, 0.0]  # sum over lags 1..h of the lag products, per component
-        self.den = [0.0, 0.0]
+        ws.evidence_clear(self.b, *self._rows[:7])
 
     def restart(self) -> None:
         """The filter restarted: no lag products across the restart."""
-        self.hist = []
+        ws.evidence_restart(self.b, self._rows[0])
 
     def observe(self, w0: float, w1: float, g: Sequence[tuple[float, float]],
                 h: tuple[float, float] = (0.0, 0.0)) -> None:
         """One update's whitened innovation (w0, w1), each rate's whitened sensitivity (:data:`N_PAR`; rates
         not given have none) and the force error's ``h`` (the nuisance)."""
-        h0, h1 = h
-        if len(g) < N_PAR:
-            g = [*g, *((0.0, 0.0),) * (N_PAR - len(g))]
-        for k, (g0, g1) in enumerate(g):
-            self.sw[k] += w0 * g0 + w1 * g1
-            self.sh[k] += g0 * h0 + g1 * h1
-        sg = self.sg
-        for i, (j, k) in enumerate(PAIRS):
-            sg[i] += g[j][0] * g[k][0] + g[j][1] * g[k][1]
-        self.shh += h0 * h0 + h1 * h1
-        self.swh += w0 * h0 + w1 * h1
-        self.sww += w0 * w0 + w1 * w1
-        self.n += 1
-        a, d = self.acc, self.den
-        d[0] += w0 * w0
-        d[1] += w1 * w1
-        for h0, h1 in self.hist:
-            a[0] += w0 * h0
-            a[1] += w1 * h1
-        hist = self.hist
-        hist.append((w0, w1))
-        if len(hist) > self.lags:
-            del hist[0]
+        ga = np.zeros((N_PAR, 2))
+        if len(g):
+            ga[:len(g)] = g
+        ws.evidence_observe(self.b, *self._rows, w0, w1, ga, *h)
+
+    def observe_update(self, innov: np.ndarray, sens_h: np.ndarray) -> None:
+        """One filter update: innovation (e0, e1, s00, s01, s11) and the sensitivities' rows H D (per rate, then
+        the force error's if given), whitened here; the rates not ``scored`` count as none."""
+        ws.detect_observe(self.b, *self._rows, innov, sens_h, self.scored)
 
     def close(self) -> list[float] | None:
         """The window's :data:`N_POOL` consensus inputs, None if it had too few updates to test (the sums are
         cleared either way)."""
         out = None
-        if self.n > 2 * self.lags and self.sww > 0.0:
-            sigma2 = self.sww / (2 * self.n)
-            shh, sh = self.shh, self.sh
+        n, sww = self.n, self.sww
+        if n > 2 * self.lags and sww > 0.0:
+            sigma2 = sww / (2 * n)
+            shh, sh, swh = self.shh, self.sh, self.swh
             # the part of each g_k along h is the force error's, not the candidate's
-            out = [s - sh[k] / shh * self.swh if shh > 0.0 else s for k, s in enumerate(self.sw)]
+            out = [s - sh[k] / shh * swh if shh > 0.0 else s for k, s in enumerate(self.sw)]
             for (j, k), gg in zip(PAIRS, self.sg, strict=True):
                 if shh > 0.0:
                     gg -= sh[j] * sh[k] / shh
                 out.append(sigma2 * (max(gg, 0.0) if j == k else gg))
             r = sum(a / d for a, d in zip(self.acc, self.den, strict=True) if d > 0.0)
-            out += [math.sqrt(self.n) * r / math.sqrt(2 * self.lags), 1.0]
+            out += [math.sqrt(n) * r / math.sqrt(2 * self.lags), 1.0]
         self.clear()
         return out
 
@@ -438,7 +435,7 @@ class OnlineDetection:
         self.horizon = horizon
         self.alpha = alpha
         self.ch0 = ch0
-        self.ev = WindowEvidence(lags)
+        self.ev = WindowEvidence(lags, cand)
         self.flood = DecisionFlood()
         self.on = on  # bit k: effect k is in the filters (declared beforehand or switched on)
         self.switched = 0  # bit k: effect k is in the filters by a team switch (tested for a withdrawal)
@@ -475,17 +472,7 @@ class OnlineDetection:
     def observe(self, innov: Sequence[float], sens_h: Sequence[float]) -> None:
         """One filter update: innovation (e0, e1, s00, s01, s11) and the sensitivities' rows H D (per
         candidate, then the force error's if given)."""
-        e0, e1, s00, s01, s11 = innov
-        chol = cholesky2(s00, s01, s11)
-        if chol is None or e0 != e0:
-            return
-        g = [whiten(chol, sens_h[2 * p], sens_h[2 * p + 1]) for p in range(N_PAR)]
-        for k, ps in enumerate(EFFECT_PARAMS):
-            if not (self.cand >> k) & 1:
-                for p in ps:
-                    g[p] = (0.0, 0.0)
-        hn = whiten(chol, sens_h[2 * N_PAR], sens_h[2 * N_PAR + 1]) if len(sens_h) > 2 * N_PAR else (0.0, 0.0)
-        self.ev.observe(*whiten(chol, e0, e1), g, hn)
+        self.ev.observe_update(np.asarray(innov, float), np.asarray(sens_h, float))
 
     def begin_tick(self, tick: int, u: list[float], x: Sequence[float],
                    rates: Sequence[tuple[float, float]] | None = None) -> int:

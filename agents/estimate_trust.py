@@ -17,41 +17,39 @@ on is poor (m: the m excitation and averaging stages; J: the J excitation and av
 excitation stage is judged on all its ticks (the filter integrates over the whole stage); an averaging
 stage on its last ``tail`` ticks only (the convergence check's window and the agreement's horizon):
 a consensus that waited through a gap and converged on fresh states after it is sound.
+
+The counts run compiled (agents/kernels/window_stats.py); the classes here are views over their rows.
 """
 
 from __future__ import annotations
 
+import array
 import math
 from collections.abc import Iterable
+from itertools import chain
 from statistics import NormalDist
 
+import numpy as np
+
+import agents.kernels.window_stats as ws
 from net.vocabulary import J_AVERAGE, J_EXCITE, M_AVERAGE, M_EXCITE
 
 # the stages each estimate rests on
 M_STAGES = (M_EXCITE, M_AVERAGE)
 J_STAGES = (J_EXCITE, J_AVERAGE)
 TRUST_NAMES = ("m_trusted", "m_fresh", "m_sd", "J_trusted", "J_fresh", "J_sd")
-_NEVER = -(2**62)  # the send tick of a state never taken
 
 
 def wilson_upper(k: int, n: int, alpha: float, z: float | None = None) -> float:
     """One-sided upper confidence bound (level 1 - alpha) of a binomial proportion with k successes
     in n trials (Wilson score); 1.0 without trials. ``z``: the standard normal quantile of 1 - alpha,
     if already known."""
-    if n <= 0:
-        return 1.0
-    if z is None:
-        z = NormalDist().inv_cdf(1.0 - alpha)
-    p = k / n
-    z2n = z * z / n
-    centre = p + 0.5 * z2n
-    half = z * math.sqrt(p * (1.0 - p) / n + 0.25 * z2n / n)
-    return min(1.0, (centre + half) / (1.0 + z2n))
+    return ws.wilson_upper(k, n, NormalDist().inv_cdf(1.0 - alpha) if z is None else z)
 
 
 def poor(fresh: int, slots: int, min_fresh: float, alpha: float, z: float | None = None) -> bool:
     """The stage's data are too poor: fewer than ``min_fresh`` of its ``slots`` fresh, at level ``alpha``."""
-    return wilson_upper(min(fresh, slots), slots, alpha, z) < min_fresh
+    return ws.poor(fresh, slots, min_fresh, NormalDist().inv_cdf(1.0 - alpha) if z is None else z)
 
 
 def spread_sd(own: float, neighbours: Iterable[float]) -> float:
@@ -67,95 +65,63 @@ def spread_sd(own: float, neighbours: Iterable[float]) -> float:
 
 
 class StageCount:
-    """Neighbour-state slots and fresh states of one stage (of its last ``tail`` ticks if ``tail`` > 0),
-    and its verdict at ``judged`` ticks."""
+    """Neighbour-state slots and fresh states of one stage (of its last ``tail`` ticks if it has one), and its
+    verdict at ``judged`` ticks: a view over a row of the trust's stage counts."""
 
-    __slots__ = ("slots", "fresh", "judged", "poor", "ticks", "ring", "degree")
+    __slots__ = ("_c", "_trc", "_b", "_stage")
 
-    def __init__(self, degree: int, tail: int = 0) -> None:
-        self.degree = degree
-        self.slots = 0
-        self.fresh = 0
-        self.ticks = 0
-        self.judged = -1
-        self.poor = False
-        self.ring = [0] * tail  # fresh states of each of the last ``tail`` ticks
+    def __init__(self, trc: np.ndarray, b: int, stage: int) -> None:
+        self._trc, self._b, self._stage = trc, b, stage
+        self._c = trc[b, stage]
 
-    def add(self, fresh: int) -> None:
-        """One tick with ``fresh`` fresh states."""
-        ring = self.ring
-        if ring:
-            k = self.ticks % len(ring)
-            if self.ticks >= len(ring):  # the oldest tick leaves the tail
-                self.fresh -= ring[k]
-                self.slots -= self.degree
-            ring[k] = fresh
-        self.ticks += 1
-        self.slots += self.degree
-        self.fresh += fresh
+    slots = property(lambda self: int(self._c[ws.TC_SLOTS]))
+    fresh = property(lambda self: int(self._c[ws.TC_FRESH]))
+    ticks = property(lambda self: int(self._c[ws.TC_TICKS]))
+    judged = property(lambda self: int(self._c[ws.TC_JUDGED]))
+    poor = property(lambda self: bool(self._c[ws.TC_POOR]))
 
     @property
     def fraction(self) -> float:
-        return min(1.0, self.fresh / self.slots) if self.slots else math.nan
+        return ws.trust_fraction(self._b, self._trc, self._stage)
 
 
 class EstimateTrust:
-    """One agent's evidence per stage and the trust entries of its m and J estimates (module docstring)."""
+    """One agent's evidence per stage and the trust entries of its m and J estimates (module docstring): a view
+    over row ``b`` of the trust arrays (agents/kernels/window_stats.py); its own by default."""
 
-    def __init__(self, degree: int, max_age: int, min_fresh: float, alpha: float, tail: int = 0) -> None:
-        """``tail``: the ticks over which an averaging stage is judged (0: all of it)."""
-        self.degree = degree
-        self.tail = {M_AVERAGE: tail, J_AVERAGE: tail}
-        self.max_age = max_age
-        self.min_fresh = min_fresh
-        self.alpha = alpha
+    def __init__(self, degree: int, max_age: int, min_fresh: float, alpha: float, tail: int = 0,
+                 rows: tuple | None = None, b: int = 0) -> None:
+        """``tail``: the ticks over which an averaging stage is judged (0: all of it). ``rows``: the arrays of
+        :func:`trust_rows` to view row ``b`` of (default: one row of its own)."""
         self.z = NormalDist().inv_cdf(1.0 - alpha)
-        self.stages: dict[int, StageCount] = {}
-        self.newest: dict[int, int] = {}  # each neighbour's newest state taken (its send tick)
+        if rows is None:
+            rows = ws.trust_rows(1, degree, max_age, min_fresh, self.z, tail)
+        self._i, self._f, self._nb, self._trc, self._trr = rows
+        self.b = b
+        self._out = np.empty(len(TRUST_NAMES))
+
+    @property
+    def stages(self) -> dict[int, StageCount]:
+        """The stages observed so far, by stage."""
+        trc, b = self._trc, self.b
+        return {s: StageCount(trc, b, s) for s in range(ws.N_STAGES) if trc[b, s, ws.TC_EXISTS]}
+
+    @property
+    def newest(self) -> dict[int, int]:
+        """Each neighbour's newest state taken (its send tick)."""
+        return dict(self._nb[self.b, :self._i[self.b, ws.TI_HEARD]].tolist())
 
     def observe(self, tick: int, stage: int, taken: Iterable[tuple[int, int]]) -> None:
         """A tick of ``stage`` in which the neighbour states ``taken`` = [(sender, send tick)] were taken."""
-        newest = self.newest
-        for j, t in taken:
-            if t > newest.get(j, _NEVER):
-                newest[j] = t
-        c = self.stages.get(stage)
-        if c is None:
-            c = self.stages[stage] = StageCount(self.degree, self.tail.get(stage, 0))
-        lim = tick - self.max_age
-        fresh = 0
-        for t in newest.values():
-            if t >= lim:
-                fresh += 1
-        c.add(fresh)
+        # a flat array.array: numba's dispatch types it in less time than an ndarray takes to be built
+        ws.trust_observe(self.b, self._i, self._nb, self._trc, self._trr, tick, stage,
+                         array.array("q", chain.from_iterable(taken)))
 
-    def judge(self, stages: tuple[int, ...]) -> tuple[float, float]:
+    def judge(self, stages: tuple[int, int]) -> tuple[float, float]:
         """(flag, fresh fraction of the poorest stage begun) over ``stages``: (NaN, NaN) before the first."""
-        flag = math.nan
-        worst = math.nan
-        for s in stages:
-            c = self.stages.get(s)
-            if c is None or not c.slots:
-                continue
-            f = c.fraction
-            if not worst <= f:
-                worst = f
-            if c.judged != c.ticks:  # a finished stage is judged once
-                c.judged = c.ticks
-                c.poor = poor(c.fresh, c.slots, self.min_fresh, self.alpha, self.z)
-            flag = 0.0 if c.poor or flag == 0.0 else 1.0
-        return flag, worst
+        return ws.trust_judge(self.b, self._f, self._trc, *stages)
 
     def entries(self, m: float, m_sd: float, J: float, J_sd: float) -> dict[str, float]:
         """The trust entries of the estimate (``TRUST_NAMES``), given the values and their uncertainties."""
-        mt, mf = self.judge(M_STAGES)
-        jt, jf = self.judge(J_STAGES)
-        nan = math.nan
-        return {
-            "m_trusted": mt,
-            "m_fresh": mf,
-            "m_sd": m_sd if m == m and mt == mt else nan,
-            "J_trusted": jt,
-            "J_fresh": jf,
-            "J_sd": J_sd if J == J and jt == jt else nan,
-        }
+        ws.trust_entries(self.b, self._f, self._trc, m, m_sd, J, J_sd, self._out)
+        return dict(zip(TRUST_NAMES, self._out.tolist(), strict=True))

@@ -19,7 +19,8 @@ w = L^-1 e (S = L L^T; signatures whitened alike):
 
 A window raises an alarm when any of the five p-values is below alpha / 5 (Bonferroni): its false-alarm
 rate is at most ``alpha`` when the filter's model is right. Report-only: nothing is switched. Pure: no
-clock, socket or RNG. See docs/innovation-monitor.md.
+clock, socket or RNG. See docs/innovation-monitor.md. The window's fill runs compiled
+(agents/kernels/window_stats.py); its p-values, once per window, are computed here with numpy.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
+import agents.kernels.window_stats as ws
 
 SIGNATURES = ("vc", "sgn", "om", "f")
 MONITOR_NAMES = ("mon_p_white", "mon_p_vc", "mon_p_sgn", "mon_p_om", "mon_p_f", "mon_alarm", "mon_windows",
@@ -74,74 +77,49 @@ def window_pvalues(w: np.ndarray, sig: np.ndarray, lags: int) -> list[float]:
     return [persistence_p(w, lags)] + [score_test(w, sig[:, k, :]) for k in range(sig.shape[1])]
 
 
-def cholesky2(s00: float, s01: float, s11: float) -> tuple[float, float, float] | None:
-    """The lower Cholesky factor (l00, l10, l11) of the 2x2 covariance [[s00, s01], [s01, s11]]; None when
-    it is not positive definite (the update is then not tested)."""
-    if not (s00 > 0.0):
-        return None
-    l00 = math.sqrt(s00)
-    l10 = s01 / l00
-    d = s11 - l10 * l10
-    if not (d > 0.0):
-        return None
-    return l00, l10, math.sqrt(d)
-
-
-def whiten(chol: tuple[float, float, float], x0: float, x1: float) -> tuple[float, float]:
-    """L^-1 x by forward substitution, L = cholesky2(...)."""
-    l00, l10, l11 = chol
-    w0 = x0 / l00
-    return w0, (x1 - l10 * w0) / l11
-
-
 class InnovationMonitor:
-    """One agent's windows of whitened innovations and signatures (module docstring)."""
+    """One agent's windows of whitened innovations and signatures (module docstring): a view over row ``b`` of
+    the monitor arrays (agents/kernels/window_stats.py); its own by default."""
 
-    def __init__(self, window: int, lags: int, alpha: float) -> None:
+    def __init__(self, window: int, lags: int, alpha: float, rows: tuple | None = None, b: int = 0) -> None:
+        """``rows``: the (mon_k, mon_f, mon_ws) arrays of :func:`monitor_rows` to view row ``b`` of (default: one
+        row of its own)."""
         if window <= 2 * lags:
             raise ValueError("the window must be longer than twice the whiteness test's lags")
         self.window = window
         self.lags = lags
-        self.alpha = alpha
-        self.level = alpha / (1 + len(SIGNATURES))
-        self.w = np.zeros((window, 2))
-        self.sig = np.zeros((window, len(SIGNATURES), 2))
-        self.k = 0
-        self.pvalues = [math.nan] * (1 + len(SIGNATURES))  # of the last complete window
-        self.alarm = math.nan
-        self.windows = 0
-        self.alarms = 0
+        self._k, self._f, self._ws = ws.monitor_rows(1, window, alpha) if rows is None else rows
+        self.b = b
+        self._entries = self._f[b, :ws.ME_LEVEL]
+
+    @property
+    def k(self) -> int:
+        """Updates in the window being filled."""
+        return int(self._k[self.b])
+
+    @property
+    def w(self) -> np.ndarray:
+        """The whitened innovations of the window (window x 2)."""
+        return self._ws[self.b, :, 0]
+
+    @property
+    def sig(self) -> np.ndarray:
+        """The whitened signatures of the window (window x 4 x 2)."""
+        return self._ws[self.b, :, 1:]
 
     def reset(self) -> None:
         """Drop the window being filled (the filter restarted: its innovations start afresh)."""
-        self.k = 0
+        self._k[self.b] = 0
 
     def observe(self, e: complex, s00: float, s01: float, s11: float, vc: complex, om: float, q: complex,
                 f: complex) -> None:
         """One update's innovation e with covariance [[s00, s01], [s01, s11]] and the signatures' inputs."""
-        chol = cholesky2(s00, s01, s11)
-        if chol is None or e != e:
-            return
-        k = self.k
-        self.w[k] = whiten(chol, e.real, e.imag)
-        a = abs(vc)
-        qp = om * complex(-q.imag, q.real)  # omega q_i^perp
-        sig = self.sig[k]
-        for c, g in enumerate((vc, vc / a if a > 0.0 else 0j, qp, f)):
-            sig[c] = whiten(chol, g.real, g.imag)
-        self.k = k = k + 1
-        if k == self.window:
-            self.k = 0
-            self.pvalues = p = window_pvalues(self.w, self.sig, self.lags)
-            alarm = any(v < self.level for v in p)
-            self.alarm = 1.0 if alarm else 0.0
-            self.windows += 1
-            self.alarms += alarm
+        b = self.b
+        if ws.monitor_observe(b, self._k, self._ws, e, s00, s01, s11, vc, om, q, f):
+            # the innovations contiguous, as the p-values' dot products have always seen them
+            p = window_pvalues(np.ascontiguousarray(self.w), self.sig, self.lags)
+            ws.monitor_judge(b, self._f, np.array(p))
 
     def entries(self) -> dict[str, float]:
         """The estimate entries (``MONITOR_NAMES``): the last complete window's p-values and alarm, counts."""
-        out = dict(zip(MONITOR_NAMES, self.pvalues, strict=False))
-        out["mon_alarm"] = self.alarm
-        out["mon_windows"] = float(self.windows)
-        out["mon_alarms"] = float(self.alarms)
-        return out
+        return dict(zip(MONITOR_NAMES, self._entries.tolist(), strict=True))
