@@ -26,8 +26,9 @@ from agents.kernels import agreement
 from agents.kernels.agreement import DEG, FLOW, HEARD, U, X, flow_average_bank, flow_average_update
 
 # Python callers run the kernel's source interpreted: from Python a compiled call costs more than its
-# arithmetic (0.2 against 0.1 us); kernels call the compiled one
-flow_step = agreement.flow_step.py_func
+# arithmetic (0.2 against 0.1 us); kernels call the compiled one (with NUMBA_DISABLE_JIT=1 the
+# decorator returns the function itself, which has no py_func)
+flow_step = getattr(agreement.flow_step, "py_func", agreement.flow_step)
 
 __all__ = ["FlowAverage", "average_step", "disagreement", "flow_step", "lowpass_step", "weighted_average_step"]
 
