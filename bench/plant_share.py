@@ -1,17 +1,14 @@
-"""The plant's share of an in-process run: pymunk step and measurement against all the agent steps.
+"""The plant's share of an in-process run: its step and measurement against all the agent steps.
 
     OPENBLAS_NUM_THREADS=1 python bench/plant_share.py [--n 10 40] [--duration 60]
 
 Runs paper-fig4 in process (the whole Algorithm 1; the load scaled with n as bench/bench_engines.py
-does; nothing recorded) with timers around ``Plant.measure``, ``Plant.apply_and_step`` and, inside it,
-pymunk's ``Space.step``; the agents' time is the engine's own counter (``agent_step_us``), and of it
-the filter's (``RigidEKF.update`` + ``predict``, timed). Prints per tick (us): the plant's parts, the sum
-of the agent steps, the rest of the engine loop (link delivery,
-wrench list), their shares of the wall time, and simulated seconds per wall second. It also steps a
-closed-form semi-implicit Euler twin of the load beside pymunk (positions with the old velocities, then
-the velocities: pymunk's order) from pymunk's own state and force each tick, and prints its cost and
-its largest one-step difference to pymunk's state. Docs: docs/agent-step.md, "Choosing the fast core:
-measured".
+does; nothing recorded) with timers around ``Plant.measure`` and ``Plant.apply_and_step`` (the wrench
+reduction and the closed-form step, which equals pymunk's bit for bit: tests/test_plant.py); the agents'
+time is the engine's own counter (``agent_step_us``), and of it the filter's (``RigidEKF.update`` +
+``predict``, timed). Prints per tick (us): the plant's parts, the sum of the agent steps, the rest of the
+engine loop (link delivery, wrench list), their shares of the wall time, and simulated seconds per wall
+second. Docs: docs/agent-step.md, "Choosing the fast core: measured".
 """
 
 from __future__ import annotations
@@ -21,8 +18,6 @@ import os
 import sys
 import time
 from pathlib import Path
-
-import pymunk
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -34,20 +29,10 @@ from config.loader import load_scenario  # noqa: E402
 from simulator.plant import Plant  # noqa: E402
 
 
-def closed_form_step(pos, vel, angle, omega, force, torque, mass, inertia, dt):  # noqa: ANN001, ANN201
-    """One step of the free rigid body as pymunk (Chipmunk) takes it: the pose with the old velocities,
-    then the velocities, with the inverse mass and moment (no gravity, no damping)."""
-    px, py = pos
-    vx, vy = vel
-    m_inv, i_inv = 1.0 / mass, 1.0 / inertia
-    return ((px + vx * dt, py + vy * dt), (vx + force[0] * m_inv * dt, vy + force[1] * m_inv * dt),
-            angle + omega * dt, omega + torque * i_inv * dt)
-
-
 def one(n: int, duration: float) -> dict:
-    t = {"measure": 0.0, "apply": 0.0, "pymunk": 0.0, "twin": 0.0, "twin_err": 0.0, "wrap": 0.0, "filter": 0.0}
+    t = {"measure": 0.0, "apply": 0.0, "filter": 0.0}
     clock = time.perf_counter
-    plain_m, plain_a, plain_s = Plant.measure, Plant.apply_and_step, pymunk.Space.step
+    plain_m, plain_a = Plant.measure, Plant.apply_and_step
 
     def measure(self, rng):  # noqa: ANN001, ANN202
         c0 = clock()
@@ -59,22 +44,6 @@ def one(n: int, duration: float) -> dict:
         c0 = clock()
         plain_a(self, wrenches)
         t["apply"] += clock() - c0
-
-    def step(self, dt):  # noqa: ANN001, ANN202
-        w0 = clock()
-        b = next(iter(self.bodies))
-        before = (b.position, b.velocity, b.angle, b.angular_velocity, b.force, b.torque, b.mass, b.moment)
-        c0 = clock()
-        plain_s(self, dt)
-        c1 = clock()
-        twin = closed_form_step(*before, dt)
-        t["twin"] += clock() - c1
-        t["pymunk"] += c1 - c0
-        got = (tuple(b.position), tuple(b.velocity), b.angle, b.angular_velocity)
-        err = max(abs(twin[0][0] - got[0][0]), abs(twin[0][1] - got[0][1]), abs(twin[1][0] - got[1][0]),
-                  abs(twin[1][1] - got[1][1]), abs(twin[2] - got[2]), abs(twin[3] - got[3]))
-        t["twin_err"] = max(t["twin_err"], err)
-        t["wrap"] += clock() - w0 - (c1 - c0)  # the twin and its checks: taken out of apply and wall
 
     plain_u, plain_p = RigidEKF.update, RigidEKF.predict
 
@@ -88,18 +57,17 @@ def one(n: int, duration: float) -> dict:
         plain_p(self, *args)
         t["filter"] += clock() - c0
 
-    Plant.measure, Plant.apply_and_step, pymunk.Space.step = measure, apply_and_step, step
+    Plant.measure, Plant.apply_and_step = measure, apply_and_step
     RigidEKF.update, RigidEKF.predict = update, predict
     try:
         s = run_inproc(load_scenario(FIG4, scaled(n, duration)), None)
     finally:
-        Plant.measure, Plant.apply_and_step, pymunk.Space.step = plain_m, plain_a, plain_s
+        Plant.measure, Plant.apply_and_step = plain_m, plain_a
         RigidEKF.update, RigidEKF.predict = plain_u, plain_p
     ticks = round(s["sim_s"] / 0.01)
     agents = s["agent_step_us"] * n * ticks * 1e-6
     t["agents"] = agents
-    t["apply"] -= t["wrap"]
-    t["wall"] = s["wall_s"] - t["wrap"]
+    t["wall"] = s["wall_s"]
     t["ticks"] = ticks
     t["rt"] = s["sim_s"] / t["wall"]
     return t
@@ -111,17 +79,17 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
     a = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.1f}")
-    print(f"{'n':>3} {'measure':>8} {'apply':>8} {'(pymunk)':>8} {'agents':>9} {'(filter)':>9} {'rest':>8} {'wall':>9} "
-          f"{'plant %':>8} {'agents %':>8} {'x real':>7} {'twin':>6} {'twin err':>9}   (us per tick)")
+    print(f"{'n':>3} {'measure':>8} {'apply':>8} {'agents':>9} {'(filter)':>9} {'rest':>8} {'wall':>9} "
+          f"{'plant %':>8} {'agents %':>8} {'x real':>7}   (us per tick)")
     for n in a.n:
         t = one(n, a.duration)
         k = t["ticks"]
-        us = {key: 1e6 * t[key] / k for key in ("measure", "apply", "pymunk", "agents", "filter", "wall", "twin")}
+        us = {key: 1e6 * t[key] / k for key in ("measure", "apply", "agents", "filter", "wall")}
         plant = us["measure"] + us["apply"]
         rest = us["wall"] - plant - us["agents"]
-        print(f"{n:>3} {us['measure']:>8.1f} {us['apply']:>8.1f} {us['pymunk']:>8.1f} {us['agents']:>9.1f} "
-              f"{us['filter']:>9.1f} {rest:>8.1f} {us['wall']:>9.1f} {100 * plant / us['wall']:>8.1f} {100 * us['agents'] / us['wall']:>8.1f} "
-              f"{t['rt']:>7.1f} {us['twin']:>6.2f} {t['twin_err']:>9.1e}", flush=True)
+        print(f"{n:>3} {us['measure']:>8.1f} {us['apply']:>8.1f} {us['agents']:>9.1f} {us['filter']:>9.1f} "
+              f"{rest:>8.1f} {us['wall']:>9.1f} {100 * plant / us['wall']:>8.1f} "
+              f"{100 * us['agents'] / us['wall']:>8.1f} {t['rt']:>7.1f}", flush=True)
     return 0
 
 

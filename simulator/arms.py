@@ -1,12 +1,12 @@
-"""Two-link arms in the plant's pymunk space, holding the load at its contact points.
+"""Two-link arms in a pymunk space with the load, holding it at its contact points.
 
 Each arm is two rigid links (uniform rods, pymunk bodies without shapes: nothing collides, the
 arms are SCARA-like and move above the load) joined by pivot joints: ground - upper link at the
 base, upper link - forearm at the elbow, forearm - load at the contact point (a free pivot: no
 torque passes). Joint torques are body torques on absolute angles (u1 on the upper link, u2 on the
-forearm; see agents/arm.py). The load is :class:`simulator.plant.Plant`'s own body, untouched: this
-module only adds bodies and constraints to ``plant.space`` and steps that space itself, so runs
-without arms never see it.
+forearm; see agents/arm.py). The load is a pymunk body at the scenario's initial state, in a space of
+this module's own (:class:`simulator.plant.Plant` steps in closed form, without constraints); after each
+tick its state goes to the plant (``Plant.take_state``), whose truth and sensor then read it as usual.
 
 Wrist force sensor: pymunk exposes only the magnitude of a joint's impulse, so the force each arm
 applies to the load is recovered from the links' momentum balance, substep by substep. In a pymunk
@@ -28,7 +28,7 @@ import pymunk
 
 from config.arm_model import ArmModel
 from config.scenario import ArmsSpec, Scenario
-from simulator.plant import Plant, contact_points_body
+from simulator.plant import Plant, contact_points_body, load_inertia, load_polygon_body
 
 # keep the contacts this far inside the workspace annulus at start-up (fraction of the reach)
 _REACH_MARGIN = 0.05
@@ -42,11 +42,28 @@ def arm_model(spec: ArmsSpec) -> ArmModel:
     return ArmModel(spec.l1, spec.l2, spec.m1, spec.m2)
 
 
-def contact_world(plant: Plant, points_body: np.ndarray) -> np.ndarray:
-    """World positions of body-frame points of the load (about its CoM) at the plant's current pose."""
-    b = plant.body
-    c, s = math.cos(b.angle), math.sin(b.angle)
-    px, py = b.position
+def load_body(scenario: Scenario) -> tuple[pymunk.Space, pymunk.Body]:
+    """A space (no gravity, no damping) holding the load as a pymunk body at the scenario's initial state,
+    its origin the CoM; its shape carries no mass and collides with nothing (the outline, for inspection)."""
+    space = pymunk.Space()
+    space.gravity = (0.0, 0.0)
+    space.damping = 1.0
+    body = pymunk.Body(scenario.load.mass, load_inertia(scenario))
+    shape = pymunk.Poly(body, load_polygon_body(scenario))  # massless: mass/moment stay as set
+    shape.sensor = True
+    ini = scenario.initial
+    body.position = ini.position
+    body.angle = ini.angle
+    body.velocity = ini.v_c
+    body.angular_velocity = ini.omega
+    space.add(body, shape)
+    return space, body
+
+
+def contact_world(load: pymunk.Body, points_body: np.ndarray) -> np.ndarray:
+    """World positions of body-frame points of the load (about its CoM) at its current pose."""
+    c, s = math.cos(load.angle), math.sin(load.angle)
+    px, py = load.position
     return np.stack([px + c * points_body[:, 0] - s * points_body[:, 1],
                      py + s * points_body[:, 0] + c * points_body[:, 1]], axis=1)
 
@@ -96,6 +113,7 @@ class ArmPlant:
         self.plant = plant = Plant(scenario)
         if getattr(plant, "effects", None) is not None:
             raise ArmSetupError("plant: physical effects are not supported together with arms")
+        self.space, self.body = space, body = load_body(scenario)
         self.spec = spec
         self.model = model = arm_model(spec)
         self.n = n = scenario.n
@@ -103,11 +121,13 @@ class ArmPlant:
         self.substeps = spec.substeps
         self.h = scenario.dt / spec.substeps
         r_body = np.asarray(contact_points_body(scenario), dtype=float)
-        contacts = contact_world(plant, r_body)
-        bases = np.asarray(spec.bases, dtype=float) if spec.bases is not None else default_bases(contacts, spec.base_offset)
+        contacts = contact_world(body, r_body)
+        if spec.bases is not None:
+            bases = np.asarray(spec.bases, dtype=float)
+        else:
+            bases = default_bases(contacts, spec.base_offset)
         self.bases = bases
         lo, hi = model.reach
-        space = plant.space
         space.iterations = spec.solver_iterations
         self.links: list[tuple[pymunk.Body, pymunk.Body]] = []
         self.wrists: list[pymunk.PivotJoint] = []
@@ -120,7 +140,7 @@ class ArmPlant:
                     f"({lo + margin:.3f}, {hi - margin:.3f}) m of links {model.l1} + {model.l2} m"
                 )
             q = model.ik(contacts[i] - bases[i], spec.elbow)
-            link1, link2, wrist = add_arm(space, model, bases[i], q, plant.body)
+            link1, link2, wrist = add_arm(space, model, bases[i], q, body)
             self.links.append((link1, link2))
             self.wrists.append(wrist)  # type: ignore[arg-type]
         self._m = np.array([model.m1, model.m2])
@@ -169,14 +189,15 @@ class ArmPlant:
             for (a, b), (ua, ub) in zip(self.links, u.tolist()):
                 a.torque = ua
                 b.torque = ub
-            plant.space.step(h)
+            self.space.step(h)
             after = self._link_states()
             dv = after[..., 0:2] - before[..., 0:2]
             dw = after[..., 2] - before[..., 2]
             ang = after[..., 5]
             e1 = np.stack([np.cos(ang[:, 0]), np.sin(ang[:, 0])], axis=1)  # upper link direction
             e2 = np.stack([np.cos(ang[:, 1]), np.sin(ang[:, 1])], axis=1)
-            # anchors relative to the link CoMs: upper link base -l1/2 e1, elbow +l1/2 e1; forearm elbow -l2/2 e2, wrist +l2/2 e2
+            # anchors relative to the link CoMs: upper link base -l1/2 e1, elbow +l1/2 e1;
+            # forearm elbow -l2/2 e2, wrist +l2/2 e2
             rb1, re1 = -0.5 * l1 * e1, 0.5 * l1 * e1
             re2, rw2 = -0.5 * l2 * e2, 0.5 * l2 * e2
             m1dv = self._m[0] * dv[:, 0]
@@ -188,18 +209,20 @@ class ArmPlant:
             rhs_a = self._inertia[1] * dw[:, 1] - h * u[:, 1] - _cross(re2, m2dv)
             rhs_b = _cross(rb1, m1dv) + _cross(b_row, m2dv) - self._inertia[0] * dw[:, 0] + h * u[:, 0]
             # a x J = a_x J_y - a_y J_x : rows [-a_y, a_x]
-            A = np.stack([np.stack([-a_row[:, 1], a_row[:, 0]], axis=1), np.stack([-b_row[:, 1], b_row[:, 0]], axis=1)], axis=1)
+            A = np.stack([np.stack([-a_row[:, 1], a_row[:, 0]], axis=1), np.stack([-b_row[:, 1], b_row[:, 0]], axis=1)],
+                         axis=1)
             jw = np.linalg.solve(A, np.stack([rhs_a, rhs_b], axis=1)[..., None])[..., 0]
             impulse -= jw  # the load gets minus the wrist impulse on the forearm
             self.last_wrist_impulse = jw
             before = after
         self.forces = impulse / self.dt
         plant.tick += 1
-        plant.refresh()  # the plant's per-tick snapshot of the load (its apply_and_step does the same)
+        b = self.body
+        plant.take_state(tuple(b.position), tuple(b.velocity), b.angle, b.angular_velocity)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
 
 
-__all__ = ["ArmPlant", "ArmSetupError", "add_arm", "arm_model", "contact_world", "default_bases"]
+__all__ = ["ArmPlant", "ArmSetupError", "add_arm", "arm_model", "contact_world", "default_bases", "load_body"]

@@ -364,7 +364,7 @@ class SimDaemon:
                 k = rec["k"]
                 if k != self.tick:
                     raise RuntimeError(f"{self.journal_path.name}: tick {k} follows tick {self.tick - 1}")
-                meas = self.plant.measure(self.rng)
+                meas = self.plant.measure(self.rng).tolist()
                 self.recorder.truth(self.plant.truth())
                 flat = struct.unpack(self._wfmt, bytes.fromhex(rec["w"]))
                 applied = [flat[3 * i:3 * i + 3] for i in range(self.n)]
@@ -409,7 +409,8 @@ class SimDaemon:
         if records is not None:
             down_s = max(0.0, time.time() - (self.journal_path).stat().st_mtime)
             self._resume(records)  # before subscribing: inputs then meet the resumed tick
-            log.warning("restarted: resuming run %s at tick %d (replayed from %s)", self.run_name, self.tick, self.journal_path.name)
+            log.warning("restarted: resuming run %s at tick %d (replayed from %s)", self.run_name, self.tick,
+                        self.journal_path.name)
         self._open_journal(records)
         if records is not None:
             self._event("sim_restart", replayed_ticks=self.tick, down_s=round(down_s, 3))
@@ -475,7 +476,7 @@ class SimDaemon:
                 lag = wall0 + k * sc.dt - time.perf_counter()
                 if lag > 0:
                     await asyncio.sleep(lag)
-            meas = self.plant.measure(self.rng)
+            meas = self.plant.measure(self.rng).tolist()
             publish, meas_keys = self.transport.publish, self._meas_keys
             out = [encode(Measurement(k, i, vx, vy)) for i, (vx, vy) in enumerate(meas)]
             for i in range(self.n):

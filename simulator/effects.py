@@ -116,10 +116,9 @@ class Effects:
         s = math.sin(w * tick)
         return fx + s * ax, fy + s * ay
 
-    def measure(self, plant: Plant, rng: np.random.Generator) -> list[tuple[float, float]]:
+    def measure(self, plant: Plant, rng: np.random.Generator) -> np.ndarray:
         """Delayed true velocities plus bias plus the plant's usual N(0, sigma^2) draw (same stream as nominal)."""
-        noisy = self._hist[0] + self.bias + rng.normal(0.0, plant.sigma_v, size=(plant.n, 2))
-        return list(map(tuple, noisy.tolist()))
+        return self._hist[0] + self.bias + rng.normal(0.0, plant.sigma_v, size=(plant.n, 2))
 
     # --- load change ---------------------------------------------------------------------------
     def _apply_due_changes(self, plant: Plant) -> None:
@@ -134,7 +133,7 @@ class Effects:
         if inertia is None:
             j_centroid = change.mass * geometry.polar_moment_per_mass(self._outline)
             inertia = j_centroid + change.mass * float(new_off @ new_off)
-        plant.change_load(change.mass, inertia, d, self._outline - new_off)
+        plant.change_load(change.mass, inertia, d)
         self._offset = new_off
 
 

@@ -1,18 +1,20 @@
-"""The plant: one rigid planar load in a pymunk space, pushed at n contact points.
+"""The plant: one rigid planar load, pushed at n contact points, integrated in closed form.
 
 Pure: no clock, no sockets, no global RNG. The daemon owns time and transport; this module owns
 physics and the sensor model, so that the in-process engine and the daemon share it unchanged.
 
-Design: the pymunk body's origin is the centre of mass (``center_of_gravity`` = 0), so
-``body.position`` is p_C; the outline and the contact points are stored relative to the CoM.
-The body's mass and moment are set explicitly; its shape carries no mass and only serves
-inspection and drawing (nothing collides). Per tick the agents' wrenches are reduced to one
-resultant force and torque about the CoM (the same sum ``apply_force_at_world_point`` would
-accumulate, vectorised) and pymunk integrates one step; the plant's state is the truth, whatever
-the integrator's discretisation error against the continuous model. Note pymunk (Chipmunk) moves
-positions before velocities within a step: the wrench of tick k shows in the velocities (and so in
-the measurements) at tick k + 1 and in the pose from tick k + 2; over many ticks this is
-semi-implicit (symplectic) Euler, so free motion conserves energy and momentum exactly.
+Design: the state is the centre of mass p_C, the angle, v_C and omega, in Python floats; the outline
+and the contact points are stored relative to the CoM (nothing collides). Per tick the agents'
+wrenches are reduced to one resultant force and torque about the CoM (vectorised) and one step of
+semi-implicit (symplectic) Euler advances the state: positions with the old velocities, then the
+velocities, so the wrench of tick k shows in the velocities (and so in the measurements) at tick
+k + 1 and in the pose from tick k + 2, and free motion conserves energy and momentum exactly. The
+step is pymunk's (Chipmunk's ``cpBodyUpdatePosition``/``cpBodyUpdateVelocity`` with no gravity and
+no damping) operation for operation, including the pose readout through the body transform, so its
+bits equal a pymunk body's at every tick (tests/test_plant.py); the plant's state is the truth,
+whatever the integrator's discretisation error against the continuous model. Two-link arms need
+pymunk's constraint solver: simulator/arms.py steps the load in a pymunk space and hands the state
+back through :meth:`Plant.take_state`. Docs: docs/fast-core-plan.md, S8.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import pymunk
 
 from config.scenario import Scenario
 from simulator import geometry
@@ -109,11 +110,11 @@ class Plant:
     current pose, so a tick costs a few numpy calls whatever n is. In particular the resultant
     torque uses rotation invariance of the cross product, sum_i (R r_i) x f_i = tr(M R) with
     M = sum_i r_i^perp f_i^T, and M comes out of one matmul of the flat wrench vector with a constant
-    matrix (no per-tick rebuild of the grasp matrix).
+    matrix (no per-tick rebuild of the grasp matrix). The step itself is a dozen float operations.
     """
 
     __slots__ = (
-        "n", "dt", "sigma_v", "mass", "inertia", "tick", "space", "body",
+        "n", "dt", "sigma_v", "mass", "inertia", "tick", "_m_inv", "_i_inv", "_p",
         "_r", "_rbar", "_rrel_t", "_perp1", "_reduce", "_pos", "_vel", "_angle", "_omega", "_c", "_s", "effects",
     )  # fmt: skip
 
@@ -121,25 +122,17 @@ class Plant:
         self.n = scenario.n
         self.dt = scenario.dt
         self.sigma_v = scenario.noise.sigma_v
-        self.mass = scenario.load.mass
-        self.inertia = load_inertia(scenario)
         self.tick = 0
         self._set_contacts(np.asarray(contact_points_body(scenario), dtype=float))
-        space = pymunk.Space()
-        space.gravity = (0.0, 0.0)
-        space.damping = 1.0  # no velocity damping: the load is frictionless (g = 0 in the paper)
-        body = pymunk.Body(self.mass, self.inertia)
-        shape = pymunk.Poly(body, load_polygon_body(scenario))  # massless: mass/moment stay as set
-        shape.sensor = True
+        self._set_mass(scenario.load.mass, load_inertia(scenario))
         ini = scenario.initial
-        body.position = ini.position
-        body.angle = ini.angle
-        body.velocity = ini.v_c
-        body.angular_velocity = ini.omega
-        space.add(body, shape)
-        self.space = space
-        self.body = body
-        self.refresh()
+        x, y = ini.position
+        self._c, self._s = 1.0, 0.0  # the pose is placed at angle 0, then turned (pymunk's order of setters)
+        self._place(float(x), float(y))
+        self._turn(float(ini.angle))
+        vx, vy = ini.v_c
+        self._vel = (float(vx), float(vy))
+        self._omega = float(ini.omega)
         self.effects = Effects.build(scenario, _outline_about_centroid(scenario))
         if self.effects is not None:
             self.effects.start(self)
@@ -163,48 +156,74 @@ class Plant:
         red[1::3, 6] = perp[:, 1]
         self._reduce = red
 
-    def refresh(self) -> None:
-        """Snapshot the body state once per tick (each pymunk property read crosses the C boundary);
-        whoever moves the body outside :meth:`apply_and_step` calls it."""
-        b = self.body
-        self._pos = tuple(b.position)
-        self._vel = tuple(b.velocity)
-        self._angle = a = b.angle
-        self._omega = b.angular_velocity
-        self._c = math.cos(a)
-        self._s = math.sin(a)
+    def _set_mass(self, mass: float, inertia: float) -> None:
+        self.mass = mass
+        self.inertia = inertia
+        self._m_inv = 1.0 / mass
+        self._i_inv = 1.0 / inertia
+
+    # The pose goes through a body transform as in Chipmunk (centre of gravity at the origin): the
+    # stored CoM ``_p`` is placed as R 0 + position and read as R 0 + (p - R 0), whose zero products
+    # only ever decide the sign of a zero coordinate, which the CSVs show (repr).
+    def _place(self, x: float, y: float) -> None:
+        """Puts the CoM at (x, y) under the current rotation (``cpBodySetPosition``)."""
+        c, s = self._c, self._s
+        self._p = ((c * 0.0 + -s * 0.0) + x, (s * 0.0 + c * 0.0) + y)
+        self._read_pose()
+
+    def _turn(self, angle: float) -> None:
+        """Sets the angle and the rotation with it (``cpBodySetAngle``)."""
+        self._angle = angle
+        self._c = math.cos(angle)
+        self._s = math.sin(angle)
+        self._read_pose()
+
+    def _read_pose(self) -> None:
+        c, s = self._c, self._s
+        px, py = self._p
+        self._pos = ((c * 0.0 + -s * 0.0) + (px - (0.0 * c - 0.0 * s)),
+                     (s * 0.0 + c * 0.0) + (py - (0.0 * s + 0.0 * c)))
+
+    def _integrate(self, fx: float, fy: float, torque: float) -> None:
+        """One semi-implicit Euler step under the resultant: the pose with the old velocities (the zero
+        bias velocities included: they turn a -0.0 speed into +0.0), then the velocities."""
+        dt = self.dt
+        vx, vy = self._vel
+        w = self._omega
+        px, py = self._p
+        self._p = (px + (vx + 0.0) * dt, py + (vy + 0.0) * dt)
+        self._turn(self._angle + (w + 0.0) * dt)
+        self._vel = (vx + (0.0 + fx * self._m_inv) * dt, vy + (0.0 + fy * self._m_inv) * dt)
+        self._omega = w + torque * self._i_inv * dt
+
+    def take_state(self, position: Vec2, velocity: Vec2, angle: float, omega: float) -> None:
+        """The load's state after a step taken elsewhere (the arms' pymunk space); ``tick`` is the caller's."""
+        self._turn(angle)
+        self._p = self._pos = (position[0], position[1])
+        self._vel = (velocity[0], velocity[1])
+        self._omega = omega
 
     @property
     def com_velocity(self) -> Vec2:
-        """v_C, world frame, at the last snapshot."""
+        """v_C, world frame."""
         return self._vel
 
     @property
     def angular_velocity(self) -> float:
-        """omega at the last snapshot."""
+        """omega."""
         return self._omega
 
-    def change_load(self, mass: float, inertia: float, com_shift: np.ndarray, outline_about_com: np.ndarray) -> None:
+    def change_load(self, mass: float, inertia: float, com_shift: np.ndarray) -> None:
         """The load's mass, inertia (about its new CoM) and CoM move by ``com_shift`` (body frame); the
-        contact points stay on the body and every body point keeps its velocity. ``outline_about_com``
-        is the load's outline about the new CoM (body frame)."""
-        b = self.body
+        contact points stay on the body and every body point keeps its velocity."""
         c, s = self._c, self._s
-        dw = (c * com_shift[0] - s * com_shift[1], s * com_shift[0] + c * com_shift[1])  # world frame
+        sx, sy = float(com_shift[0]), float(com_shift[1])
+        dw = (c * sx - s * sy, s * sx + c * sy)  # world frame
         w = self._omega
-        b.position = (self._pos[0] + dw[0], self._pos[1] + dw[1])
-        b.velocity = (self._vel[0] - w * dw[1], self._vel[1] + w * dw[0])  # v of the new CoM point
-        b.mass = mass
-        b.moment = inertia
-        for shape in list(b.shapes):
-            self.space.remove(shape)
-        shape = pymunk.Poly(b, [(float(x), float(y)) for x, y in outline_about_com])
-        shape.sensor = True
-        self.space.add(shape)
-        self.mass = mass
-        self.inertia = inertia
+        self._place(self._pos[0] + dw[0], self._pos[1] + dw[1])
+        self._vel = (self._vel[0] - w * dw[1], self._vel[1] + w * dw[0])  # v of the new CoM point
+        self._set_mass(mass, inertia)
         self._set_contacts(self._r - com_shift)
-        self.refresh()
 
     def contact_velocities(self) -> np.ndarray:
         """v_Ci = v_C + omega R r_i^perp (= v_C + omega (p_Ci - p_C)^perp, perp = +90 deg rotation)."""
@@ -217,15 +236,16 @@ class Plant:
         """True world-frame velocity of every contact point now."""
         return list(map(tuple, self.contact_velocities().tolist()))
 
-    def measure(self, rng: np.random.Generator) -> list[Vec2]:
-        """velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call (+ sensor effects)."""
+    def measure(self, rng: np.random.Generator) -> np.ndarray:
+        """(n, 2): velocities() plus N(0, sigma_v^2 I) noise; one draw of shape (n, 2) per call (+ sensor
+        effects). Callers that pass the values on as numbers take ``.tolist()`` (Python floats)."""
         if self.effects is not None:
             return self.effects.measure(self, rng)
-        noisy = self.contact_velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
-        return list(map(tuple, noisy.tolist()))
+        return self.contact_velocities() + rng.normal(0.0, self.sigma_v, size=(self.n, 2))
 
-    def apply_and_step(self, wrenches: Sequence[tuple[float, float, float]]) -> None:
+    def apply_and_step(self, wrenches: np.ndarray | Sequence[tuple[float, float, float]]) -> None:
         """Apply each agent's (fx, fy, tau) at its contact point's current world position; advance dt.
+        ``wrenches`` is the (n, 3) float array (taken as is) or any sequence of n triples.
 
         Raises ValueError for a wrong count, a malformed triple or a non-finite value: a bad wrench
         must never reach the integrator, where it would corrupt the truth for the rest of the run.
@@ -250,12 +270,8 @@ class Plant:
             fx, fy, torque = effects.wrench(self, fx, fy, torque)
         if not math.isfinite(torque):
             raise ValueError("resultant torque overflows")
-        b = self.body
-        b.force = (fx, fy)
-        b.torque = torque
-        self.space.step(self.dt)
+        self._integrate(fx, fy, torque)
         self.tick += 1
-        self.refresh()
         if effects is not None:
             effects.after_step(self)
 

@@ -70,7 +70,8 @@ def test_closed_form_beta_matches_the_quadrature():
         y, sy, sx = rng.uniform(-8, 8, 2), rng.uniform(-8, 8, 2), rng.normal(0, 5, 2)
         got = (cf.beta(y, sy, sx), cf.dbeta_dy(y, sy, sx), cf.dbeta_dsy(y, sy, sx), cf.dbeta_dsx(y, sy, sx))
         ref = quad.beta_terms(y, sy, sx)
-        for g, r, tol in zip(got, ref, (1e-10, 1e-12, 1e-7, 1e-10)):  # dbeta/ds_y: the quadrature differentiates numerically
+        # dbeta/ds_y: the quadrature differentiates numerically
+        for g, r, tol in zip(got, ref, (1e-10, 1e-12, 1e-7, 1e-10)):
             assert np.abs(g - r).max() <= tol * (1 + np.abs(r).max())
 
 
@@ -117,7 +118,7 @@ def _scenario(*overrides: str):
 def test_wrist_forces_balance_the_load_momentum_and_match_pymunk_impulses():
     sc = _scenario("duration=1.0")
     ap = ArmPlant(sc)
-    body = ap.plant.body
+    body = ap.body
     rng = np.random.default_rng(2)
     for _ in range(30):
         v0 = np.array(body.velocity)
@@ -144,13 +145,13 @@ def test_load_torque_balance_gives_its_inertia():
     num = den = 0.0
     for k in range(sc.ticks):
         q, v = ap.angles(), np.asarray(p.velocities())
-        th, w0 = p.body.angle, p.body.angular_velocity
+        th, w0 = ap.body.angle, ap.body.angular_velocity
         ap.step(np.array([fronts[i].command(k, q[i], v[i])[0] for i in range(sc.n)]))
         c, s = math.cos(th), math.sin(th)
         rw = np.stack([c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]], axis=1)
         torque_dt = float(np.sum(rw[:, 0] * ap.forces[:, 1] - rw[:, 1] * ap.forces[:, 0])) * sc.dt
         num += torque_dt * torque_dt
-        den += torque_dt * (p.body.angular_velocity - w0)
+        den += torque_dt * (ap.body.angular_velocity - w0)
     assert num / den == pytest.approx(sc.load.inertia, rel=0.005)  # measured 0.07 %
 
 
@@ -200,6 +201,7 @@ def test_arm_agents_estimate_as_well_as_velocity_measuring_agents(comparison):
     assert obs["zi_rms"] <= 2 * vel["zi_rms"] + 0.01
     assert omega["observer"] <= 2 * omega["velocity"] + 0.02
     assert max(obs["contact_speed_rms_after"]) < 0.1 * min(vel["contact_speed_rms_after"])
-    for f in ("comparison.png", "comparison.json", "observer/samples.csv", "observer/arms.csv", "velocity/summary.json"):
+    for f in ("comparison.png", "comparison.json", "observer/samples.csv", "observer/arms.csv",
+              "velocity/summary.json"):
         assert (out / f).exists()
     assert "contact-speed error" in table and "EERD" in table

@@ -1,4 +1,5 @@
-"""The pymunk plant against closed-form rigid-body truth (paper 000, Sec. II) and its sensor model."""
+"""The plant against closed-form rigid-body truth (paper 000, Sec. II), its step against pymunk's bit for bit,
+and its sensor model."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from hypothesis import strategies as st
 
 from config.loader import scenario_from_dict
 from simulator import geometry
+from simulator.arms import load_body
 from simulator.plant import (
     Plant,
     contact_points_body,
@@ -135,17 +137,93 @@ def test_resultant_matches_pymunk_apply_force_at_world_point(seed):
         np.testing.assert_allclose((t.x, t.y, t.angle), (*ref.position, ref.angle), rtol=1e-12, atol=1e-12)
 
 
+class PymunkBeside(Plant):
+    """The plant with a pymunk body (simulator.arms.load_body: the body the arms step) beside it, given the
+    same resultant and the same load changes each tick, for a bit-for-bit comparison of the states."""
+
+    def __init__(self, scenario) -> None:
+        self.space, self.body = load_body(scenario)
+        super().__init__(scenario)
+
+    def _integrate(self, fx: float, fy: float, torque: float) -> None:
+        super()._integrate(fx, fy, torque)
+        self.body.force = (fx, fy)
+        self.body.torque = torque
+        self.space.step(self.dt)
+
+    def _place(self, x: float, y: float) -> None:
+        super()._place(x, y)
+        if getattr(self, "effects", None) is not None:  # a load change (construction placed the body itself)
+            self.body.position = (x, y)
+
+    def change_load(self, mass: float, inertia: float, com_shift: np.ndarray) -> None:
+        super().change_load(mass, inertia, com_shift)
+        self.body.velocity = self.com_velocity
+        self.body.mass = mass
+        self.body.moment = inertia
+
+    def states(self) -> tuple[str, str]:
+        """repr of (position, velocity, angle, omega): the plant's and pymunk's (repr shows a zero's sign)."""
+        t, b = self.truth(), self.body
+        return repr(((t.x, t.y), t.vc, t.angle, t.omega)), repr((tuple(b.position), tuple(b.velocity), b.angle,
+                                                                  b.angular_velocity))
+
+
+ALL_EFFECTS = {
+    "actuator_gain": 0.9, "external_force": [0.3, -0.2],
+    "friction": {"viscous": 2.0, "coulomb": 1.5, "coulomb_speed": 0.02, "rotational": 0.5},
+    "periodic_force": {"amplitude": 2.0, "period_s": 3.0, "direction_deg": 120.0},
+    "sensor": {"delay": 0.03, "velocity_bias": [0.02, -0.01]},
+    "load_changes": [{"t": 0.0, "mass": 55.0}, {"t": 40.0, "mass": 70.0, "com_offset": [-0.2, 0.1]},
+                     {"t": 80.0, "mass": 60.0, "inertia": 80.0, "com_offset": [0.0, 0.0]}],
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("plant", [{}, ALL_EFFECTS], ids=["nominal", "all-effects"])
+@pytest.mark.parametrize("initial", [{"angle": 2.5}, {"angle": -0.4, "v_c": [0.3, -0.1], "omega": -0.2},
+                                     {"position": [-0.0, -0.0], "angle": -0.0, "v_c": [-0.0, -0.0], "omega": -0.0}],
+                         ids=["at-rest", "moving", "signed-zeros"])
+def test_the_step_equals_pymunks_bit_for_bit_over_12000_ticks(plant, initial):
+    """Zero and -0.0 wrenches on a load at rest keep signed zeros alive (pymunk's zero bias velocity and zero
+    gravity turn -0.0 into 0.0); a load change moves the body through its setters."""
+    sc = make(initial=initial, plant=plant)
+    p = PymunkBeside(sc)
+    rng = np.random.default_rng(7)
+    ticks = 12_000
+    for k in range(ticks):
+        if k % 1000 < 100:
+            w = np.full((sc.n, 3), -0.0 if k % 2 else 0.0)  # quiet: a zero force, of either sign
+        else:
+            w = rng.normal(0.0, 2.0, (sc.n, 3))
+        p.apply_and_step(w)
+        ours, theirs = p.states()
+        assert ours == theirs, f"tick {k + 1}"
+    assert p.tick == ticks
+
+
+def test_signed_zeros_follow_pymunk():
+    """A -0.0 state under a -0.0 resultant (not reachable through the wrench reduction, whose sums give +0.0):
+    pymunk's zero gravity and zero bias velocity turn -0.0 into 0.0, and the step does the same."""
+    p = PymunkBeside(make(initial={"position": [-0.0, -0.0], "angle": -0.0, "v_c": [-0.0, -0.0], "omega": -0.0}))
+    assert p.states()[0] == p.states()[1]
+    for f in ((-0.0, -0.0, -0.0), (0.0, -0.0, 0.0), (-0.0, 0.0, -0.0)):
+        p._integrate(*f)
+        assert p.states()[0] == p.states()[1]
+
+
 def test_contact_velocities_follow_rigid_body_kinematics():
     sc = make(initial={"angle": 1.1, "v_c": [0.4, -0.3], "omega": 0.8})
     plant = Plant(sc)
     plant.apply_and_step([(1.0, 2.0, 0.5)] * sc.n)
     t = plant.truth()
     v = np.array(plant.velocities())
+    body = pymunk.Body(t.mass, t.inertia)  # pymunk's own rigid-body kinematics at the plant's state
+    body.position, body.angle, body.velocity, body.angular_velocity = (t.x, t.y), t.angle, t.vc, t.omega
     for i, zi in enumerate(t.zi):
         arm = np.array(zi) + np.array(t.zc)  # p_Ci - p_C
         np.testing.assert_allclose(v[i], np.array(t.vc) + t.omega * perp(arm), rtol=0, atol=1e-12)
         world = (t.x + arm[0], t.y + arm[1])
-        np.testing.assert_allclose(v[i], tuple(plant.body.velocity_at_world_point(world)), atol=1e-12)
+        np.testing.assert_allclose(v[i], tuple(body.velocity_at_world_point(world)), atol=1e-12)
 
 
 def test_contact_velocities_match_finite_differences_of_positions():
@@ -201,7 +279,7 @@ def test_default_inertia_is_uniform_lamina_about_offset_com():
     sc = scenario_from_dict({"load": {"width": 4.0, "height": 2.2, "mass": 50.0, "com_offset": [0.3, -0.2]}})
     expected = 50.0 * (4.0**2 + 2.2**2) / 12 + 50.0 * (0.3**2 + 0.2**2)
     assert load_inertia(sc) == pytest.approx(expected, rel=1e-12)
-    assert Plant(sc).body.moment == pytest.approx(expected, rel=1e-12)
+    assert Plant(sc).truth().inertia == pytest.approx(expected, rel=1e-12)
 
 
 # --- sensor --------------------------------------------------------------------------------------
@@ -230,7 +308,7 @@ def test_same_seed_same_measurements_and_streams_are_isolated():
         plant, rng = Plant(sc), sensor_rng(seed)
         out = []
         for _ in range(50):
-            out.append(plant.measure(rng))
+            out.append(plant.measure(rng).tolist())
             plant.apply_and_step([(0.1, 0.0, 0.01)] * sc.n)
         return out
 
@@ -248,7 +326,7 @@ def test_same_seed_same_measurements_and_streams_are_isolated():
 def test_zero_noise_measures_truth():
     sc = make(sigma=0.0, initial={"omega": 0.5})
     plant = Plant(sc)
-    assert plant.measure(sensor_rng(0)) == plant.velocities()
+    assert plant.measure(sensor_rng(0)).tolist() == list(map(list, plant.velocities()))
 
 
 @pytest.mark.parametrize(

@@ -34,7 +34,7 @@ def _team_equals_teams_of_one(sc: Scenario) -> int:
     alone = [build_team([v], ring=1 + net.reach) for v in views]
     sent: dict[int, list] = {}  # the teams of one's messages by tick (not a ring: independent of its slots)
     for k in range(sc.ticks):
-        meas = plant.measure(rng)
+        meas = plant.measure(rng).tolist()  # Python floats, as the engine gives the agents
         due = [pop(k) for pop in net.pops]
         wrenches = team.step(k, meas, handle_inbox(team, k, due))
         estimates = team.estimates()

@@ -167,7 +167,7 @@ def run_inproc(
                 lag = wall0 + k * dt - time.perf_counter()
                 if lag > 0:
                     time.sleep(lag)
-            meas = plant.measure(rng)
+            meas = plant.measure(rng).tolist()
             # only recorded ticks need the truth and the estimates
             keep = keeps is not None and keeps(k)
             watch = stop is not None and k % every == 0  # the agents' stages, on the recording grid

@@ -22,7 +22,7 @@ def team_ticks(scenario: Scenario, plant: Plant, team: TeamCore) -> Iterator[tup
     rng = sensor_rng(scenario.seed)
     inboxes = lockstep_inboxes(team, [[i for i in range(n) if r in nbrs[i]] for r in range(n)], 1)
     for k in range(scenario.ticks):
-        meas = plant.measure(rng)
+        meas = plant.measure(rng).tolist()
         wr = team.step(k, meas, inboxes[k % team.ring] if k >= 1 else empty_inbox(team))
         yield k, wr
         plant.apply_and_step(wr)
