@@ -45,6 +45,7 @@ from agents.kernels.kinematic import (
 )
 from agents.kernels.pair import pair_bank, pair_checkpoints
 from agents.laws import LawInput
+from agents.pair_estimator import PairEstimator
 from agents.stage_agreement import MASK_BITS
 from agents.tick_records import DynamicFeedback, DynamicMsg, KinematicTick
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
@@ -54,45 +55,6 @@ from net.vocabulary import ESTIMATE_NAMES, KINEMATIC, SPINUP
 
 _DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
 _NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)
-
-
-class PairView:
-    """One pair estimator of an agent's bank (agents/kernels/pair.py): its readable state."""
-
-    __slots__ = ("_row",)
-
-    def __init__(self, P: np.ndarray, b: int, k: int) -> None:
-        self._row = P[b, k:k + 1]
-
-    @property
-    def z(self) -> complex:
-        """Estimate of z_ij (m, world) at the owner's state tick; 0 until the first fit."""
-        return self._row["z"].item(0)
-
-    @property
-    def ready(self) -> bool:
-        """A window has been accepted."""
-        return self._row["ready"].item(0)
-
-    @property
-    def r(self) -> float:
-        """|z_ij| estimate (m)."""
-        return self._row["r"].item(0)
-
-    @property
-    def windows(self) -> int:
-        """Accepted circle-fit windows."""
-        return self._row["windows"].item(0)
-
-    @property
-    def rejected(self) -> int:
-        """Windows closed without an accepted fit."""
-        return self._row["rejected"].item(0)
-
-    @property
-    def omega_fit(self) -> float:
-        """omega over the last third of the last accepted window (rad/s)."""
-        return self._row["omega_fit"].item(0)
 
 
 def _dynamic_msg(v: list[float], lay: Layout) -> DynamicMsg:
@@ -221,9 +183,9 @@ class AgentCore:
         return self.kin["dropped_stale"].item(0)
 
     @property
-    def pairs(self) -> dict[int, PairView]:
+    def pairs(self) -> dict[int, PairEstimator]:
         """Each neighbour's pair estimator (z_ij)."""
-        return {j: PairView(self._P, 0, k) for k, j in enumerate(self._nbr_ids)}
+        return {j: PairEstimator.of(self._P, self._cps, self._prm, 0, k) for k, j in enumerate(self._nbr_ids)}
 
     def _kinematic(self, tick: int, vx: float, vy: float, inbox: Sequence[StateMsg]) -> KinematicTick:
         """The kinematic phase's tick: the inbox as rows through the kernel; its results as a record."""

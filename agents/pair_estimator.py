@@ -1,11 +1,14 @@
 """Per-neighbour estimation of z_ij = p_Ci - p_Cj (paper 000 Sec. IV-A, blocks 1-4 of Fig. 2).
 
-A view: one pair estimator is the row (0, 0) of its own bank of agents/kernels/pair.py, whose kernels do
-the maths (circle fit of the integrated relative velocity, angle tracking). Why this shape:
-docs/agent-step.md ("The pair estimator"); the high-noise spin-up: docs/spinup.md.
+A view: one pair estimator is a row (b, k) of a bank of agents/kernels/pair.py (its own bank of one, or an
+agent's: :meth:`PairEstimator.of`), whose kernels do the maths (circle fit of the integrated relative
+velocity, angle tracking). Why this shape: docs/agent-step.md ("The pair estimator"); the high-noise
+spin-up: docs/spinup.md.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from agents.kernels.pair import pair_bank, pair_checkpoints, pair_predict, pair_sample, set_pair_params
 
@@ -17,7 +20,7 @@ class PairEstimator:
     samples w = v_Ci - v_Cj at the tick they were measured (strictly increasing ticks).
     """
 
-    __slots__ = ("P", "cps", "prm", "_z", "_ready", "_r", "_p", "_windows", "_rejected", "_omega_fit")
+    __slots__ = ("P", "cps", "prm", "b", "k", "_z", "_ready", "_r", "_p", "_windows", "_rejected", "_omega_fit")
 
     def __init__(
         self,
@@ -39,10 +42,22 @@ class PairEstimator:
             fit_max_ticks=fit_max_ticks, fit_check_ticks=fit_check_ticks, max_gap_ticks=max_gap_ticks,
             angle_walk=angle_walk, gate_snr=gate_snr, angle_meas=angle_meas,
         )  # fmt: skip
-        # the fields' (1, 1) views, read with .item(0): Python scalars, as the owner's messages need
-        P = self.P
-        self._z, self._ready, self._r, self._p = P["z"], P["ready"], P["r"], P["p"]
-        self._windows, self._rejected, self._omega_fit = P["windows"], P["rejected"], P["omega_fit"]
+        self._view(0, 0)
+
+    @classmethod
+    def of(cls, P: np.ndarray, cps: np.ndarray, prm: np.ndarray, b: int, k: int) -> PairEstimator:
+        """The pair estimator in row (b, k) of an existing bank (an agent's, agents/kernels/pair.py)."""
+        pe = cls.__new__(cls)
+        pe.P, pe.cps, pe.prm = P, cps, prm
+        pe._view(b, k)
+        return pe
+
+    def _view(self, b: int, k: int) -> None:
+        # the fields' one-element views, read with .item(0): Python scalars, as the owner's messages need
+        self.b, self.k = b, k
+        row = self.P[b, k:k + 1]
+        self._z, self._ready, self._r, self._p = row["z"], row["ready"], row["r"], row["p"]
+        self._windows, self._rejected, self._omega_fit = row["windows"], row["rejected"], row["omega_fit"]
 
     @property
     def z(self) -> complex:
@@ -81,9 +96,9 @@ class PairEstimator:
 
     def predict(self, rot: complex) -> None:
         """Advance one tick: rotate by e^{i omega_hat dt}; the angle uncertainty grows."""
-        pair_predict(self.P, 0, 0, rot)
+        pair_predict(self.P, self.b, self.k, rot)
 
     def sample(self, t: int, w: complex, back: complex, omega_hat: float, dt: float) -> None:
         """Use the relative velocity ``w`` measured at tick ``t``; ``back`` rotates the state-tick estimate
         back to tick t (1 when t is the state tick)."""
-        pair_sample(self.P, self.cps, self.prm, 0, 0, t, w, complex(back), omega_hat, dt)
+        pair_sample(self.P, self.cps, self.prm, self.b, self.k, t, w, complex(back), omega_hat, dt)

@@ -4,7 +4,7 @@ Runs bench/filter_candidates.py's numba filter kernels (update + predict, d = 8)
 ``py_func`` (the same source, interpreted) on random inputs (B rows, NaN rate measurements included) and
 counts the output arrays that differ in any bit; then the same for the transcendental functions of ``math``
 that a kernel would call (compiled against CPython's ``math``); then the cost per call at the daemon's
-batch of one. Needs numba (`pip install numba`, not a dependency). Docs: docs/agent-step.md ("Compiled
+batch of one. numba is a dependency of coload (the agent's compiled core). Docs: docs/agent-step.md ("Compiled
 against interpreted").
 """
 
