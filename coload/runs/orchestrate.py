@@ -303,11 +303,8 @@ def process_run(run_dir: Path, verbose: int = 0, listen: str | None = None) -> t
     """What every multi-process run starts from: ``run_dir/logs``, the embedded router's endpoint
     (``listen``, or a free loopback port), the run name (the key-expression namespace), the command
     that starts a ``coload`` child process and the supervisor of the children."""
-    from agents.kernels import warm
     from net.zenoh_transport import free_tcp_port
 
-    # the compiled core is compiled here once, so that the children only load its cache
-    warm()
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
     endpoint = listen or f"tcp/127.0.0.1:{free_tcp_port()}"
     py = [sys.executable, "-m", "coload"] + (["-v"] * verbose)
@@ -344,8 +341,12 @@ def run_processes(scenario: Scenario, run_dir: Path, quiet: bool = False, verbos
     ``secure``: a team's keys are made in ``run_dir/keys`` for this run (certificates valid one day),
     and every member speaks mutual TLS under the team's default-deny access-control list.
     ``on_router(endpoint, run)``: called once the router listens, before the simulator starts (a live view)."""
+    from agents.kernels import warm
     from net import keys
 
+    # the compiled core is compiled here once, so that the agent daemons only load its cache (an H-infinity
+    # run, which shares process_run, steps none of it)
+    warm()
     run_dir = Path(run_dir)
     if secure and listen is None:
         listen = secure_endpoint()
