@@ -144,6 +144,11 @@ class LinkModel:
             return s.delay_ticks + min(int(u * (s.jitter_ticks + 1)), s.jitter_ticks)
         return s.delay_s + u * s.jitter_s
 
+    @property
+    def longest_delay(self) -> int | float:
+        """The largest delay :meth:`deliveries` can draw (delay + the whole jitter)."""
+        return self._delay(1.0)
+
     def partitioned(self, tick: int) -> bool:
         """True if a message sent at ``tick`` on this link falls in a partition window that cuts it."""
         for t0, t1 in self._windows:

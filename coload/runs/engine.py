@@ -80,17 +80,9 @@ class LinkNetwork:
 
     @property
     def reach(self) -> int:
-        """The most ticks from a message's send tick to its delivery: 1 + the longest delay a link draws."""
-        longest = 0
-        for row in self.links:
-            for link in row.values():
-                s = link.spec
-                if self.mode == "lockstep":
-                    d = s.delay_ticks + s.jitter_ticks
-                else:
-                    d = int((s.delay_s + s.jitter_s) // self.dt)
-                longest = max(longest, d)
-        return 1 + longest
+        """The most ticks from a message's send tick to its delivery (1 + the longest delay a link draws)."""
+        return max((deliver_tick(0, link.longest_delay, self.dt, self.mode) for row in self.links
+                    for link in row.values()), default=1)
 
     def close(self, ticks: int) -> dict[str, dict[str, int]]:
         """Settles the counters of a run of ``ticks`` ticks; the summary's ``links`` block."""
