@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from typing import Any, NamedTuple
 
+import numpy as np
+
 
 class DynamicFeedback(NamedTuple):
     """What the dynamical phase tells the kinematic phase of the next tick (the defaults: before it runs)."""
@@ -21,7 +23,7 @@ class DynamicFeedback(NamedTuple):
 
 
 class DynamicMsg(NamedTuple):
-    """A neighbour's dynamical-phase states of one message, decoded and checked (``DynamicPhase.decode``)."""
+    """A neighbour's dynamical-phase states of one message, decoded from its IN row (agents/dynamic_phase.py)."""
 
     sender: int
     tick: int
@@ -53,7 +55,7 @@ class KinematicTick(NamedTuple):
     ready: int  # neighbours whose z_ij is estimated
     trusted: bool  # every pair estimated
     wrench: tuple[float, float, float]  # the kinematic control law's (fx, fy, tau)
-    inbox: tuple[DynamicMsg, ...]  # the neighbours' dynamical states taken this tick, in order
+    inbox: np.ndarray  # the IN rows (net/rows.py) whose dynamical states are taken this tick, in order (k, size_in)
     dropped_unknown: int  # counters so far (see ESTIMATE_NAMES)
     dropped_stale: int
 
@@ -63,7 +65,5 @@ class DynamicOut(NamedTuple):
 
     wrench: tuple[float, float, float]  # to apply (fx, fy, tau)
     stage: int
-    shared: dict[str, float]  # its StateMsg.shared entries
-    flows: dict[int, tuple[float, ...]]  # its flows to each neighbour, appended to the StateMsg.pair entry
     estimates: dict[str, Any]  # its estimate values, ESTIMATE_NAMES from "J" on
     feedback: DynamicFeedback  # for the kinematic phase of the next tick
