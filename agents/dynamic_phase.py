@@ -29,9 +29,10 @@ from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
-from agents.stage_agreement import StageBarrier
+from agents.stage_agreement import MASK_BITS, StageBarrier
 from agents.tick_records import DynamicFeedback, DynamicMsg, DynamicOut, KinematicTick
 from config.agent_params import DynamicsSpec
+from net.rows import C0, KIN_KEYS, OM, PAIR_HEAD, PHASE, SENDER, TICK, Layout
 from net.vocabulary import (
     BACKGROUND,
     DONE,
@@ -56,6 +57,20 @@ N_CH_AUG = 15
 # online detection (DynamicsSpec.online_detection): the pooled window statistics (agents/effect_decision.py)
 CH_POOL = N_CH_AUG
 CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG + N_POOL))  # their names in StateMsg.shared
+
+
+def _dynamic_msg(v: list[float], lay: Layout) -> DynamicMsg:
+    """A neighbour's dynamical states from its IN row's values (net/rows.py), whose status says they
+    were decoded and checked."""
+    nch = lay.nch
+    mask = 0
+    for c in range(lay.nbk):
+        mask |= int(v[lay.b0 + c]) << (c * MASK_BITS)
+    p = lay.p0 + PAIR_HEAD
+    ds = lay.ds
+    dec = (int(v[ds]), int(v[ds + 1]), v[ds + 2]) if lay.detection else None
+    return DynamicMsg(int(v[SENDER]), int(v[TICK]), int(v[PHASE]), v[lay.ps], int(v[lay.dg]), v[C0:C0 + nch],
+                      v[p:p + nch], (mask, int(v[lay.bt]), int(v[lay.bs])), int(v[lay.sk]), v[OM], dec)
 
 
 class DynamicPhase:
@@ -159,6 +174,8 @@ class DynamicPhase:
                                        ticks(spec.horizon_s), CH_POOL, declared,
                                        ALL if spec.online_force_bias else ALL & ~(1 << EFFECTS.index("force_bias")))
                        if spec.online_detection else None)
+        # its OUT row's slots (net/rows.py)
+        self.lay = Layout(True, nch, len(self.barrier.mask_keys), self.detect is not None, len(nbr_ids))
 
     # ------------------------------------------------------------------ messages
     def _receive(self, m: DynamicMsg) -> None:
@@ -378,19 +395,20 @@ class DynamicPhase:
         return tick - self.conv_since >= self.avg_window
 
     # ------------------------------------------------------------------ the tick
-    def step(self, kin: KinematicTick) -> DynamicOut:
-        """Advance one tick on the kinematic phase's results of it."""
-        for m in kin.inbox:
-            self._receive(m)
+    def step(self, kin: KinematicTick, out_row: np.ndarray) -> DynamicOut:
+        """Advance one tick on the kinematic phase's results of it; write this phase's slots of the agent's
+        OUT row ``out_row`` (net/rows.py; its header, kinematic slots and pair heads are the caller's)."""
+        lay = self.lay
+        for v in kin.inbox.tolist():
+            self._receive(_dynamic_msg(v, lay))
         for t, zz in kin.late:
             self._note_late(t, zz)
         fx, fy, tau = self._step(kin.tick, kin.v, kin.u, kin.u_den, kin.omega, kin.phi, kin.zi, kin.trusted,
                                  kin.om_init, kin.wrench)
+        self._write_out(out_row)
         return DynamicOut(
             wrench=(fx, fy, tau),
             stage=self.stage,
-            shared=self._shared(),
-            flows={j: tuple(f) for j, f in self.avg.flow.items()},
             estimates=self._estimates(),
             feedback=DynamicFeedback(
                 om_meas=self.om_meas,
@@ -705,6 +723,15 @@ class DynamicPhase:
         if self.detect is not None:
             out.update(self.detect.flood.encode())
         return out
+
+    def _write_out(self, row: np.ndarray) -> None:
+        """The stage, :meth:`_shared`'s values and each neighbour's flows into the agent's OUT row."""
+        lay = self.lay
+        row[PHASE] = self.stage
+        row[OM + len(KIN_KEYS):lay.p0] = list(self._shared().values())
+        deg = self.avg.deg
+        if deg:
+            row[lay.p0:lay.p0 + deg * lay.block].reshape(deg, lay.block)[:, PAIR_HEAD:] = list(self.avg.flow.values())
 
     def _on(self) -> int:
         """The effects in the model (bit k: EFFECTS[k]): declared (estimate_effects: the augmented filter

@@ -34,7 +34,7 @@ def test_dynamic_states_are_decoded_and_checked_at_the_edge() -> None:
     """A neighbour's dynamical states are checked as a whole by the edge codec (net/rows.py): one bad
     value or missing key marks the row malformed (nothing of it is taken); the flows default to zeros
     when it sent none for us yet."""
-    from agents.agent import _dynamic_msg
+    from agents.dynamic_phase import _dynamic_msg
     from config.agent_params import DynamicsSpec
     from net import rows as R
     from net.messages import StateMsg
