@@ -66,7 +66,11 @@ class AgentCore(TeamCore, AgentView):
         n = len(inbox)
         rows = np.array([row_values(m, me, lay) for m in inbox], np.float64) if n else self._no_rows
         self._in_ptr[1] = n
-        fx, fy, tau = self._tick(tick, ((vx, vy),), rows, self._in_ptr)[0].tolist()
+        inp = self._inp
+        inp[0, 0] = vx
+        inp[0, 1] = vy
+        w = self._tick(tick, ((vx, vy),), rows, self._in_ptr)
+        fx, fy, tau = w[0] if self._dynamic else w[0].tolist()
         return self.message(tick, 0), Wrench(tick, me, fx, fy, tau)
 
     def estimate(self) -> Estimate:

@@ -24,6 +24,7 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
+from agents.kernels.agreement import FLOW
 from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
@@ -727,11 +728,13 @@ class DynamicPhase:
     def _write_out(self, row: np.ndarray) -> None:
         """The stage, :meth:`_shared`'s values and each neighbour's flows into the agent's OUT row."""
         lay = self.lay
+        avg = self.avg
         row[PHASE] = self.stage
         row[OM + len(KIN_KEYS):lay.p0] = list(self._shared().values())
-        deg = self.avg.deg
-        if deg:
-            row[lay.p0:lay.p0 + deg * lay.block].reshape(deg, lay.block)[:, PAIR_HEAD:] = list(self.avg.flow.values())
+        if avg.deg:
+            # (the flow average's bank row: avg.flow's values without the lists)
+            row[lay.p0:lay.p0 + avg.deg * lay.block].reshape(avg.deg, lay.block)[:, PAIR_HEAD:] = \
+                avg._F[avg._b, FLOW:FLOW + avg.deg]
 
     def _on(self) -> int:
         """The effects in the model (bit k: EFFECTS[k]): declared (estimate_effects: the augmented filter

@@ -26,7 +26,10 @@ from agents import dynamic_phase
 from agents.estimate_trust import EstimateTrust
 from agents.kernels.kinematic import (
     HOLD_MAX,
+    I_ALPHA,
+    I_HOLD,
     I_OM_MEAS,
+    I_WAITING,
     R_DROPPED_STALE,
     R_DROPPED_UNKNOWN,
     R_FX,
@@ -241,15 +244,18 @@ class TeamCore:
             self._grow(E)
         rows = self._rows[:E]
         gather_inbox(self.out, inbox.ref, self._lay.lay, rows)
-        return self._tick(tick, meas, rows, inbox.ptr)
+        self._inp[:, :2] = meas
+        w = self._tick(tick, meas, rows, inbox.ptr)
+        return np.array(w, dtype=np.float64) if self._dynamic else w  # type: ignore[return-value]
 
-    def _tick(self, tick: int, meas: Sequence[Sequence[float]], rows: np.ndarray, ptr: np.ndarray) -> np.ndarray:
-        """Every agent's tick on its IN rows ``rows[ptr[b]:ptr[b + 1]]``."""
+    def _tick(self, tick: int, meas: Sequence[Sequence[float]], rows: np.ndarray,
+              ptr: np.ndarray) -> np.ndarray | list[tuple[float, float, float]]:
+        """Every agent's tick on its IN rows ``rows[ptr[b]:ptr[b + 1]]`` (``meas`` already in the kernel's
+        inputs); the wrenches: (B, 3) without a dynamical phase, else a list of B (fx, fy, tau)."""
         E = len(rows)
         if E > len(self._order):
             self._grow(E)
         inp = self._inp
-        inp[:, :2] = meas
         lay = self._lay
         res = self._res
         b = kin_step(*self._bank, self._P, self._cps, self._prm, tick, inp, rows, ptr, self._order, lay.lay,
@@ -260,36 +266,42 @@ class TeamCore:
         out = self.out[tick % self.ring]
         write_kin_out(out, tick, self._id_arr, inp, self._deg, res, lay.lay)
         if not self._dynamic:
-            om_init = res[:, R_OM_INIT].tolist()
-            self.stages[:] = [KINEMATIC if o else SPINUP for o in om_init]
+            self.stages[:] = [KINEMATIC if o else SPINUP for o in res[:, R_OM_INIT].tolist()]
             return res[:, R_FX:R_TAU + 1].copy()
         wrenches = []
-        ptr_l = ptr.tolist()
-        for b, (dyn, r) in enumerate(zip(self.dyns, res.tolist(), strict=True)):
-            kin = self._kinematic_tick(b, tick, r, rows, ptr_l[b])
-            o = dyn.step(kin, out[b])  # type: ignore[union-attr]
-            inp[b, 2:] = o.feedback
-            self.stages[b] = o.stage
-            self._trust[b].observe(tick, o.stage, [(int(v[SENDER]), int(v[TICK])) for v in kin.inbox.tolist()])  # type: ignore[union-attr]
+        stages = self.stages
+        acc = self._acc
+        for b, (dyn, r, lo) in enumerate(zip(self.dyns, res.tolist(), ptr.tolist(), strict=False)):
+            na = int(r[R_NACC])
+            taken = rows[acc[lo:lo + na]]
+            o = dyn.step(self._kinematic_tick(b, tick, meas[b], r, taken), out[b])  # type: ignore[union-attr]
+            fb = o.feedback
+            inp[b, I_OM_MEAS] = fb[0]
+            inp[b, I_ALPHA] = fb[1]
+            inp[b, I_HOLD] = fb[2]
+            inp[b, I_WAITING] = fb[3]
+            stages[b] = stage = o.stage
+            self._trust[b].observe(tick, stage, [(int(v[SENDER]), int(v[TICK])) for v in taken.tolist()])  # type: ignore[union-attr]
             self._est[b] = o.estimates
             wrenches.append(o.wrench)
-        return np.array(wrenches, dtype=np.float64)
+        return wrenches
 
-    def _kinematic_tick(self, b: int, tick: int, r: list[float], rows: np.ndarray, lo: int) -> KinematicTick:
-        """Agent b's kinematic results of the tick as the dynamical phase reads them (``r``: its row of ``res``)."""
+    def _kinematic_tick(self, b: int, tick: int, v: Sequence[float], r: list[float],
+                        taken: np.ndarray) -> KinematicTick:
+        """Agent b's kinematic results of the tick as the dynamical phase reads them (``v``: its measured
+        velocity, ``r``: its row of the results, ``taken``: the IN rows whose dynamical states it takes)."""
         nl = int(r[R_NLATE])
         late = (tuple(zip(self._late_t[b, :nl].tolist(), self._late_z[b, :nl].tolist(), strict=True)) if nl
                 else ())
-        na = int(r[R_NACC])
         p = R_PAIRS
         pairs = tuple((j, complex(r[p + 4 * k], r[p + 4 * k + 1]), complex(r[p + 4 * k + 2], r[p + 4 * k + 3]))
                       for k, j in enumerate(self.nbr_ids[b]))
-        vx, vy = self._inp[b, :2].tolist()
+        vx, vy = v
         # (KinematicTick's fields in order)
         return KinematicTick(tick, complex(vx, vy), r[R_U], r[R_U_DEN], late, r[R_OMEGA], r[R_OM_INIT] != 0.0,
                              r[R_PHI], complex(r[R_Y], r[R_Y + 1]), complex(r[R_ZI], r[R_ZI + 1]), pairs,
-                             int(r[R_READY]), r[R_TRUSTED] != 0.0, (r[R_FX], r[R_FY], r[R_TAU]),
-                             rows[self._acc[lo:lo + na]], int(r[R_DROPPED_UNKNOWN]), int(r[R_DROPPED_STALE]))
+                             int(r[R_READY]), r[R_TRUSTED] != 0.0, (r[R_FX], r[R_FY], r[R_TAU]), taken,
+                             int(r[R_DROPPED_UNKNOWN]), int(r[R_DROPPED_STALE]))
 
     def _estimate(self, b: int) -> Estimate:
         """Agent b's estimate of the last tick stepped."""
