@@ -24,10 +24,17 @@ import numpy as np
 
 from agents import excitation
 from agents.consensus import FlowAverage, weighted_average_step
-from agents.kernels.agreement import FLOW
-from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
+from agents.effect_decision import (
+    ALL,
+    DETECT_NAMES,
+    EFFECTS,
+    N_POOL,
+    SLOPE,
+    OnlineDetection,
+)
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
+from agents.kernels.agreement import FLOW
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import MASK_BITS, StageBarrier
