@@ -272,8 +272,14 @@ class TeamCore:
         stages = self.stages
         acc = self._acc
         for b, (dyn, r, lo) in enumerate(zip(self.dyns, res.tolist(), ptr.tolist(), strict=False)):
-            na = int(r[R_NACC])
-            taken = rows[acc[lo:lo + na]]
+            e = acc[lo:lo + int(r[R_NACC])].tolist()
+            # the taken rows: a view where they are consecutive rows in order (as a sorted inbox's are)
+            if not e:
+                taken = rows[lo:lo]
+            elif e == list(range(e[0], e[0] + len(e))):
+                taken = rows[e[0]:e[0] + len(e)]
+            else:
+                taken = rows[e]
             o = dyn.step(self._kinematic_tick(b, tick, meas[b], r, taken), out[b])  # type: ignore[union-attr]
             fb = o.feedback
             inp[b, I_OM_MEAS] = fb[0]
