@@ -58,7 +58,7 @@ from agents.pair_estimator import PairEstimator
 from agents.tick_records import KinematicTick
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg
-from net.rows import SENDER, TICK, Layout, state_from_row
+from net.rows import Layout, state_from_row
 from net.vocabulary import ESTIMATE_NAMES, KINEMATIC, SPINUP
 
 _DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
@@ -211,6 +211,8 @@ class TeamCore:
                            m.estimator, m.control, self.dyns[b] is not None)
         self._id_arr = np.array(self.ids, np.int64)
         self._deg = np.array([len(ids) for ids in self.nbr_ids], np.int64)
+        # (neighbour, its pair's first slot in a row of the kernel's results) per agent
+        self._pair_slots = [[(j, R_PAIRS + 4 * k) for k, j in enumerate(ids)] for ids in self.nbr_ids]
         # blocks[s][r]: receiver row r's pair block in sender row s's OUT row
         row_of = {j: b for b, j in enumerate(self.ids)}
         self.blocks = [{row_of[j]: k for k, j in enumerate(ids) if j in row_of} for ids in self.nbr_ids]
@@ -287,7 +289,8 @@ class TeamCore:
             inp[b, I_HOLD] = fb[2]
             inp[b, I_WAITING] = fb[3]
             stages[b] = stage = o.stage
-            self._trust[b].observe(tick, stage, [(int(v[SENDER]), int(v[TICK])) for v in taken.tolist()])  # type: ignore[union-attr]
+            # (TICK, SENDER: the rows' first two slots)
+            self._trust[b].observe(tick, stage, [(int(j), int(t)) for t, j in taken[:, :2].tolist()])  # type: ignore
             self._est[b] = o.estimates
             wrenches.append(o.wrench)
         return wrenches
@@ -299,9 +302,7 @@ class TeamCore:
         nl = int(r[R_NLATE])
         late = (tuple(zip(self._late_t[b, :nl].tolist(), self._late_z[b, :nl].tolist(), strict=True)) if nl
                 else ())
-        p = R_PAIRS
-        pairs = tuple((j, complex(r[p + 4 * k], r[p + 4 * k + 1]), complex(r[p + 4 * k + 2], r[p + 4 * k + 3]))
-                      for k, j in enumerate(self.nbr_ids[b]))
+        pairs = tuple((j, complex(r[p], r[p + 1]), complex(r[p + 2], r[p + 3])) for j, p in self._pair_slots[b])
         vx, vy = v
         # (KinematicTick's fields in order)
         return KinematicTick(tick, complex(vx, vy), r[R_U], r[R_U_DEN], late, r[R_OMEGA], r[R_OM_INIT] != 0.0,
