@@ -26,10 +26,7 @@ from agents import dynamic_phase
 from agents.estimate_trust import EstimateTrust
 from agents.kernels.kinematic import (
     HOLD_MAX,
-    I_ALPHA,
-    I_HOLD,
     I_OM_MEAS,
-    I_WAITING,
     R_DROPPED_STALE,
     R_DROPPED_UNKNOWN,
     R_FX,
@@ -272,9 +269,11 @@ class TeamCore:
             return res[:, R_FX:R_TAU + 1].copy()
         wrenches = []
         stages = self.stages
-        acc = self._acc
+        acc = self._acc[:E].tolist()
+        heads = rows[:, :2].tolist()  # (tick, sender) of every IN row: TICK, SENDER are its first slots
+        fbs = []
         for b, (dyn, r, lo) in enumerate(zip(self.dyns, res.tolist(), ptr.tolist(), strict=False)):
-            e = acc[lo:lo + int(r[R_NACC])].tolist()
+            e = acc[lo:lo + int(r[R_NACC])]
             # the taken rows: a view where they are consecutive rows in order (as a sorted inbox's are)
             if not e:
                 taken = rows[lo:lo]
@@ -283,16 +282,12 @@ class TeamCore:
             else:
                 taken = rows[e]
             o = dyn.step(self._kinematic_tick(b, tick, meas[b], r, taken), out[b])  # type: ignore[union-attr]
-            fb = o.feedback
-            inp[b, I_OM_MEAS] = fb[0]
-            inp[b, I_ALPHA] = fb[1]
-            inp[b, I_HOLD] = fb[2]
-            inp[b, I_WAITING] = fb[3]
+            fbs.append(o.feedback)
             stages[b] = stage = o.stage
-            # (TICK, SENDER: the rows' first two slots)
-            self._trust[b].observe(tick, stage, [(int(j), int(t)) for t, j in taken[:, :2].tolist()])  # type: ignore
+            self._trust[b].observe(tick, stage, [(int(heads[i][1]), int(heads[i][0])) for i in e])  # type: ignore
             self._est[b] = o.estimates
             wrenches.append(o.wrench)
+        inp[:, I_OM_MEAS:] = fbs  # (DynamicFeedback's fields in the kernel's input order)
         return wrenches
 
     def _kinematic_tick(self, b: int, tick: int, v: Sequence[float], r: list[float],
