@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from agents.laws import LawInput
-from agents.team import AgentView, Member, TeamCore
+from agents.team import AgentView, Member, TeamCore, assumed_sigma_v
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
 from net.rows import row_values
@@ -47,10 +47,13 @@ class AgentCore(TeamCore, AgentView):
         law: Callable[[LawInput], Sequence[float]] | None = None,
     ) -> None:
         """``law``: a control law of the user's (agents/laws.py), called where the dynamical phase allows."""
-        TeamCore.__init__(self, [Member(agent_id, neighbours, n, dt, sigma_v, estimator, control, dynamics, law)])
+        me = Member(agent_id, neighbours, n, dt, sigma_v, estimator, control, dynamics, law)
+        TeamCore.__init__(self, [me])
         self._team, self._row = self, 0
         self.n = int(n)
         self.dt = float(dt)
+        self.sigma_v = assumed_sigma_v(me)  # the noise the agent assumes
+        self.spec = estimator
         self._no_rows = np.zeros((0, self._lay.size_in))
         self._in_ptr = np.zeros(2, np.int64)
 

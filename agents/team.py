@@ -76,6 +76,11 @@ class Member(NamedTuple):
     law: Callable[[LawInput], Sequence[float]] | None = None  # a control law of the user's (agents/laws.py)
 
 
+def assumed_sigma_v(m: Member) -> float:
+    """The velocity noise the agent assumes: its estimator's, else the scenario's."""
+    return float(m.estimator.sigma_v if m.estimator.sigma_v is not None else m.sigma_v)
+
+
 @dataclass(frozen=True, slots=True)
 class Inbox:
     """The due messages of every agent of a tick: ``ref[ptr[b]:ptr[b + 1]]`` are agent b's, in taking order."""
@@ -169,7 +174,7 @@ class TeamCore:
             if m.agent_id in m.neighbours:
                 raise ValueError("an agent cannot be its own neighbour")
             ids = sorted(set(int(j) for j in m.neighbours))
-            sig = float(m.estimator.sigma_v if m.estimator.sigma_v is not None else m.sigma_v)
+            sig = assumed_sigma_v(m)
             dyn = trust = None
             if m.dynamics is not None and m.dynamics.algorithm != "none":
                 spec = m.dynamics
@@ -203,9 +208,8 @@ class TeamCore:
             m.estimator.fit_min_ticks, m.estimator.fit_max_ticks, m.estimator.fit_check_ticks) for m in members),
             default=1))
         for b, m in enumerate(members):
-            sig = float(m.estimator.sigma_v if m.estimator.sigma_v is not None else m.sigma_v)
-            set_kin_params(self.kin, self.nbr, self._P, self._prm, b, self.ids[b], self.nbr_ids[b], float(m.dt), sig,
-                           m.estimator, m.control, self.dyns[b] is not None)
+            set_kin_params(self.kin, self.nbr, self._P, self._prm, b, self.ids[b], self.nbr_ids[b], float(m.dt),
+                           assumed_sigma_v(m), m.estimator, m.control, self.dyns[b] is not None)
         self._id_arr = np.array(self.ids, np.int64)
         self._deg = np.array([len(ids) for ids in self.nbr_ids], np.int64)
         # (neighbour, its pair's first slot in a row of the kernel's results) per agent
