@@ -723,21 +723,22 @@ class DynamicPhase:
 
     def _shared(self) -> dict[str, float]:
         """The StateMsg.shared entries of the dynamical phase."""
-        out = dict(zip(self.ch_keys, self.avg.x, strict=True))
-        out["dg"] = float(self.avg.deg)
-        out["Sk"] = float(self.stage_tick)
-        out["ps"] = self.psi if self.psi == self.psi else 0.0
-        out.update(self.barrier.encode())
+        return dict(zip(self.lay.keys[len(KIN_KEYS):], self._shared_values(), strict=True))
+
+    def _shared_values(self) -> list[float]:
+        """:meth:`_shared`'s values, in the OUT row's order (net/rows.py Layout.keys after the kinematic ones)."""
+        out = [*self.avg.x, float(self.avg.deg), float(self.stage_tick), self.psi if self.psi == self.psi else 0.0,
+               *self.barrier.encode().values()]
         if self.detect is not None:
-            out.update(self.detect.flood.encode())
+            out += self.detect.flood.encode().values()
         return out
 
     def _write_out(self, row: np.ndarray) -> None:
-        """The stage, :meth:`_shared`'s values and each neighbour's flows into the agent's OUT row."""
+        """The stage, :meth:`_shared_values` and each neighbour's flows into the agent's OUT row."""
         lay = self.lay
         avg = self.avg
         row[PHASE] = self.stage
-        row[OM + len(KIN_KEYS):lay.p0] = list(self._shared().values())
+        row[OM + len(KIN_KEYS):lay.p0] = self._shared_values()
         if avg.deg:
             # (the flow average's bank row: avg.flow's values without the lists)
             row[lay.p0:lay.p0 + avg.deg * lay.block].reshape(avg.deg, lay.block)[:, PAIR_HEAD:] = \

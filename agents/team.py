@@ -26,7 +26,10 @@ from agents import dynamic_phase
 from agents.estimate_trust import EstimateTrust
 from agents.kernels.kinematic import (
     HOLD_MAX,
+    I_ALPHA,
+    I_HOLD,
     I_OM_MEAS,
+    I_WAITING,
     R_DROPPED_STALE,
     R_DROPPED_UNKNOWN,
     R_FX,
@@ -225,6 +228,7 @@ class TeamCore:
         self._res = np.zeros((B, R_PAIRS + 4 * D))
         self._est: list[dict | None] = [None] * B  # the dynamical phases' estimate entries of the last tick
         self._tick_no = -1
+        self._res_l: list[list[float]] | None = None  # the results of the last tick as Python floats (if made)
         self._grow(0)
 
     def _grow(self, n: int) -> None:
@@ -269,14 +273,15 @@ class TeamCore:
         out = self.out[tick % self.ring]
         write_kin_out(out, tick, self._id_arr, inp, self._deg, res, lay.lay)
         if not self._dynamic:
+            self._res_l = None
             self.stages[:] = [KINEMATIC if o else SPINUP for o in res[:, R_OM_INIT].tolist()]
             return res[:, R_FX:R_TAU + 1].copy()
         wrenches = []
         stages = self.stages
         acc = self._acc[:E].tolist()
         heads = rows[:, :2].tolist()  # (tick, sender) of every IN row: TICK, SENDER are its first slots
-        fbs = []
-        for b, (dyn, r, lo) in enumerate(zip(self.dyns, res.tolist(), ptr.tolist(), strict=False)):
+        self._res_l = res_l = res.tolist()
+        for b, (dyn, r, lo) in enumerate(zip(self.dyns, res_l, ptr.tolist(), strict=False)):
             e = acc[lo:lo + int(r[R_NACC])]
             # the taken rows: a view where they are consecutive rows in order (as a sorted inbox's are)
             if not e:
@@ -286,12 +291,15 @@ class TeamCore:
             else:
                 taken = rows[e]
             o = dyn.step(self._kinematic_tick(b, tick, meas[b], r, taken), out[b])  # type: ignore[union-attr]
-            fbs.append(o.feedback)
+            fb = o.feedback  # (by item: a tuple into a row costs more than four items)
+            inp[b, I_OM_MEAS] = fb.om_meas
+            inp[b, I_ALPHA] = fb.alpha
+            inp[b, I_HOLD] = fb.hold_shape
+            inp[b, I_WAITING] = fb.team_waiting
             stages[b] = stage = o.stage
             self._trust[b].observe(tick, stage, [(int(heads[i][1]), int(heads[i][0])) for i in e])  # type: ignore
             self._est[b] = o.estimates
             wrenches.append(o.wrench)
-        inp[:, I_OM_MEAS:] = fbs  # (DynamicFeedback's fields in the kernel's input order)
         return wrenches
 
     def _kinematic_tick(self, b: int, tick: int, v: Sequence[float], r: list[float],
@@ -311,7 +319,7 @@ class TeamCore:
 
     def _estimate(self, b: int) -> Estimate:
         """Agent b's estimate of the last tick stepped."""
-        r = self._res[b].tolist()
+        r = self._res_l[b] if self._res_l is not None else self._res[b].tolist()
         dyn = self.dyns[b]
         if dyn is None:
             dyn_est = _NO_DYN
