@@ -1,0 +1,316 @@
+"""The dynamical phase (agents/dynamic_phase.py) as row kernels over a leading agent axis: layouts and kernels.
+
+WORK IN PROGRESS (slice S6 of docs/fast-core-plan.md; not wired into AgentCore, the Python class still runs).
+Done, each tested compiled == ``py_func`` and == DynamicPhase on inputs recorded from quick-dynamics runs
+(tests/test_dynamic_kernels.py):
+  * the layouts: record ``DYN`` (B,), record ``DNB`` (B, D) and the plain arrays of section 1.3
+    (:func:`new_dyn_bank`), a row's parameters and initial state from a ``DynamicsSpec``
+    (:func:`init_dyn_row`, as ``DynamicPhase.__init__``), and :func:`load_row`, which copies a live
+    DynamicPhase into row b of the banks (the tests' recorder; the bridge while Python and kernels coexist);
+  * B1 :func:`body_frame` (``_body_frame``), B2 first half :func:`dyn_filter_update` (``_filter_update`` up to
+    the monitor: the cum ring, u_var, ``_u_age``, the kf and twin updates), D4 :func:`dyn_predict`
+    (``_predict``), and :func:`note_late` (``_note_late``).
+Not done (next steps, in this order): A6 stage advance (``_advance_stage``, ``_enter``, ``_advance``: needs the
+barrier as chunked masks, the S3a barrier kernels of branch s3a, and the detection's ``regime_change``/
+``push_reverses`` as event flags); B2's monitor and detection observe (window_stats.py's monitor kernel; the
+monitor needs vc0, om0, q0 read from the kf slot before :func:`dyn_filter_update`); B3 lock check and
+``_judge`` (slot swaps) with P2 ``_reseed`` staying Python; C1 ``excitation.stage_wrench/j_sign/dither``;
+D1 ``_consensus_inputs``/``_offer``/``_clean_share``; D3 ``_converged``; D5 ``_estimates``,
+``uncertainties``, ``_shared``; ``dyn_receive``; then the view class and the wiring (helper 7's half).
+
+Banks. The consensus channels are agreement.py's flow-average bank ``(F, I)`` (channel values x at ``F[b, X]``,
+the degrees in ``I``); the filters are a filter.py bank of 3 slots per agent, ``DYN.kf_slot``,
+``shadow_slot``, ``twin_slot`` naming them (-1: none), so ``self.kf = self.shadow`` is an index swap.
+Neighbour slot k is the k-th id of the agent's sorted neighbour list, as in the flow-average bank.
+``psi_order[b, :psi_n]`` is the first-insert order of ``nbr_psi`` (it reaches the psi sum: section 1.6).
+"""
+
+from __future__ import annotations
+
+import math
+from math import cos, sin
+
+import numpy as np
+
+from agents.kernels import jit, register_warm
+from agents.kernels import filter as F
+from agents.kernels.agreement import DEG, HEARD, X, flow_average_bank
+from agents.kernels.libm import pow_libm
+
+# the stages (net/vocabulary.py) and the channels (agents/dynamic_phase.py) the kernels read
+SPINUP, KINEMATIC, M_EXCITE, M_AVERAGE, J_EXCITE, J_AVERAGE, DONE, BACKGROUND = range(8)
+CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY = range(6)
+KF, SHADOW, TWIN = 0, 1, 2  # the slots the builder gives the filters (the indices in DYN may swap)
+
+DYN = np.dtype([
+    # parameters (constant after init_dyn_row)
+    ("n", np.int64), ("dt", np.float64), ("hist", np.int64), ("background", np.bool_), ("settle", np.int64),
+    ("m_ticks", np.int64), ("m_switch", np.int64), ("j_ticks", np.int64), ("avg_window", np.int64),
+    ("dither_ticks", np.int64), ("lock_thr", np.float64), ("lock_alpha", np.float64), ("lock_hold", np.int64),
+    ("win_n", np.int64), ("sigma_v", np.float64), ("declared", np.int64), ("u_var_scale", np.float64),
+    ("u_delayed", np.bool_), ("k_z", np.float64), ("m_force", np.float64), ("m_force_angle", np.float64),
+    ("omega_sign", np.int64), ("j_cycles", np.int64), ("dither_torque", np.float64), ("avg_tol", np.float64),
+    ("brake", np.float64), ("filter_omega", np.bool_), ("j_feedforward", np.bool_), ("omega_walk", np.float64),
+    ("j_omega_walk", np.float64), ("has_detect", np.bool_), ("has_monitor", np.bool_), ("has_law", np.bool_),
+    ("effects", np.bool_),
+    # state
+    ("stage", np.int64), ("stage_tick", np.int64), ("late_switches", np.int64), ("kin_since", np.int64),
+    ("conv_since", np.int64), ("lock_from", np.int64), ("reseeds", np.int64), ("kf_tick", np.int64),
+    ("trial_tick", np.int64), ("lock_fails", np.int64), ("m_start", np.int64), ("j_start", np.int64),
+    ("win_k", np.int64),
+    ("cc", np.float64), ("cw", np.float64), ("late_z", np.float64), ("late_c", np.float64), ("late_w", np.float64),
+    ("m_local", np.float64), ("m_local_sd", np.float64), ("j_local", np.float64), ("j_local_sd", np.float64),
+    ("b_local", np.float64), ("c_local", np.float64), ("alpha", np.float64), ("psi", np.float64),
+    ("nis_avg", np.float64), ("shadow_nis", np.float64), ("om_meas", np.float64),
+    ("f_int", np.complex128), ("last_f", np.complex128), ("q_held", np.complex128), ("has_q_held", np.bool_),
+    ("b_offered", np.bool_), ("c_offered", np.bool_), ("f_offered", np.bool_), ("fb_offered", np.bool_),
+    ("released", np.bool_), ("frozen_m", np.bool_), ("frozen_j", np.bool_), ("restarted", np.bool_),
+    ("kf_slot", np.int64), ("shadow_slot", np.int64), ("twin_slot", np.int64),
+    ("rx_n", np.int64), ("psi_n", np.int64), ("bar_tmax", np.int64), ("bar_switch", np.int64),
+])
+"""One agent's dynamical phase: DynamicPhase's parameters and scalar state under their Python names
+(docs/fast-core-plan.md, section 1.3); ``effects``: the augmented model's declared effects (estimate_effects)."""
+
+DNB = np.dtype([
+    ("heard", np.bool_), ("stage", np.int64), ("stage_tick", np.int64), ("bar_tmax", np.int64),
+    ("bar_switch", np.int64), ("psi", np.float64), ("psi_t", np.int64), ("has_psi", np.bool_),
+    ("om", np.float64), ("has_om", np.bool_),
+])
+"""Per neighbour slot: ``nbr_stage``, ``nbr_stage_tick``, ``nbr_barrier`` (its mask in ``nbr_mask``),
+``nbr_psi`` and ``nbr_om`` of DynamicPhase."""
+
+
+def new_dyn_bank(B: int, D: int, hist: int, win_n: int, nbk: int) -> tuple[np.ndarray, ...]:
+    """Zeroed dynamical-phase arrays for B agents: (dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, win).
+    ``cum (B, hist, 2)``: the ring of (dt sum T, dt sum omega) per state tick, ``cum_t`` its ticks (-1: none);
+    ``win (B, win_n, 2)`` the lock window's (v, f_int); ``nbr_mask (B, D, nbk)`` the neighbours' barrier masks
+    in 50-bit chunks."""
+    cum_t = np.full((B, hist), -1, np.int64)
+    return (np.zeros(B, DYN), np.zeros((B, D), DNB), np.zeros((B, D, nbk), np.int64), np.full((B, D), -1, np.int64),
+            np.full((B, D), -1, np.int64), np.zeros((B, hist, 2)), cum_t, np.zeros((B, win_n, 2), np.complex128))
+
+
+def init_dyn_row(dyn: np.ndarray, b: int, n: int, dt: float, sigma_v: float, spec, hist: int = 64,  # noqa: ANN001
+                 has_law: bool = False) -> None:
+    """Row b's parameters and initial state, as DynamicPhase.__init__ sets them."""
+    from agents.effect_decision import EFFECTS  # noqa: PLC0415 (the Python side's names, not a kernel's)
+
+    def ticks(s: float) -> int:
+        return max(1, int(round(s / dt)))
+
+    r = dyn[b]
+    r["n"], r["dt"], r["hist"], r["background"] = n, dt, hist, spec.algorithm == "background"
+    r["settle"], r["m_ticks"], r["m_switch"] = ticks(spec.kin_settle_s), ticks(spec.m_excite_s), ticks(spec.m_switch_s)
+    r["j_ticks"], r["avg_window"] = ticks(spec.j_excite_s), ticks(spec.avg_window_s)
+    r["dither_ticks"] = ticks(spec.dither_period_s)
+    r["lock_thr"], r["lock_alpha"], r["lock_hold"] = spec.lock_nis, min(1.0, dt / spec.lock_tau_s), ticks(spec.lock_hold_s)
+    r["win_n"], r["sigma_v"] = ticks(spec.lock_window_s), sigma_v
+    r["declared"] = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
+    for f in ("u_var_scale", "u_delayed", "k_z", "m_force", "m_force_angle", "omega_sign", "j_cycles", "dither_torque",
+              "avg_tol", "brake", "filter_omega", "j_feedforward", "omega_walk", "j_omega_walk"):
+        r[f] = getattr(spec, f)
+    r["has_detect"], r["has_monitor"] = spec.online_detection, spec.monitor_window_s > 0.0
+    r["has_law"], r["effects"] = has_law, bool(spec.estimate_effects)
+    for f in ("kin_since", "conv_since", "kf_tick", "trial_tick", "m_start", "j_start", "bar_tmax", "bar_switch",
+              "shadow_slot", "twin_slot"):
+        r[f] = -1
+    for f in ("m_local", "m_local_sd", "j_local", "j_local_sd", "b_local", "c_local", "psi", "om_meas"):
+        r[f] = math.nan
+    r["nis_avg"] = r["shadow_nis"] = 2.0
+    r["kf_slot"] = KF
+
+
+_INT = ("stage", "stage_tick", "late_switches", "kin_since", "conv_since", "lock_from", "reseeds", "kf_tick",
+        "trial_tick", "lock_fails", "m_start", "j_start", "win_k")
+_FLOAT = ("cc", "cw", "late_z", "late_c", "late_w", "m_local", "m_local_sd", "j_local", "j_local_sd", "b_local",
+          "c_local", "alpha", "psi", "nis_avg", "shadow_nis", "om_meas", "f_int", "last_f")
+_BOOL = ("b_offered", "c_offered", "f_offered", "fb_offered", "released", "frozen_m", "frozen_j", "restarted")
+
+
+def load_row(dp, banks: tuple, b: int) -> None:  # noqa: ANN001
+    """Copies the state of DynamicPhase ``dp`` into row b of ``banks`` (:func:`new_banks`: dyn, dnb, nbr_mask,
+    rx_order, psi_order, cum, cum_t, win, the flow average's F, I, then the 8 arrays of a 3-slot filter bank).
+    The parameters come from :func:`init_dyn_row`, called here first. The barrier's masks are not copied yet."""
+    dyn, dnb, _, rx_order, psi_order, cum, cum_t, win, Fa, Ia = banks[:10]
+    fbank = banks[10:]
+    init_dyn_row(dyn, b, dp.n, dp.dt, dp.sigma_v, dp.spec, dp.hist, dp.law is not None)
+    r = dyn[b]
+    for f in _INT + _FLOAT + _BOOL:
+        r[f] = getattr(dp, f)
+    r["has_q_held"] = dp.q_held is not None
+    r["q_held"] = 0j if dp.q_held is None else dp.q_held
+    r["bar_tmax"], r["bar_switch"] = dp.barrier.tmax, dp.barrier.switch
+    cum[b, :, 0], cum[b, :, 1], cum_t[b] = dp.cum_c, dp.cum_w, dp.cum_t
+    win[b, :, 0], win[b, :, 1] = dp.win_v, dp.win_f
+    slot = {j: k for k, j in enumerate(dp.avg.ids)}
+    for j in dp.nbr_stage:
+        e = dnb[b, slot[j]]
+        e["heard"], e["stage"], e["stage_tick"] = True, dp.nbr_stage[j], dp.nbr_stage_tick[j]
+        _, e["bar_tmax"], e["bar_switch"] = dp.nbr_barrier[j]
+    rx_order[b, :len(dp.avg.nx)] = [slot[j] for j in dp.avg.nx]
+    r["rx_n"] = len(dp.avg.nx)
+    for m, (j, (pj, tj)) in enumerate(dp.nbr_psi.items()):
+        e = dnb[b, slot[j]]
+        e["psi"], e["psi_t"], e["has_psi"] = pj, tj, True
+        psi_order[b, m] = slot[j]
+    r["psi_n"] = len(dp.nbr_psi)
+    for j, om in dp.nbr_om.items():
+        dnb[b, slot[j]]["om"], dnb[b, slot[j]]["has_om"] = om, True
+    Fa[b], Ia[b] = dp.avg._F[dp.avg._b], dp.avg._I[dp.avg._b]
+    for k, kf in ((KF, dp.kf), (SHADOW, dp.shadow), (TWIN, dp.twin)):
+        if kf is not None:
+            for dst, src in zip(fbank, kf._bank, strict=True):
+                dst[b, k] = src[0, 0]
+    r["kf_slot"] = KF
+    r["shadow_slot"] = SHADOW if dp.shadow is not None else -1
+    r["twin_slot"] = TWIN if dp.twin is not None else -1
+
+
+@jit
+def note_late(b, t, zz, dyn, cum, cum_t):  # noqa: ANN001, ANN201
+    """An eq. (9) sample of tick t with pooling weight zz went into this tick's u: its share of the late sums
+    (only if the ring still holds tick t)."""
+    r = dyn[b]
+    i = t % r["hist"]
+    if cum_t[b, i] == t:
+        r["late_z"] += zz
+        r["late_c"] += zz * cum[b, i, 0]
+        r["late_w"] += zz * cum[b, i, 1]
+
+
+@jit
+def body_frame(b, tick, phi, dyn, dnb, psi_order, I, fs, s):  # noqa: ANN001, ANN201
+    """e^{i psi} with psi kept common by phase consensus over the neighbours' psi predicted to now (in
+    ``psi_order``, Metropolis weights); e^{i phi} (the kinematic angle) while the filter has not started."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    if not fs[b, kf]["ready"]:
+        return complex(cos(phi), sin(phi))
+    om = s[b, kf, 5]
+    dt = r["dt"]
+    deg = I[b, DEG]
+    D = (I.shape[1] - HEARD) // 2
+    psi = r["psi"]
+    acc = 0.0
+    for m in range(r["psi_n"]):
+        k = psi_order[b, m]
+        e = dnb[b, k]
+        acc += (1.0 / (1.0 + max(deg, I[b, HEARD + D + k]))) * (e["psi"] + om * dt * (tick - 1 - e["psi_t"]) - psi)
+    psi = psi + acc
+    r["psi"] = psi
+    return complex(cos(psi), sin(psi))
+
+
+@jit
+def _u_age(r, b, tick, u_den, cum, cum_t):  # noqa: ANN001, ANN202
+    """(dt sum T, dt sum omega) from the pooled u's samples to the state tick: the |z|^2-weighted mean of the
+    samples' own (the late ones' sums, the rest at tick - 1)."""
+    i = (tick - 1) % r["hist"]
+    if cum_t[b, i] == tick - 1:
+        c1, w1 = cum[b, i, 0], cum[b, i, 1]
+    else:
+        c1, w1 = r["cc"], r["cw"]
+    w0 = u_den - r["late_z"]
+    cbar = (r["late_c"] + w0 * c1) / u_den
+    wbar = (r["late_w"] + w0 * w1) / u_den
+    return r["cc"] - cbar, r["cw"] - wbar
+
+
+@jit
+def dyn_filter_update(b, tick, v, u, u_den, dyn, cum, cum_t, fs, s, P, sens, innov, sens_h):  # noqa: ANN001, ANN201
+    """The first half of the filter's update of the tick: the cum ring's entry of this tick, the pooled rate's
+    variance and age, the kf's and the twin's update. Returns (u_var, u_dc, u_dw) (the shadow's update of the
+    lock check takes the same). The monitor's and the detection's observations follow in the caller."""
+    r = dyn[b]
+    i = tick % r["hist"]
+    if cum_t[b, i] != tick:  # the first tick
+        cum_t[b, i] = tick
+        cum[b, i, 0] = r["cc"]
+        cum[b, i, 1] = r["cw"]
+    u_var = 0.0
+    u_dc = 0.0
+    u_dw = 0.0
+    kf = r["kf_slot"]
+    if fs[b, kf]["ready"]:
+        if u_den > 0.0 and r["u_var_scale"] > 0:
+            u_var = r["u_var_scale"] * 2.0 * pow_libm(r["sigma_v"], 2.0) / u_den
+        if r["u_delayed"] and u_var > 0.0:
+            u_dc, u_dw = _u_age(r, b, tick, u_den, cum, cum_t)
+        F.ekf_update(fs, s, P, sens, innov, sens_h, b, kf, v, u, u_var, u_dc, u_dw)
+        tw = r["twin_slot"]
+        if tw >= 0:
+            F.ekf_update(fs, s, P, sens, innov, sens_h, b, tw, v, u, u_var, u_dc, u_dw)
+    return u_var, u_dc, u_dw
+
+
+@jit
+def dyn_predict(b, tick, rot, jstage, j_sign, dyn, cum, cum_t, Fa, fs, s, P, sens, Qd, aug):  # noqa: ANN001, ANN201
+    """Prediction to tick + 1 with the team's total force and torque from the consensus (decomposition
+    (12)-(14)): psi, the cum sums and f_int advance, the filters (kf, shadow, twin) predict, then the modelled
+    angular acceleration and omega_hat's measurement for the next tick; the cum ring's entry of tick + 1.
+    ``jstage``: the J stage, whose torque is s(t) n mean_i g_i with s(t) = ``j_sign``."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    dt = r["dt"]
+    n = r["n"]
+    if fs[b, kf]["ready"]:
+        fbar = complex(Fa[b, X, CH_FX], Fa[b, X, CH_FY])
+        if jstage:
+            torque = n * j_sign * Fa[b, X, CH_JG]
+        else:
+            zc = complex(Fa[b, X, CH_ZX], Fa[b, X, CH_ZY]) * rot
+            torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + Fa[b, X, CH_DT])
+        om = s[b, kf, 5]
+        r["psi"] += dt * om  # the body turns by the pre-update omega (semi-implicit Euler)
+        r["cc"] += dt * torque
+        r["cw"] += dt * om
+        r["f_int"] += dt * n * fbar
+        # the detection's nuisance: the known error of the consensus force (m stage: n times the own force
+        # minus it; J stage: the net force is zero)
+        ferr = 0j
+        if r["has_detect"]:
+            if r["stage"] == M_EXCITE:
+                ferr = n * (r["last_f"] - fbar)
+            elif jstage:
+                ferr = -n * fbar
+        F.ekf_predict(fs, s, P, sens, Qd, aug, b, kf, n * fbar, torque, dt, ferr)
+        for k in (r["shadow_slot"], r["twin_slot"]):
+            if k >= 0:
+                F.ekf_predict(fs, s, P, sens, Qd, aug, b, k, n * fbar, torque, dt, ferr)
+        iota = s[b, kf, 6]
+        # only once 1/J is known to 10 % (or with j_feedforward through the whole J stage)
+        if iota > 0.0 and (P[b, kf, 6, 6] < pow_libm(0.1 * iota, 2.0) or (jstage and r["j_feedforward"])):
+            r["alpha"] = iota * torque
+            if fs[b, kf]["has_aug"]:
+                r["alpha"] -= s[b, kf, 8] * s[b, kf, 5]
+        else:
+            r["alpha"] = 0.0  # not a stale acceleration from before 1/J was forgotten
+        if r["restarted"] and r["filter_omega"]:
+            om = s[b, kf, 5]
+            r["om_meas"] = om if om - om == 0.0 else math.nan  # a diverged filter: back to eq. (9)
+    i = (tick + 1) % r["hist"]
+    cum_t[b, i] = tick + 1
+    cum[b, i, 0] = r["cc"]
+    cum[b, i, 1] = r["cw"]
+    r["late_z"] = 0.0
+    r["late_c"] = 0.0
+    r["late_w"] = 0.0
+
+
+def new_banks(B: int, D: int, nch: int, d: int, hist: int = 64, win_n: int = 200, nbk: int = 1) -> tuple:
+    """Every array of B dynamical phases, one flat tuple: the 8 of :func:`new_dyn_bank`, the flow average's
+    (F, I), the 8 of a filter bank of 3 slots (filter.py's order)."""
+    return (*new_dyn_bank(B, D, hist, win_n, nbk), *flow_average_bank(B, D, nch), *F.new_bank(B, 3, d))
+
+
+@register_warm
+def warm() -> None:
+    from config.agent_params import DynamicsSpec  # noqa: PLC0415
+
+    banks = new_banks(1, 1, 10, F.D_NOMINAL)
+    dyn, dnb, _, _, psi_order, cum, cum_t, _, Fa, Ia, fs, s, P, sens, Qd, aug, innov, sens_h = banks
+    init_dyn_row(dyn, 0, 2, 0.01, 0.05, DynamicsSpec())
+    note_late(0, 3, 1.0, dyn, cum, cum_t)
+    body_frame(0, 3, 0.1, dyn, dnb, psi_order, Ia, fs, s)
+    dyn_filter_update(0, 3, 0.1 + 0.2j, 0.3, 1.0, dyn, cum, cum_t, fs, s, P, sens, innov, sens_h)
+    dyn_predict(0, 3, 1 + 0j, False, 1.0, dyn, cum, cum_t, Fa, fs, s, P, sens, Qd, aug)

@@ -1,0 +1,168 @@
+"""The dynamical phase's row kernels (agents/kernels/dynamic.py, work in progress): on inputs recorded from
+DynamicPhase in quick-dynamics runs (the phase's state copied into a bank row before and after each call of
+the method a kernel replaces), the kernel gives the Python's state bit for bit, compiled equals the same
+source interpreted (``py_func``), and a row's result does not depend on the batch it is in."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agents import dynamic_phase as DP
+from agents.kernels import dynamic as K
+from config.loader import load_scenario
+
+AGENTS = (1, 2)  # degree 2 on the line: their rows stack into one batch
+
+
+def _banks_of(dp: DP.DynamicPhase) -> tuple:
+    banks = K.new_banks(1, dp.avg.deg, dp.avg.nch, dp.kf.d, dp.hist, dp.win_n, 1)
+    K.load_row(dp, banks, 0)
+    return banks
+
+
+def _copy(banks: tuple) -> tuple:
+    return tuple(a.copy() for a in banks)
+
+
+def _record(overrides: list[str]) -> dict[str, list]:
+    """Runs quick-dynamics with ``overrides`` and records (before, args, after[, result]) of the replaced
+    methods for agents 1 and 2 on every 3rd tick, and on every tick while a shadow or twin filter runs."""
+    from agents.factory import build_team
+    from coload.runs.team import team_ticks
+    from simulator.plant import Plant
+
+    recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": []}
+    cls = DP.DynamicPhase
+    orig = {m: getattr(cls, m) for m in ("_predict", "_body_frame", "_filter_update", "_note_late")}
+
+    def take(dp: DP.DynamicPhase, tick: int) -> bool:
+        return dp.id in AGENTS and (tick % 3 == 0 or dp.shadow is not None or dp.twin is not None)
+
+    def predict(self, tick, rot, j_sign):  # noqa: ANN001, ANN202
+        before = _banks_of(self) if take(self, tick) else None
+        orig["_predict"](self, tick, rot, j_sign)
+        if before is not None:
+            args = (tick, rot, j_sign is not None, 0.0 if j_sign is None else j_sign)
+            recs["predict"].append((before, args, _banks_of(self)))
+
+    def body(self, tick, phi):  # noqa: ANN001, ANN202
+        before = _banks_of(self) if take(self, tick) else None
+        rot = orig["_body_frame"](self, tick, phi)
+        if before is not None:
+            recs["body"].append((before, (tick, phi), _banks_of(self), rot))
+        return rot
+
+    def update(self, tick, v, u, u_den, omega_hat, zi, rot):  # noqa: ANN001, ANN202
+        before = None
+        if take(self, tick):
+            before = _banks_of(self)
+            plain = self.shadow is None and self.q_held is None  # no lock-check restart, judgement or hold
+        out = orig["_filter_update"](self, tick, v, u, u_den, omega_hat, zi, rot)
+        if before is not None:
+            plain = plain and self.shadow is None and self.q_held is None
+            recs["update"].append((before, (tick, v, u, u_den), _banks_of(self), plain))
+        return out
+
+    def late(self, t, zz):  # noqa: ANN001, ANN202
+        before = _banks_of(self) if self.id in AGENTS else None
+        orig["_note_late"](self, t, zz)
+        if before is not None:
+            recs["late"].append((before, (t, zz), _banks_of(self)))
+
+    sc = load_scenario("quick-dynamics", overrides)
+    try:
+        cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
+        plant = Plant(sc)
+        team = build_team([sc.agent_view(i) for i in range(sc.n)])
+        for _ in team_ticks(sc, plant, team):
+            pass
+    finally:
+        for m, f in orig.items():
+            setattr(cls, m, f)
+    return recs
+
+
+SCENARIOS = {
+    "quick-dynamics": [],
+    # the augmented filter, the detection's force error and the slope's twin
+    "online": ["duration=16", "plant.friction.viscous=5", "dynamics.online_detection=true"],
+}
+
+
+@pytest.fixture(scope="module", params=list(SCENARIOS))
+def recs(request) -> dict[str, list]:  # noqa: ANN001
+    return _record(SCENARIOS[request.param])
+
+
+def _same(a: tuple, b: tuple) -> bool:
+    return all(x.tobytes() == y.tobytes() for x, y in zip(a, b, strict=True))
+
+
+def _call(kernel, name: str, banks: tuple, args: tuple, b: int = 0):  # noqa: ANN001, ANN202
+    dyn, dnb, _, _, psi_order, cum, cum_t, _, Fa, Ia, fs, s, P, sens, Qd, aug, innov, sens_h = banks
+    if name == "predict":
+        return kernel(b, *args, dyn, cum, cum_t, Fa, fs, s, P, sens, Qd, aug)
+    if name == "body":
+        return kernel(b, *args, dyn, dnb, psi_order, Ia, fs, s)
+    if name == "update":
+        return kernel(b, *args, dyn, cum, cum_t, fs, s, P, sens, innov, sens_h)
+    return kernel(b, *args, dyn, cum, cum_t)
+
+
+KERNELS = {"predict": K.dyn_predict, "body": K.body_frame, "update": K.dyn_filter_update, "late": K.note_late}
+
+
+def test_the_recording_covers_the_branches(recs):
+    assert all(len(v) > 100 for v in recs.values()), {k: len(v) for k, v in recs.items()}
+    stages = {int(r[0][0]["stage"][0]) for r in recs["predict"]}
+    assert {K.M_EXCITE, K.J_EXCITE} <= stages
+    assert any(r[1][2] for r in recs["predict"])  # the J stage's torque
+
+
+@pytest.mark.parametrize("name", ["predict", "body", "late"])
+def test_kernel_equals_the_python_phase(recs, name):
+    """The whole banks after the kernel == the phase's state after the method it replaces."""
+    for before, args, after, *rest in recs[name]:
+        got = _copy(before)
+        out = _call(KERNELS[name], name, got, args)
+        assert _same(got, after), (name, args)
+        if name == "body":
+            assert complex(out) == rest[0] and repr(complex(out)) == repr(rest[0])
+
+
+def test_filter_update_equals_the_python_phase(recs):
+    """The cum ring always; the kf and twin slots where the lock check did not restart, judge or hold."""
+    n_plain = 0
+    for before, args, after, plain in recs["update"]:
+        got = _copy(before)
+        _call(K.dyn_filter_update, "update", got, args)
+        assert got[5].tobytes() == after[5].tobytes() and got[6].tobytes() == after[6].tobytes()
+        if plain:
+            n_plain += 1
+            slots = [K.KF] + ([K.TWIN] if before[0]["twin_slot"][0] >= 0 else [])
+            for x, y in zip(got[10:], after[10:], strict=True):
+                assert x[0, slots].tobytes() == y[0, slots].tobytes(), args
+    assert n_plain > 100
+
+
+@pytest.mark.parametrize("name", list(KERNELS))
+def test_compiled_equals_py_func(recs, name):
+    for before, args, *_ in recs[name]:
+        a, b = _copy(before), _copy(before)
+        out_a = _call(KERNELS[name], name, a, args)
+        out_b = _call(KERNELS[name].py_func, name, b, args)
+        assert _same(a, b), (name, args)
+        assert repr(out_a) == repr(out_b)
+
+
+@pytest.mark.parametrize("name", list(KERNELS))
+def test_batch_of_one_equals_batch_of_n(recs, name):
+    sel = recs[name][::max(1, len(recs[name]) // 16)][:16]
+    batch = tuple(np.concatenate([r[0][i] for r in sel]) for i in range(len(sel[0][0])))
+    outs = [_call(KERNELS[name], name, batch, r[1], b) for b, r in enumerate(sel)]
+    for b, r in enumerate(sel):
+        one = _copy(r[0])
+        out = _call(KERNELS[name], name, one, r[1])
+        assert all(x[b:b + 1].tobytes() == y.tobytes() for x, y in zip(batch, one, strict=True))
+        assert repr(out) == repr(outs[b])
