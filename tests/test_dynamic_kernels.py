@@ -26,8 +26,9 @@ def _copy(banks: tuple) -> tuple:
 
 
 def _record(overrides: list[str], age: int) -> dict[str, list]:
-    """Runs quick-dynamics with ``overrides`` on fault-free links of ``age`` ticks and records (before, args, after[, result]) of the replaced
-    methods for agents 1 and 2 on every 3rd tick, and on every tick while a shadow or twin filter runs."""
+    """Runs quick-dynamics with ``overrides`` on fault-free links of ``age`` ticks and records (before, args,
+    after[, result]) of the replaced methods for agents 1 and 2 on every 3rd tick, and on every tick while a
+    shadow or twin filter runs."""
     from agents.factory import build_team
     from agents.team import empty_inbox, lockstep_inboxes
     from simulator.plant import Plant, sensor_rng

@@ -32,8 +32,8 @@ from math import cos, sin
 
 import numpy as np
 
-from agents.kernels import jit, register_warm
 from agents.kernels import filter as F
+from agents.kernels import jit, register_warm
 from agents.kernels.agreement import DEG, HEARD, X, flow_average_bank
 from agents.kernels.libm import pow_libm
 
@@ -103,7 +103,8 @@ def init_dyn_row(dyn: np.ndarray, b: int, n: int, dt: float, sigma_v: float, spe
     r["settle"], r["m_ticks"], r["m_switch"] = ticks(spec.kin_settle_s), ticks(spec.m_excite_s), ticks(spec.m_switch_s)
     r["j_ticks"], r["avg_window"] = ticks(spec.j_excite_s), ticks(spec.avg_window_s)
     r["dither_ticks"] = ticks(spec.dither_period_s)
-    r["lock_thr"], r["lock_alpha"], r["lock_hold"] = spec.lock_nis, min(1.0, dt / spec.lock_tau_s), ticks(spec.lock_hold_s)
+    r["lock_thr"], r["lock_alpha"] = spec.lock_nis, min(1.0, dt / spec.lock_tau_s)
+    r["lock_hold"] = ticks(spec.lock_hold_s)
     r["win_n"], r["sigma_v"] = ticks(spec.lock_window_s), sigma_v
     r["declared"] = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
     for f in ("u_var_scale", "u_delayed", "k_z", "m_force", "m_force_angle", "omega_sign", "j_cycles", "dither_torque",
