@@ -33,9 +33,10 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     from agents.team import empty_inbox, lockstep_inboxes
     from simulator.plant import Plant, sensor_rng
 
-    recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": []}
+    recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": [], "inputs": [], "converged": []}
     cls = DP.DynamicPhase
-    orig = {m: getattr(cls, m) for m in ("_predict", "_body_frame", "_filter_update", "_note_late")}
+    orig = {m: getattr(cls, m) for m in ("_predict", "_body_frame", "_filter_update", "_note_late",
+                                         "_consensus_inputs", "_converged")}
 
     def take(dp: DP.DynamicPhase, tick: int) -> bool:
         return dp.id in AGENTS and (tick % 3 == 0 or dp.shadow is not None or dp.twin is not None)
@@ -71,9 +72,25 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         if before is not None:
             recs["late"].append((before, (t, zz), _banks_of(self)))
 
+    def inputs(self, stage, q, zc, held, rot, fx, fy, tau, jstage):  # noqa: ANN001, ANN202
+        before = _banks_of(self) if take(self, self.stage_tick) else None
+        orig["_consensus_inputs"](self, stage, q, zc, held, rot, fx, fy, tau, jstage)
+        if before is not None:
+            args = (stage, q, zc, held is not None, 0j if held is None else held, rot, fx, fy, tau, jstage,
+                    self._on())
+            recs["inputs"].append((before, args, _banks_of(self)))
+
+    def conv(self, num, wch, tick):  # noqa: ANN001, ANN202
+        before = _banks_of(self) if take(self, tick) else None
+        out = orig["_converged"](self, num, wch, tick)
+        if before is not None:
+            recs["converged"].append((before, (num, wch, tick), _banks_of(self), out))
+        return out
+
     sc = load_scenario("quick-dynamics", overrides)
     try:
         cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
+        cls._consensus_inputs, cls._converged = inputs, conv
         plant = Plant(sc)
         team = build_team([sc.agent_view(i) for i in range(sc.n)], age + 1)
         nbrs = sc.neighbours()  # coload.runs.team.team_ticks with a delay of its own
@@ -105,6 +122,8 @@ def _value(out):  # noqa: ANN001, ANN202
     """A kernel's result as Python numbers (interpreted, record fields give numpy scalars)."""
     if isinstance(out, tuple):
         return tuple(float(x) for x in out)
+    if isinstance(out, bool | np.bool_):
+        return bool(out)
     return None if out is None else complex(out)
 
 
@@ -120,18 +139,26 @@ def _call(kernel, name: str, banks: tuple, args: tuple, b: int = 0):  # noqa: AN
         return kernel(b, *args, dyn, dnb, psi_order, Ia, fs, s)
     if name == "update":
         return kernel(b, *args, dyn, cum, cum_t, fs, s, P, sens, innov, sens_h)
+    if name == "inputs":
+        return kernel(b, *args, dyn, Fa, fs, s, P)
+    if name == "converged":
+        return kernel(b, *args, dyn, Fa, Ia)
     return kernel(b, *args, dyn, cum, cum_t)
 
 
-KERNELS = {"predict": K.dyn_predict, "body": K.body_frame, "update": K.dyn_filter_update, "late": K.note_late}
+KERNELS = {"predict": K.dyn_predict, "body": K.body_frame, "update": K.dyn_filter_update, "late": K.note_late,
+           "inputs": K.consensus_inputs, "converged": K.converged}
 
 
 def test_the_recording_covers_the_branches(recs):
-    assert all(len(recs[k]) > 100 for k in ("predict", "body", "update"))
+    assert all(len(recs[k]) > 100 for k in ("predict", "body", "update", "inputs"))
     dyn = [r[0][0][0] for r in recs["predict"]]
     assert K.M_EXCITE in {int(r["stage"]) for r in dyn}
     if recs["scenario"] == "quick-dynamics":
         assert any(r[1][2] for r in recs["predict"])  # the J stage's torque
+        assert len(recs["converged"]) > 10 and any(r[3] for r in recs["converged"])
+        assert any(r[1][0] == K.M_AVERAGE and r[2][0][0]["frozen_m"] and not r[0][0][0]["frozen_m"]
+                   for r in recs["inputs"])
         assert any(r[0][10][0, 0]["ready"] and not r[0][10][0, 0]["has_aug"] for r in recs["predict"])
     else:
         assert len(recs["late"]) > 100
@@ -139,14 +166,14 @@ def test_the_recording_covers_the_branches(recs):
         assert any(r[0][10][0, 0]["has_aug"] for r in recs["predict"])
 
 
-@pytest.mark.parametrize("name", ["predict", "body", "late"])
+@pytest.mark.parametrize("name", ["predict", "body", "late", "inputs", "converged"])
 def test_kernel_equals_the_python_phase(recs, name):
     """The whole banks after the kernel == the phase's state after the method it replaces."""
     for before, args, after, *rest in recs[name]:
         got = _copy(before)
         out = _call(KERNELS[name], name, got, args)
         assert _same(got, after), (name, args)
-        if name == "body":
+        if rest:
             assert repr(_value(out)) == repr(rest[0])
 
 
@@ -187,3 +214,32 @@ def test_batch_of_one_equals_batch_of_n(recs, name):
         out = _call(KERNELS[name], name, one, r[1])
         assert all(x[b:b + 1].tobytes() == y.tobytes() for x, y in zip(batch, one, strict=True))
         assert repr(_value(out)) == repr(_value(outs[b]))
+
+
+SPECS = {
+    "nominal": {},
+    "ccw2": {"omega_sign": -1, "j_cycles": 2, "brake": 0.5, "m_force_angle": -1.3},
+    "background": {"algorithm": "background", "dither_torque": 1.5, "dither_period_s": 2.3},
+}
+
+
+@pytest.mark.parametrize("spec", list(SPECS))
+def test_stage_wrench_and_dither_equal_the_python(spec):
+    from agents import excitation
+    from config.agent_params import DynamicsSpec
+
+    sp = DynamicsSpec(**SPECS[spec])
+    dyn = np.zeros(1, K.DYN)
+    K.init_dyn_row(dyn, 0, 5, 0.01, 0.1, sp)
+    r = dyn[0]
+    rng = np.random.default_rng(3)
+    for stage in range(8):
+        for k in range(0, 3000, 7):
+            v, q, zc = (complex(*rng.normal(0, 1, 2)) for _ in range(3))
+            wr = tuple(float(x) for x in rng.normal(0, 1, 3))
+            want = excitation.stage_wrench(stage, k, sp, int(r["m_switch"]), int(r["j_ticks"]), v, q, zc, wr)
+            for fn in (K.stage_wrench, K.stage_wrench.py_func):
+                got = fn(0, stage, k, v, q, zc, *wr, dyn)
+                assert repr(tuple(float(x) for x in got)) == repr(want), (stage, k)
+            want = excitation.dither(k, sp, int(r["dither_ticks"]))
+            assert repr(float(K.dither(0, k, dyn))) == repr(float(K.dither.py_func(0, k, dyn))) == repr(want)

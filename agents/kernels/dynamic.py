@@ -34,12 +34,13 @@ import numpy as np
 
 from agents.kernels import filter as F
 from agents.kernels import jit, register_warm
-from agents.kernels.agreement import DEG, HEARD, X, flow_average_bank
+from agents.kernels.agreement import DEG, FLOW, HEARD, U, X, flow_average_bank
 from agents.kernels.libm import pow_libm
 
 # the stages (net/vocabulary.py) and the channels (agents/dynamic_phase.py) the kernels read
 SPINUP, KINEMATIC, M_EXCITE, M_AVERAGE, J_EXCITE, J_AVERAGE, DONE, BACKGROUND = range(8)
-CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY = range(6)
+CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(10)
+CH_BN, CH_CN, CH_FN, CH_FBX, CH_FBY = range(10, 15)
 KF, SHADOW, TWIN = 0, 1, 2  # the slots the builder gives the filters (the indices in DYN may swap)
 
 DYN = np.dtype([
@@ -158,6 +159,7 @@ def load_row(dp, banks: tuple, b: int) -> None:  # noqa: ANN001
     for j, om in dp.nbr_om.items():
         dnb[b, slot[j]]["om"], dnb[b, slot[j]]["has_om"] = om, True
     Fa[b], Ia[b] = dp.avg._F[dp.avg._b], dp.avg._I[dp.avg._b]
+    Fa[b, U] = dp.avg.u  # the inputs as written so far this tick (the bank's row holds the last update's)
     for k, kf in ((KF, dp.kf), (SHADOW, dp.shadow), (TWIN, dp.twin)):
         if kf is not None:
             for dst, src in zip(fbank, kf._bank, strict=True):
@@ -298,6 +300,144 @@ def dyn_predict(b, tick, rot, jstage, j_sign, dyn, cum, cum_t, Fa, fs, s, P, sen
     r["late_w"] = 0.0
 
 
+@jit
+def j_sign(k, r):  # noqa: ANN001, ANN201
+    """s(t) of the J stage at its tick k (row record r): +-1, ``j_cycles`` cycles over the stage, starting in
+    the direction of ``omega_sign``."""
+    half = max(1, r["j_ticks"] // (2 * r["j_cycles"]))
+    sgn = 1.0 if (k // half) % 2 == 0 else -1.0
+    if r["omega_sign"] < 0:
+        sgn = -sgn
+    return sgn
+
+
+@jit
+def stage_wrench(b, stage, k, v, q, zc, fx, fy, tau, dyn):  # noqa: ANN001, ANN201
+    """(fx, fy, tau) of ``stage`` at its tick k (agents/excitation.py's ``stage_wrench``); (fx, fy, tau) given
+    (the kinematic law's) where the stage has none. v own contact velocity, q = q_i, zc = z_C (world)."""
+    r = dyn[b]
+    if stage == M_EXCITE or stage == BACKGROUND:
+        sgn = -1.0 if (k // r["m_switch"]) & 1 else 1.0
+        fx = sgn * r["m_force"] * cos(r["m_force_angle"])
+        fy = sgn * r["m_force"] * sin(r["m_force_angle"])
+    elif stage == J_EXCITE:
+        f = r["k_z"] * j_sign(k, r) * 1j * (q - zc)  # with the refined z_i = q_i - z_C
+        fx, fy, tau = f.real, f.imag, 0.0
+    elif stage == DONE and r["brake"] > 0.0:
+        fx, fy, tau = -r["brake"] * v.real, -r["brake"] * v.imag, 0.0
+    return fx, fy, tau
+
+
+@jit
+def dither(b, k, dyn):  # noqa: ANN001, ANN201
+    """Algorithm 2's torque dither for J at the stage's tick k."""
+    r = dyn[b]
+    return r["dither_torque"] * sin(2.0 * math.pi * k / r["dither_ticks"])
+
+
+@jit
+def converged(b, num, wch, tick, dyn, Fa, Ia):  # noqa: ANN001, ANN201
+    """Local convergence of the weighted average (num, wch): the own value and every heard neighbour's within
+    ``avg_tol``, for ``avg_window`` ticks (``conv_since``)."""
+    r = dyn[b]
+    if Fa[b, X, wch] <= 0.0:
+        return False
+    mine = Fa[b, X, num] / Fa[b, X, wch]
+    tol = r["avg_tol"] * abs(mine)
+    D = (Ia.shape[1] - HEARD) // 2
+    for k in range(Ia[b, DEG]):  # whether all are within: the order does not matter
+        if Ia[b, HEARD + k]:
+            xw = Fa[b, FLOW + 2 * D + k, wch]
+            if xw <= 0.0 or abs(Fa[b, FLOW + 2 * D + k, num] / xw - mine) > tol:
+                r["conv_since"] = -1
+                return False
+    if r["conv_since"] < 0:
+        r["conv_since"] = tick
+    return tick - r["conv_since"] >= r["avg_window"]
+
+
+@jit
+def _offer(b, inv, var, num, wch, w, sure, Fa):  # noqa: ANN001, ANN202
+    """The local estimate 1/inv into channels (num, wch) with weight w; NaN if there is none to offer."""
+    if not (inv > 0.0 and var > 0.0) or (sure and var >= inv * inv):
+        return math.nan
+    Fa[b, U, num] = w / inv
+    Fa[b, U, wch] = w
+    return 1.0 / inv
+
+
+@jit
+def _clean_share(r, start, ticks):  # noqa: ANN001, ANN202
+    """The weight of an estimate learnt over the excitation ticks [start, start + ticks): the share since the
+    filter's last lock-check restart, 1e-3 if the filter is lost now."""
+    w = 1.0
+    if start >= 0 and r["kf_tick"] > start:
+        w = max(0.0, (start + ticks - r["kf_tick"]) / ticks)
+    if r["nis_avg"] > r["lock_thr"] > 0.0:  # lost
+        w = 0.0
+    return w if w > 1e-3 else 1e-3
+
+
+@jit
+def consensus_inputs(b, stage, q, zc, has_held, held, rot, fx, fy, tau, jstage, on,  # noqa: ANN001, ANN201
+                     dyn, Fa, fs, s, P):
+    """This tick's inputs to the consensus channels (the row's ``U``) and the offers of the own 1/m and 1/J
+    (agents/dynamic_phase.py ``_consensus_inputs``); ``on``: the effects in the model (``_on``)."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    ready = fs[b, kf]["ready"]
+    if jstage:
+        # sum_i f_i = 0 and the torque is s sum_i g_i (JG); DT gets 0 so that it has no J-stage values to
+        # forget when the kinematic control resumes
+        Fa[b, U, CH_FX] = 0.0
+        Fa[b, U, CH_FY] = 0.0
+        Fa[b, U, CH_DT] = 0.0
+    else:
+        Fa[b, U, CH_FX] = fx
+        Fa[b, U, CH_FY] = fy
+        df = complex(fx, fy) - complex(Fa[b, X, CH_FX], Fa[b, X, CH_FY])
+        Fa[b, U, CH_DT] = (q.real * df.imag - q.imag * df.real) + tau  # q_i x (f_i - fbar) + tau_i
+    if ready and M_EXCITE <= stage <= J_EXCITE:
+        Fa[b, U, CH_JG] = r["k_z"] * (q.real * (q.real - zc.real) + q.imag * (q.imag - zc.imag))
+    if ready:
+        qp = q * rot.conjugate() if not has_held else held  # q_i in the shared body frame
+        Fa[b, U, CH_ZX] = qp.real
+        Fa[b, U, CH_ZY] = qp.imag
+    # not while a restart is on trial; after a kept restart only a determined value is offered
+    trial = r["shadow_slot"] >= 0
+    take_m = not trial and (stage == BACKGROUND or (stage == M_AVERAGE and not r["frozen_m"]))
+    take_j = not trial and (stage == BACKGROUND or (stage == J_AVERAGE and not r["frozen_j"]))
+    sure = r["kf_tick"] >= 0
+    if ready and take_m:
+        w = 1.0 if stage == BACKGROUND else _clean_share(r, r["m_start"], r["m_ticks"])
+        m_local = _offer(b, s[b, kf, 4], P[b, kf, 4, 4], CH_MN, CH_MW, w, sure, Fa)
+        if m_local == m_local:
+            r["m_local"] = m_local
+            r["m_local_sd"] = math.sqrt(P[b, kf, 4, 4]) * m_local * m_local  # delta method: sd(1/mu)
+            r["frozen_m"] = stage == M_AVERAGE
+            if fs[b, kf]["has_aug"]:  # b = beta m, F_c = kappa m and f = a m, averaged with m's weights
+                r["b_local"] = s[b, kf, 7] * m_local
+                Fa[b, U, CH_BN] = w * r["b_local"]
+                Fa[b, U, CH_FN] = w * s[b, kf, 9] * m_local
+                fb = w * complex(s[b, kf, 10], s[b, kf, 11]) * m_local
+                Fa[b, U, CH_FBX] = fb.real
+                Fa[b, U, CH_FBY] = fb.imag
+                r["b_offered"] = r["b_offered"] or bool(on & 1)
+                r["f_offered"] = r["f_offered"] or bool(on & 4)
+                r["fb_offered"] = r["fb_offered"] or bool(on & 8)
+    if ready and take_j:
+        w = 1.0 if stage == BACKGROUND else _clean_share(r, r["j_start"], r["j_ticks"])
+        j_local = _offer(b, s[b, kf, 6], P[b, kf, 6, 6], CH_JN, CH_JW, w, sure, Fa)
+        if j_local == j_local:
+            r["j_local"] = j_local
+            r["j_local_sd"] = math.sqrt(P[b, kf, 6, 6]) * j_local * j_local
+            r["frozen_j"] = stage == J_AVERAGE
+            if fs[b, kf]["has_aug"]:  # c = gamma J, averaged with J's weights
+                r["c_local"] = s[b, kf, 8] * j_local
+                Fa[b, U, CH_CN] = w * r["c_local"]
+                r["c_offered"] = r["c_offered"] or bool(on & 2)
+
+
 def new_banks(B: int, D: int, nch: int, d: int, hist: int = 64, win_n: int = 200, nbk: int = 1) -> tuple:
     """Every array of B dynamical phases, one flat tuple: the 8 of :func:`new_dyn_bank`, the flow average's
     (F, I), the 8 of a filter bank of 3 slots (filter.py's order)."""
@@ -315,3 +455,8 @@ def warm() -> None:
     body_frame(0, 3, 0.1, dyn, dnb, psi_order, Ia, fs, s)
     dyn_filter_update(0, 3, 0.1 + 0.2j, 0.3, 1.0, dyn, cum, cum_t, fs, s, P, sens, innov, sens_h)
     dyn_predict(0, 3, 1 + 0j, False, 1.0, dyn, cum, cum_t, Fa, fs, s, P, sens, Qd, aug)
+    for stage in (M_EXCITE, J_EXCITE, DONE):
+        stage_wrench(0, stage, 3, 0.1 + 0.2j, 1 + 0j, 0.5j, 0.1, 0.2, 0.3, dyn)
+    dither(0, 3, dyn)
+    converged(0, CH_MN, CH_MW, 3, dyn, Fa, Ia)
+    consensus_inputs(0, M_AVERAGE, 1 + 0j, 0.5j, False, 0j, 1 + 0j, 0.1, 0.2, 0.3, False, 3, dyn, Fa, fs, s, P)
