@@ -10,6 +10,7 @@ import pytest
 
 from agents import dynamic_phase as DP
 from agents.kernels import dynamic as K
+from agents.rigid_filter import RigidEKF
 from config.loader import load_scenario
 
 AGENTS = (1, 2)  # degree 2 on the line: their rows stack into one batch
@@ -60,11 +61,20 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         if take(self, tick):
             before = _banks_of(self)
             plain = self.shadow is None and self.q_held is None  # no lock-check restart, judgement or hold
+        starts.clear()
         out = orig["_filter_update"](self, tick, v, u, u_den, omega_hat, zi, rot)
         if before is not None:
             plain = plain and self.shadow is None and self.q_held is None
-            recs["update"].append((before, (tick, v, u, u_den), _banks_of(self), plain))
+            reseed = starts[-1] if self.trial_tick == tick else None  # the restart point P2 fitted
+            recs["update"].append((before, (tick, v, u, u_den), _banks_of(self), plain, (zi, rot, reseed, out)))
         return out
+
+    starts: list[tuple] = []
+    orig_start = RigidEKF.start
+
+    def start(self, v, q0, omega):  # noqa: ANN001, ANN202
+        starts.append((complex(v), complex(q0), float(omega)))
+        orig_start(self, v, q0, omega)
 
     def late(self, t, zz):  # noqa: ANN001, ANN202
         before = _banks_of(self) if self.id in AGENTS else None
@@ -91,6 +101,7 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     try:
         cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
         cls._consensus_inputs, cls._converged = inputs, conv
+        RigidEKF.start = start
         plant = Plant(sc)
         team = build_team([sc.agent_view(i) for i in range(sc.n)], age + 1)
         nbrs = sc.neighbours()  # coload.runs.team.team_ticks with a delay of its own
@@ -102,6 +113,7 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     finally:
         for m, f in orig.items():
             setattr(cls, m, f)
+        RigidEKF.start = orig_start
     return recs
 
 
@@ -110,6 +122,8 @@ SCENARIOS = {
     # samples 2 ticks old (the late sums, the delayed rate); the augmented filter, the detection's force
     # error and the slope's twin
     "online": (["duration=16", "plant.friction.viscous=5", "dynamics.online_detection=true"], 2),
+    # restarts on trial (a low lock threshold: each goes back to the old filter) and the shape hold of done
+    "lock": (["dynamics.lock_nis=1.8", "dynamics.lock_hold_s=0.5", "dynamics.brake=0.5"], 1),
 }
 
 
@@ -160,7 +174,7 @@ def test_the_recording_covers_the_branches(recs):
         assert any(r[1][0] == K.M_AVERAGE and r[2][0][0]["frozen_m"] and not r[0][0][0]["frozen_m"]
                    for r in recs["inputs"])
         assert any(r[0][10][0, 0]["ready"] and not r[0][10][0, 0]["has_aug"] for r in recs["predict"])
-    else:
+    elif recs["scenario"] == "online":
         assert len(recs["late"]) > 100
         assert any(r["twin_slot"] >= 0 for r in dyn) and any(r["has_detect"] for r in dyn)
         assert any(r[0][10][0, 0]["has_aug"] for r in recs["predict"])
@@ -180,7 +194,7 @@ def test_kernel_equals_the_python_phase(recs, name):
 def test_filter_update_equals_the_python_phase(recs):
     """The cum ring always; the kf and twin slots where the lock check did not restart, judge or hold."""
     n_plain = 0
-    for before, args, after, plain in recs["update"]:
+    for before, args, after, plain, _ in recs["update"]:
         got = _copy(before)
         _call(K.dyn_filter_update, "update", got, args)
         assert got[5].tobytes() == after[5].tobytes() and got[6].tobytes() == after[6].tobytes()
@@ -190,6 +204,56 @@ def test_filter_update_equals_the_python_phase(recs):
             for x, y in zip(got[10:], after[10:], strict=True):
                 assert x[0, slots].tobytes() == y[0, slots].tobytes(), args
     assert n_plain > 100
+
+
+def _filter_update(banks: tuple, args: tuple, extra: tuple, interpreted: bool = False) -> tuple:
+    """DynamicPhase._filter_update as the kernels' chain: update, lock check, P2's restart at the recorded
+    point, the shape hold. Returns (q, zc, held or None, events)."""
+    dyn, _, _, _, _, cum, cum_t, win, Fa, _, fs, s, P, sens, Qd, aug, innov, sens_h = banks
+    k = {n: getattr(K, n).py_func if interpreted else getattr(K, n)
+         for n in ("dyn_filter_update", "lock_check", "dyn_reseed", "hold_shape_check")}
+    tick, v, u, u_den = args
+    zi, rot, reseed, _ = extra
+    u_var, u_dc, u_dw = k["dyn_filter_update"](0, *args, dyn, cum, cum_t, fs, s, P, sens, innov, sens_h)
+    ev = k["lock_check"](0, tick, v, u, u_var, u_dc, u_dw, dyn, win, fs, s, P, sens, innov, sens_h)
+    if ev & K.E_RESEED:
+        v0, q0, om0 = reseed
+        k["dyn_reseed"](0, tick, v0, q0, om0, dyn, fs, s, P, sens, Qd, aug, innov, sens_h)
+    q, zc, ev2 = k["hold_shape_check"](0, tick, zi, rot, dyn, Fa, fs, s, P, Qd)
+    held = complex(dyn[0]["q_held"]) if dyn[0]["has_q_held"] else None
+    return complex(q), complex(zc), held, int(ev | ev2)
+
+
+def _same_by_role(got: tuple, after: tuple) -> None:
+    """The banks are the same, the filter slots compared by role (kf, shadow, twin: the kernels swap indices
+    where Python swaps objects)."""
+    g, a = got[0].copy(), after[0].copy()
+    for role in ("kf_slot", "shadow_slot", "twin_slot"):
+        gs, as_ = int(g[0][role]), int(a[0][role])
+        assert (gs < 0) == (as_ < 0), role
+        if gs >= 0:
+            for x, y in zip(got[10:], after[10:], strict=True):
+                assert x[0, gs].tobytes() == y[0, as_].tobytes(), role
+        g[role] = a[role] = 0
+    assert g.tobytes() == a.tobytes()
+    assert all(x.tobytes() == y.tobytes() for x, y in zip(got[1:10], after[1:10], strict=True))
+
+
+def test_filter_update_chain_equals_the_python_phase(recs):
+    """The whole of _filter_update (lock check, restarts on trial, judgements, the shape hold) bit for bit."""
+    events = 0
+    for before, args, after, _, extra in recs["update"]:
+        got = _copy(before)
+        q, zc, held, ev = _filter_update(got, args, extra)
+        _same_by_role(got, after)
+        assert repr((q, zc, held)) == repr(extra[3]), args
+        events |= ev
+        interp = _copy(before)
+        assert repr(_filter_update(interp, args, extra, True)) == repr((q, zc, held, ev))
+        assert _same(interp, got)
+    if recs["scenario"] == "lock":
+        assert events == K.E_RESEED | K.E_BACK
+        assert any(r[2][0][0]["has_q_held"] and not r[0][0][0]["has_q_held"] for r in recs["update"])
 
 
 @pytest.mark.parametrize("name", list(KERNELS))

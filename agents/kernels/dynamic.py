@@ -42,6 +42,9 @@ SPINUP, KINEMATIC, M_EXCITE, M_AVERAGE, J_EXCITE, J_AVERAGE, DONE, BACKGROUND = 
 CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(10)
 CH_BN, CH_CN, CH_FN, CH_FBX, CH_FBY = range(10, 15)
 KF, SHADOW, TWIN = 0, 1, 2  # the slots the builder gives the filters (the indices in DYN may swap)
+# event flags a kernel returns for the Python side (docs/fast-core-plan.md, section 3)
+E_RESEED = 1  # the lock check asks for a restart on trial: P2 fits (omega, q_i), then dyn_reseed, hold_shape_check
+E_BACK = 2  # a trial went back to the old filter: the monitor resets and the detection's regime changes
 
 DYN = np.dtype([
     # parameters (constant after init_dyn_row)
@@ -438,6 +441,99 @@ def consensus_inputs(b, stage, q, zc, has_held, held, rot, fx, fy, tau, jstage, 
                 r["c_offered"] = r["c_offered"] or bool(on & 2)
 
 
+@jit
+def _judge(r, tick):  # noqa: ANN001, ANN202
+    """End of a restart's trial: keep the restarted filter if it is consistent and clearly better, else go
+    back to the old one and wait longer before the next try. Returns E_BACK when it goes back."""
+    thr = r["lock_thr"]
+    half = 0.5 * r["shadow_nis"]
+    ev = 0
+    if r["nis_avg"] < (half if half < thr else thr):  # Python's min(thr, half)
+        r["kf_tick"] = r["trial_tick"]
+        r["reseeds"] += 1
+        r["lock_fails"] = 0
+        r["lock_from"] = tick
+    else:
+        r["kf_slot"] = r["shadow_slot"]
+        r["nis_avg"] = r["shadow_nis"]
+        r["lock_fails"] += 1
+        r["lock_from"] = tick + (r["lock_hold"] << min(r["lock_fails"], 5))
+        ev = E_BACK
+    r["shadow_slot"] = -1
+    return ev
+
+
+@jit
+def lock_check(b, tick, v, u, u_var, u_dc, u_dw, dyn, win, fs, s, P, sens, innov, sens_h):  # noqa: ANN001, ANN201
+    """The lock check after the filter's update: the lock window's sample, the running mean of the kf's NIS,
+    the shadow's update and the trial's judgement (E_BACK), or a restart asked for (E_RESEED: the caller
+    restarts, :func:`dyn_reseed`). Then :func:`hold_shape_check`."""
+    r = dyn[b]
+    ev = 0
+    if r["restarted"] and not r["has_q_held"] and r["lock_thr"] > 0.0:
+        w = r["win_k"] % r["win_n"]
+        win[b, w, 0] = v
+        win[b, w, 1] = r["f_int"]
+        r["win_k"] += 1
+        a = r["lock_alpha"]
+        na = r["nis_avg"] + a * (fs[b, r["kf_slot"]]["nis"] - r["nis_avg"])
+        r["nis_avg"] = na
+        old = r["shadow_slot"]
+        if old >= 0:  # a restart on trial: the filter it replaced runs beside it
+            F.ekf_update(fs, s, P, sens, innov, sens_h, b, old, v, u, u_var, u_dc, u_dw)
+            r["shadow_nis"] += a * (fs[b, old]["nis"] - r["shadow_nis"])
+            if tick >= r["lock_from"]:
+                ev |= _judge(r, tick)
+        elif na > r["lock_thr"] and tick >= r["lock_from"]:
+            ev |= E_RESEED
+    return ev
+
+
+@jit
+def dyn_reseed(b, tick, v, q0, om0, dyn, fs, s, P, sens, Qd, aug, innov, sens_h):  # noqa: ANN001, ANN201
+    """Restarts the kf on trial at (q0, om0) (P2's fit): the old filter becomes the shadow (a free slot), the
+    twin is dropped, the releases are applied again; the trial's running mean starts at the threshold. The
+    caller resets the monitor and calls the detection's ``restart_filter``, in that order."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    sh = 1 if kf == 0 else 0
+    F.ekf_copy_slot(fs, s, P, sens, Qd, aug, innov, sens_h, b, kf, sh)
+    r["shadow_slot"] = sh
+    r["shadow_nis"] = r["nis_avg"]
+    r["twin_slot"] = -1  # it shares the lost filter's lock
+    F.ekf_start(fs, s, P, sens, b, kf, v, q0, om0)
+    if r["released"]:
+        F.ekf_release_effects(fs, s, P, aug, b, kf)
+    r["nis_avg"] = r["lock_thr"]
+    r["trial_tick"] = tick
+    r["lock_from"] = tick + r["lock_hold"]
+
+
+@jit
+def hold_shape_check(b, tick, zi, rot, dyn, Fa, fs, s, P, Qd):  # noqa: ANN001, ANN201
+    """The tail of the filter's update: q_i (the kf's, zi before it starts) and z_C in the world frame; from
+    done on under a law or braking, q_i is held in the shared body frame (a trial is judged first).
+    Returns (q_i, z_C, events)."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    q = complex(s[b, kf, 2], s[b, kf, 3]) if fs[b, kf]["ready"] else zi
+    zc = complex(Fa[b, X, CH_ZX], Fa[b, X, CH_ZY]) * rot  # the consensus runs in the shared body frame
+    ev = 0
+    if not r["has_q_held"] and r["stage"] == DONE and fs[b, kf]["ready"] and (r["has_law"] or r["brake"] > 0.0):
+        # the law or braking may stop the rotation, and q_i is observable only while the load turns
+        if r["shadow_slot"] >= 0:  # a restart on trial: judged now, no more lock checks from here on
+            ev |= _judge(r, tick)
+            kf = r["kf_slot"]
+            q = complex(s[b, kf, 2], s[b, kf, 3])
+        r["q_held"] = q * rot.conjugate()
+        r["has_q_held"] = True
+        F.ekf_hold_shape(fs, s, P, Qd, b, kf)
+        F.ekf_set_omega_walk(Qd, b, kf, r["j_omega_walk"])
+    if r["has_q_held"]:
+        q = r["q_held"] * rot
+    return q, zc, ev
+
+
 def new_banks(B: int, D: int, nch: int, d: int, hist: int = 64, win_n: int = 200, nbk: int = 1) -> tuple:
     """Every array of B dynamical phases, one flat tuple: the 8 of :func:`new_dyn_bank`, the flow average's
     (F, I), the 8 of a filter bank of 3 slots (filter.py's order)."""
@@ -458,5 +554,8 @@ def warm() -> None:
     for stage in (M_EXCITE, J_EXCITE, DONE):
         stage_wrench(0, stage, 3, 0.1 + 0.2j, 1 + 0j, 0.5j, 0.1, 0.2, 0.3, dyn)
     dither(0, 3, dyn)
+    lock_check(0, 3, 0.1 + 0.2j, 0.3, 0.01, 0.0, 0.0, dyn, banks[7], fs, s, P, sens, innov, sens_h)
+    dyn_reseed(0, 3, 0.1 + 0.2j, 1 + 0j, 0.3, dyn, fs, s, P, sens, Qd, aug, innov, sens_h)
+    hold_shape_check(0, 3, 1 + 0j, 1 + 0j, dyn, Fa, fs, s, P, Qd)
     converged(0, CH_MN, CH_MW, 3, dyn, Fa, Ia)
     consensus_inputs(0, M_AVERAGE, 1 + 0j, 0.5j, False, 0j, 1 + 0j, 0.1, 0.2, 0.3, False, 3, dyn, Fa, fs, s, P)
