@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from agents import dynamic_phase as DP
+from agents.effect_decision import SLOPE
 from agents.kernels import dynamic as K
 from agents.rigid_filter import RigidEKF
 from config.loader import load_scenario
@@ -34,10 +35,11 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     from agents.team import empty_inbox, lockstep_inboxes
     from simulator.plant import Plant, sensor_rng
 
-    recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": [], "inputs": [], "converged": []}
+    recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": [], "inputs": [], "converged": [],
+                             "advance": []}
     cls = DP.DynamicPhase
     orig = {m: getattr(cls, m) for m in ("_predict", "_body_frame", "_filter_update", "_note_late",
-                                         "_consensus_inputs", "_converged")}
+                                         "_consensus_inputs", "_converged", "_advance_stage")}
 
     def take(dp: DP.DynamicPhase, tick: int) -> bool:
         return dp.id in AGENTS and (tick % 3 == 0 or dp.shadow is not None or dp.twin is not None)
@@ -97,10 +99,19 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
             recs["converged"].append((before, (num, wch, tick), _banks_of(self), out))
         return out
 
+    def advance(self, tick, v, omega_hat, phi, zi, trusted, om_init):  # noqa: ANN001, ANN202
+        stage, restarted = self.stage, self.restarted
+        before = _banks_of(self) if self.id in AGENTS else None
+        slope = self.detect is not None and self.detect.undecided(SLOPE)
+        orig["_advance_stage"](self, tick, v, omega_hat, phi, zi, trusted, om_init)
+        # every 3rd tick, and every stage change and restart
+        if before is not None and (take(self, tick) or self.stage != stage or self.restarted != restarted):
+            recs["advance"].append((before, (tick, v, omega_hat, phi, zi, trusted, om_init, slope), _banks_of(self)))
+
     sc = load_scenario("quick-dynamics", overrides)
     try:
         cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
-        cls._consensus_inputs, cls._converged = inputs, conv
+        cls._consensus_inputs, cls._converged, cls._advance_stage = inputs, conv, advance
         RigidEKF.start = start
         plant = Plant(sc)
         team = build_team([sc.agent_view(i) for i in range(sc.n)], age + 1)
@@ -146,7 +157,7 @@ def _same(a: tuple, b: tuple) -> bool:
 
 
 def _call(kernel, name: str, banks: tuple, args: tuple, b: int = 0):  # noqa: ANN001, ANN202
-    dyn, dnb, _, _, psi_order, cum, cum_t, _, Fa, Ia, fs, s, P, sens, Qd, aug, innov, sens_h = banks
+    dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, _, S, Fa, Ia, fs, s, P, sens, Qd, aug, innov, sens_h = banks
     if name == "predict":
         return kernel(b, *args, dyn, cum, cum_t, Fa, fs, s, P, sens, Qd, aug)
     if name == "body":
@@ -157,11 +168,13 @@ def _call(kernel, name: str, banks: tuple, args: tuple, b: int = 0):  # noqa: AN
         return kernel(b, *args, dyn, Fa, fs, s, P)
     if name == "converged":
         return kernel(b, *args, dyn, Fa, Ia)
+    if name == "advance":
+        return kernel(b, *args, dyn, dnb, nbr_mask, rx_order, S, fs, s, P, sens, Qd, aug, innov, sens_h)
     return kernel(b, *args, dyn, cum, cum_t)
 
 
 KERNELS = {"predict": K.dyn_predict, "body": K.body_frame, "update": K.dyn_filter_update, "late": K.note_late,
-           "inputs": K.consensus_inputs, "converged": K.converged}
+           "inputs": K.consensus_inputs, "converged": K.converged, "advance": K.dyn_advance_stage}
 
 
 def test_the_recording_covers_the_branches(recs):
@@ -173,11 +186,11 @@ def test_the_recording_covers_the_branches(recs):
         assert len(recs["converged"]) > 10 and any(r[3] for r in recs["converged"])
         assert any(r[1][0] == K.M_AVERAGE and r[2][0][0]["frozen_m"] and not r[0][0][0]["frozen_m"]
                    for r in recs["inputs"])
-        assert any(r[0][10][0, 0]["ready"] and not r[0][10][0, 0]["has_aug"] for r in recs["predict"])
+        assert any(r[0][11][0, 0]["ready"] and not r[0][11][0, 0]["has_aug"] for r in recs["predict"])
     elif recs["scenario"] == "online":
         assert len(recs["late"]) > 100
         assert any(r["twin_slot"] >= 0 for r in dyn) and any(r["has_detect"] for r in dyn)
-        assert any(r[0][10][0, 0]["has_aug"] for r in recs["predict"])
+        assert any(r[0][11][0, 0]["has_aug"] for r in recs["predict"])
 
 
 @pytest.mark.parametrize("name", ["predict", "body", "late", "inputs", "converged"])
@@ -201,7 +214,7 @@ def test_filter_update_equals_the_python_phase(recs):
         if plain:
             n_plain += 1
             slots = [K.KF] + ([K.TWIN] if before[0]["twin_slot"][0] >= 0 else [])
-            for x, y in zip(got[10:], after[10:], strict=True):
+            for x, y in zip(got[11:], after[11:], strict=True):
                 assert x[0, slots].tobytes() == y[0, slots].tobytes(), args
     assert n_plain > 100
 
@@ -209,7 +222,7 @@ def test_filter_update_equals_the_python_phase(recs):
 def _filter_update(banks: tuple, args: tuple, extra: tuple, interpreted: bool = False) -> tuple:
     """DynamicPhase._filter_update as the kernels' chain: update, lock check, P2's restart at the recorded
     point, the shape hold. Returns (q, zc, held or None, events)."""
-    dyn, _, _, _, _, cum, cum_t, win, Fa, _, fs, s, P, sens, Qd, aug, innov, sens_h = banks
+    dyn, _, _, _, _, cum, cum_t, win, _, Fa, _, fs, s, P, sens, Qd, aug, innov, sens_h = banks
     k = {n: getattr(K, n).py_func if interpreted else getattr(K, n)
          for n in ("dyn_filter_update", "lock_check", "dyn_reseed", "hold_shape_check")}
     tick, v, u, u_den = args
@@ -232,11 +245,34 @@ def _same_by_role(got: tuple, after: tuple) -> None:
         gs, as_ = int(g[0][role]), int(a[0][role])
         assert (gs < 0) == (as_ < 0), role
         if gs >= 0:
-            for x, y in zip(got[10:], after[10:], strict=True):
+            for x, y in zip(got[11:], after[11:], strict=True):
                 assert x[0, gs].tobytes() == y[0, as_].tobytes(), role
         g[role] = a[role] = 0
     assert g.tobytes() == a.tobytes()
-    assert all(x.tobytes() == y.tobytes() for x, y in zip(got[1:10], after[1:10], strict=True))
+    assert all(x.tobytes() == y.tobytes() for x, y in zip(got[1:11], after[1:11], strict=True))
+
+
+def test_advance_stage_equals_the_python_phase(recs):
+    """A6 bit for bit: starts, the restart at kinematic readiness, every stage entered, the barrier, the twin."""
+    entered = set()
+    for before, args, after in recs["advance"]:
+        got = _copy(before)
+        ev = _call(K.dyn_advance_stage, "advance", got, args)
+        _same_by_role(got, after)
+        st0, st1 = int(before[0][0]["stage"]), int(after[0][0]["stage"])
+        if st1 != st0:
+            entered.add(st1)
+            assert bool(ev & K.E_REGIME) == bool(before[0][0]["has_detect"])
+    want = {K.KINEMATIC, K.M_EXCITE}
+    if recs["scenario"] != "online":
+        want |= {K.M_AVERAGE, K.J_EXCITE, K.J_AVERAGE, K.DONE}
+    assert want <= entered, entered
+    if recs["scenario"] == "online":
+        assert any(r[2][0][0]["twin_slot"] >= 0 and r[0][0][0]["twin_slot"] < 0 for r in recs["advance"])
+
+
+def test_the_slope_index_is_the_detections():
+    assert K.SLOPE == SLOPE
 
 
 def test_filter_update_chain_equals_the_python_phase(recs):

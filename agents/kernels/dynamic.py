@@ -34,7 +34,25 @@ import numpy as np
 
 from agents.kernels import filter as F
 from agents.kernels import jit, register_warm
-from agents.kernels.agreement import DEG, FLOW, HEARD, U, X, flow_average_bank
+from agents.kernels.agreement import (
+    DEG,
+    FLOW,
+    HEARD,
+    HORIZON,
+    MASK_BITS,
+    ME,
+    SBITS,
+    SWITCH,
+    TMAX,
+    U,
+    X,
+    barrier_bank,
+    barrier_merge,
+    barrier_reset,
+    barrier_set_ready,
+    flow_average_bank,
+)
+from agents.kernels.agreement import N as BN
 from agents.kernels.libm import pow_libm
 
 # the stages (net/vocabulary.py) and the channels (agents/dynamic_phase.py) the kernels read
@@ -45,6 +63,9 @@ KF, SHADOW, TWIN = 0, 1, 2  # the slots the builder gives the filters (the indic
 # event flags a kernel returns for the Python side (docs/fast-core-plan.md, section 3)
 E_RESEED = 1  # the lock check asks for a restart on trial: P2 fits (omega, q_i), then dyn_reseed, hold_shape_check
 E_BACK = 2  # a trial went back to the old filter: the monitor resets and the detection's regime changes
+E_REGIME = 4  # a stage entered or the filter restarted: the detection's regime_change()
+E_M_START = 8  # the m stage entered: the detection's push_reverses(m_start + m_switch)
+SLOPE = 3  # agents/effect_decision.SLOPE (force_bias, EFFECTS order): the effect the slope's twin carries
 
 DYN = np.dtype([
     # parameters (constant after init_dyn_row)
@@ -70,7 +91,7 @@ DYN = np.dtype([
     ("b_offered", np.bool_), ("c_offered", np.bool_), ("f_offered", np.bool_), ("fb_offered", np.bool_),
     ("released", np.bool_), ("frozen_m", np.bool_), ("frozen_j", np.bool_), ("restarted", np.bool_),
     ("kf_slot", np.int64), ("shadow_slot", np.int64), ("twin_slot", np.int64),
-    ("rx_n", np.int64), ("psi_n", np.int64), ("bar_tmax", np.int64), ("bar_switch", np.int64),
+    ("rx_n", np.int64), ("psi_n", np.int64),
 ])
 """One agent's dynamical phase: DynamicPhase's parameters and scalar state under their Python names
 (docs/fast-core-plan.md, section 1.3); ``effects``: the augmented model's declared effects (estimate_effects)."""
@@ -85,18 +106,22 @@ DNB = np.dtype([
 
 
 def new_dyn_bank(B: int, D: int, hist: int, win_n: int, nbk: int) -> tuple[np.ndarray, ...]:
-    """Zeroed dynamical-phase arrays for B agents: (dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, win).
+    """Zeroed dynamical-phase arrays for B agents: (dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, win, S).
+    ``S (B, SBITS + nbk)``: the own stage barrier (agreement.py's barrier rows; ME, N, HORIZON set by
+    :func:`init_dyn_row`).
     ``cum (B, hist, 2)``: the ring of (dt sum T, dt sum omega) per state tick, ``cum_t`` its ticks (-1: none);
     ``win (B, win_n, 2)`` the lock window's (v, f_int); ``nbr_mask (B, D, nbk)`` the neighbours' barrier masks
     in 50-bit chunks."""
     cum_t = np.full((B, hist), -1, np.int64)
     return (np.zeros(B, DYN), np.zeros((B, D), DNB), np.zeros((B, D, nbk), np.int64), np.full((B, D), -1, np.int64),
-            np.full((B, D), -1, np.int64), np.zeros((B, hist, 2)), cum_t, np.zeros((B, win_n, 2), np.complex128))
+            np.full((B, D), -1, np.int64), np.zeros((B, hist, 2)), cum_t, np.zeros((B, win_n, 2), np.complex128),
+            barrier_bank(B, nbk))
 
 
 def init_dyn_row(dyn: np.ndarray, b: int, n: int, dt: float, sigma_v: float, spec, hist: int = 64,  # noqa: ANN001
-                 has_law: bool = False) -> None:
-    """Row b's parameters and initial state, as DynamicPhase.__init__ sets them."""
+                 has_law: bool = False, S: np.ndarray | None = None, me: int = 0) -> None:
+    """Row b's parameters and initial state, as DynamicPhase.__init__ sets them (with ``S``, also the barrier
+    row's agent ``me``, team size and horizon)."""
     from agents.effect_decision import EFFECTS  # noqa: PLC0415 (the Python side's names, not a kernel's)
 
     def ticks(s: float) -> int:
@@ -116,13 +141,14 @@ def init_dyn_row(dyn: np.ndarray, b: int, n: int, dt: float, sigma_v: float, spe
         r[f] = getattr(spec, f)
     r["has_detect"], r["has_monitor"] = spec.online_detection, spec.monitor_window_s > 0.0
     r["has_law"], r["effects"] = has_law, bool(spec.estimate_effects)
-    for f in ("kin_since", "conv_since", "kf_tick", "trial_tick", "m_start", "j_start", "bar_tmax", "bar_switch",
-              "shadow_slot", "twin_slot"):
+    for f in ("kin_since", "conv_since", "kf_tick", "trial_tick", "m_start", "j_start", "shadow_slot", "twin_slot"):
         r[f] = -1
     for f in ("m_local", "m_local_sd", "j_local", "j_local_sd", "b_local", "c_local", "psi", "om_meas"):
         r[f] = math.nan
     r["nis_avg"] = r["shadow_nis"] = 2.0
     r["kf_slot"] = KF
+    if S is not None:
+        S[b, ME], S[b, BN], S[b, HORIZON] = me, n, ticks(spec.horizon_s)
 
 
 _INT = ("stage", "stage_tick", "late_switches", "kin_since", "conv_since", "lock_from", "reseeds", "kf_tick",
@@ -132,26 +158,34 @@ _FLOAT = ("cc", "cw", "late_z", "late_c", "late_w", "m_local", "m_local_sd", "j_
 _BOOL = ("b_offered", "c_offered", "f_offered", "fb_offered", "released", "frozen_m", "frozen_j", "restarted")
 
 
+def _chunks(mask: int, nbk: int) -> list[int]:
+    """A Python-int mask as its 50-bit chunks (the wire's)."""
+    return [(mask >> (c * MASK_BITS)) & ((1 << MASK_BITS) - 1) for c in range(nbk)]
+
+
 def load_row(dp, banks: tuple, b: int) -> None:  # noqa: ANN001
     """Copies the state of DynamicPhase ``dp`` into row b of ``banks`` (:func:`new_banks`: dyn, dnb, nbr_mask,
     rx_order, psi_order, cum, cum_t, win, the flow average's F, I, then the 8 arrays of a 3-slot filter bank).
-    The parameters come from :func:`init_dyn_row`, called here first. The barrier's masks are not copied yet."""
-    dyn, dnb, _, rx_order, psi_order, cum, cum_t, win, Fa, Ia = banks[:10]
-    fbank = banks[10:]
-    init_dyn_row(dyn, b, dp.n, dp.dt, dp.sigma_v, dp.spec, dp.hist, dp.law is not None)
+    The parameters come from :func:`init_dyn_row`, called here first."""
+    dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, win, S, Fa, Ia = banks[:11]
+    fbank = banks[11:]
+    init_dyn_row(dyn, b, dp.n, dp.dt, dp.sigma_v, dp.spec, dp.hist, dp.law is not None, S, dp.id)
     r = dyn[b]
     for f in _INT + _FLOAT + _BOOL:
         r[f] = getattr(dp, f)
     r["has_q_held"] = dp.q_held is not None
     r["q_held"] = 0j if dp.q_held is None else dp.q_held
-    r["bar_tmax"], r["bar_switch"] = dp.barrier.tmax, dp.barrier.switch
+    bar = dp.barrier
+    S[b, TMAX], S[b, SWITCH] = bar.tmax, bar.switch
+    S[b, SBITS:] = _chunks(bar.mask, S.shape[1] - SBITS)
     cum[b, :, 0], cum[b, :, 1], cum_t[b] = dp.cum_c, dp.cum_w, dp.cum_t
     win[b, :, 0], win[b, :, 1] = dp.win_v, dp.win_f
     slot = {j: k for k, j in enumerate(dp.avg.ids)}
     for j in dp.nbr_stage:
         e = dnb[b, slot[j]]
         e["heard"], e["stage"], e["stage_tick"] = True, dp.nbr_stage[j], dp.nbr_stage_tick[j]
-        _, e["bar_tmax"], e["bar_switch"] = dp.nbr_barrier[j]
+        mask, e["bar_tmax"], e["bar_switch"] = dp.nbr_barrier[j]
+        nbr_mask[b, slot[j]] = _chunks(mask, nbr_mask.shape[2])
     rx_order[b, :len(dp.avg.nx)] = [slot[j] for j in dp.avg.nx]
     r["rx_n"] = len(dp.avg.nx)
     for m, (j, (pj, tj)) in enumerate(dp.nbr_psi.items()):
@@ -534,6 +568,141 @@ def hold_shape_check(b, tick, zi, rot, dyn, Fa, fs, s, P, Qd):  # noqa: ANN001, 
     return q, zc, ev
 
 
+@jit
+def _free_slot(r):  # noqa: ANN001, ANN202
+    """The lowest filter slot that holds none of the kf, shadow and twin."""
+    for k in range(3):
+        if k != r["kf_slot"] and k != r["shadow_slot"] and k != r["twin_slot"]:
+            return k
+    return -1
+
+
+@jit
+def _enter(b, stage, tick, slope_undecided, dyn, S, fs, s, P, sens, Qd, aug, innov, sens_h):  # noqa: ANN001, ANN202
+    """Enters ``stage`` at ``tick`` (DynamicPhase._enter): the releases of the augmented model at the excitation's
+    start, the m stage's slope twin, the barrier's reset, the filters' omega walk and J's forgetting. The
+    filters treated are those of the call's start (a twin made here keeps the kf's walk before the change)."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    sh = r["shadow_slot"]
+    tw = r["twin_slot"]
+    if stage >= M_EXCITE and r["effects"] and not r["released"]:
+        r["released"] = True  # the excitation starts (or we jumped past it)
+        for k in (kf, sh, tw):
+            if k >= 0:
+                F.ekf_release_effects(fs, s, P, aug, b, k)
+    r["stage"] = stage
+    r["stage_tick"] = tick
+    ev = E_REGIME if r["has_detect"] else 0
+    if stage == M_EXCITE:
+        r["m_start"] = tick
+        if r["has_detect"]:
+            ev |= E_M_START
+            if fs[b, kf]["ready"] and r["twin_slot"] < 0 and slope_undecided:
+                # the twin estimates the slope beside 1/m from the stage's start, as a declared slope is
+                new = _free_slot(r)
+                F.ekf_copy_slot(fs, s, P, sens, Qd, aug, innov, sens_h, b, kf, new)
+                r["twin_slot"] = new
+                F.ekf_release_effect(fs, s, P, aug, b, new, SLOPE)
+                fs[b, new]["has_sens"] = False  # the scores are the kf's; the twin's start at the handover
+    elif stage == J_EXCITE:
+        r["j_start"] = tick
+        r["twin_slot"] = -1  # m is averaged: a slope switched from here on changes neither m nor f's average
+    barrier_reset(b, S)
+    r["conv_since"] = -1
+    for k in (kf, sh, tw):
+        if k >= 0:
+            if fs[b, k]["ready"] and stage == J_EXCITE:
+                F.ekf_forget_iota(fs, P, b, k, 1e-2)  # J from the J stage's exactly known torque alone
+                F.ekf_set_omega_walk(Qd, b, k, r["j_omega_walk"])
+            elif stage != J_EXCITE:
+                F.ekf_set_omega_walk(Qd, b, k, r["omega_walk"])
+    return ev
+
+
+@jit
+def _advance(b, tick, slope_undecided, dyn, dnb, nbr_mask, rx_order, S, fs, s, P, sens, Qd, aug, innov,  # noqa: ANN001, ANN202
+             sens_h):
+    """Stage agreement (DynamicPhase._advance): a neighbour two or more stages ahead, the barrier merges in
+    first-heard order (the first switch tick seen wins), the due switches."""
+    r = dyn[b]
+    st = r["stage"]
+    if not r["background"] and st >= KINEMATIC:
+        ahead = -1
+        k_ahead = -1
+        for m in range(r["rx_n"]):  # max over (stage, id): slots are in id order
+            k = rx_order[b, m]
+            sk = dnb[b, k]["stage"]
+            if sk > ahead or (sk == ahead and k > k_ahead):
+                ahead = sk
+                k_ahead = k
+        if st + 1 < ahead <= DONE:
+            ev = _enter(b, ahead, dnb[b, k_ahead]["stage_tick"], slope_undecided, dyn, S, fs, s, P, sens, Qd, aug,
+                        innov, sens_h)
+            r["late_switches"] += 1
+            return ev
+    averaging = st == KINEMATIC or st == M_AVERAGE or st == J_AVERAGE
+    for m in range(r["rx_n"]):
+        k = rx_order[b, m]
+        e = dnb[b, k]
+        if e["stage"] == st:
+            barrier_merge(b, S, nbr_mask[b, k], e["bar_tmax"], e["bar_switch"])
+        elif e["stage"] == st + 1 and averaging:
+            barrier_merge(b, S, nbr_mask[b, k, :0], -1, e["stage_tick"])  # its stage start is the agreed tick
+    sw = S[b, SWITCH]
+    if sw >= 0 and tick >= sw and averaging:
+        if tick > sw:
+            r["late_switches"] += 1
+        if st == KINEMATIC:
+            nxt = BACKGROUND if r["background"] else M_EXCITE
+        elif st == M_AVERAGE:
+            nxt = J_EXCITE
+        else:
+            nxt = DONE
+        return _enter(b, nxt, tick, slope_undecided, dyn, S, fs, s, P, sens, Qd, aug, innov, sens_h)
+    if st == M_EXCITE and tick >= r["stage_tick"] + r["m_ticks"]:
+        return _enter(b, M_AVERAGE, tick, slope_undecided, dyn, S, fs, s, P, sens, Qd, aug, innov, sens_h)
+    if st == J_EXCITE and tick >= r["stage_tick"] + r["j_ticks"]:
+        return _enter(b, J_AVERAGE, tick, slope_undecided, dyn, S, fs, s, P, sens, Qd, aug, innov, sens_h)
+    return 0
+
+
+@jit
+def dyn_advance_stage(b, tick, v, omega_hat, phi, zi, trusted, om_init, slope_undecided,  # noqa: ANN001, ANN201
+                      dyn, dnb, nbr_mask, rx_order, S, fs, s, P, sens, Qd, aug, innov, sens_h):
+    """A6 (DynamicPhase._advance_stage): the filter's start and its restart at kinematic readiness, the
+    kinematic stage's readiness, then the stage agreement. ``slope_undecided``: the detection's
+    ``undecided(SLOPE)`` (False without it). Returns the events E_REGIME, E_M_START for the detection."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    ev = 0
+    if r["stage"] == SPINUP and om_init:
+        ev |= _enter(b, KINEMATIC, tick, slope_undecided, dyn, S, fs, s, P, sens, Qd, aug, innov, sens_h)
+    if r["stage"] >= KINEMATIC:
+        if not fs[b, kf]["ready"]:
+            F.ekf_start(fs, s, P, sens, b, kf, v, zi, omega_hat)
+            r["psi"] = phi
+        if r["stage"] == KINEMATIC:
+            if trusted:
+                if r["kin_since"] < 0:
+                    r["kin_since"] = tick
+                if tick - r["kin_since"] >= r["settle"]:
+                    if not r["restarted"]:
+                        # restart from the settled kinematic z_i and omega_hat: started at spin-up from z_i = 0
+                        # the filter can lock onto a wrong (q, omega)
+                        r["restarted"] = True
+                        F.ekf_start(fs, s, P, sens, b, kf, v, zi, omega_hat)
+                        if r["has_detect"]:
+                            ev |= E_REGIME
+                        r["lock_from"] = tick + r["lock_hold"]
+                    barrier_set_ready(b, S, tick)
+            else:
+                r["kin_since"] = -1
+        ev |= _advance(b, tick, slope_undecided, dyn, dnb, nbr_mask, rx_order, S, fs, s, P, sens, Qd, aug, innov,
+                       sens_h)
+    return ev
+
+
 def new_banks(B: int, D: int, nch: int, d: int, hist: int = 64, win_n: int = 200, nbk: int = 1) -> tuple:
     """Every array of B dynamical phases, one flat tuple: the 8 of :func:`new_dyn_bank`, the flow average's
     (F, I), the 8 of a filter bank of 3 slots (filter.py's order)."""
@@ -545,8 +714,10 @@ def warm() -> None:
     from config.agent_params import DynamicsSpec  # noqa: PLC0415
 
     banks = new_banks(1, 1, 10, F.D_NOMINAL)
-    dyn, dnb, _, _, psi_order, cum, cum_t, _, Fa, Ia, fs, s, P, sens, Qd, aug, innov, sens_h = banks
-    init_dyn_row(dyn, 0, 2, 0.01, 0.05, DynamicsSpec())
+    dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, win, S, Fa, Ia, fs, s, P, sens, Qd, aug, innov, sens_h = banks
+    init_dyn_row(dyn, 0, 2, 0.01, 0.05, DynamicsSpec(), S=S)
+    dyn_advance_stage(0, 3, 0.1 + 0.2j, 0.3, 0.1, 1 + 0j, True, True, False, dyn, dnb, nbr_mask, rx_order, S, fs, s, P,
+                      sens, Qd, aug, innov, sens_h)
     note_late(0, 3, 1.0, dyn, cum, cum_t)
     body_frame(0, 3, 0.1, dyn, dnb, psi_order, Ia, fs, s)
     dyn_filter_update(0, 3, 0.1 + 0.2j, 0.3, 1.0, dyn, cum, cum_t, fs, s, P, sens, innov, sens_h)
@@ -554,7 +725,7 @@ def warm() -> None:
     for stage in (M_EXCITE, J_EXCITE, DONE):
         stage_wrench(0, stage, 3, 0.1 + 0.2j, 1 + 0j, 0.5j, 0.1, 0.2, 0.3, dyn)
     dither(0, 3, dyn)
-    lock_check(0, 3, 0.1 + 0.2j, 0.3, 0.01, 0.0, 0.0, dyn, banks[7], fs, s, P, sens, innov, sens_h)
+    lock_check(0, 3, 0.1 + 0.2j, 0.3, 0.01, 0.0, 0.0, dyn, win, fs, s, P, sens, innov, sens_h)
     dyn_reseed(0, 3, 0.1 + 0.2j, 1 + 0j, 0.3, dyn, fs, s, P, sens, Qd, aug, innov, sens_h)
     hold_shape_check(0, 3, 1 + 0j, 1 + 0j, dyn, Fa, fs, s, P, Qd)
     converged(0, CH_MN, CH_MW, 3, dyn, Fa, Ia)
