@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from agents import agent as agent_mod
 from agents import dynamic_phase as DP
 from agents.effect_decision import SLOPE
 from agents.kernels import dynamic as K
@@ -36,10 +37,10 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     from simulator.plant import Plant, sensor_rng
 
     recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": [], "inputs": [], "converged": [],
-                             "advance": []}
+                             "advance": [], "receive": []}
     cls = DP.DynamicPhase
     orig = {m: getattr(cls, m) for m in ("_predict", "_body_frame", "_filter_update", "_note_late",
-                                         "_consensus_inputs", "_converged", "_advance_stage")}
+                                         "_consensus_inputs", "_converged", "_advance_stage", "_receive")}
 
     def take(dp: DP.DynamicPhase, tick: int) -> bool:
         return dp.id in AGENTS and (tick % 3 == 0 or dp.shadow is not None or dp.twin is not None)
@@ -108,10 +109,27 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         if before is not None and (take(self, tick) or self.stage != stage or self.restarted != restarted):
             recs["advance"].append((before, (tick, v, omega_hat, phi, zi, trusted, om_init, slope), _banks_of(self)))
 
+    rows: dict[int, tuple] = {}
+    orig_msg = agent_mod._dynamic_msg
+
+    def dynamic_msg(v, lay):  # noqa: ANN001, ANN202
+        m = orig_msg(v, lay)
+        rows[id(m)] = (m, np.array(v, float), lay.lay)  # m kept: its id stays its own while recorded
+        return m
+
+    def receive(self, m):  # noqa: ANN001, ANN202
+        before = _banks_of(self) if take(self, m.tick) else None
+        orig["_receive"](self, m)
+        if before is not None:
+            _, v, lay = rows[id(m)]
+            args = (self.avg.ids.index(m.sender), v, lay)
+            recs["receive"].append((before, args, _banks_of(self)))
+
     sc = load_scenario("quick-dynamics", overrides)
     try:
         cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
-        cls._consensus_inputs, cls._converged, cls._advance_stage = inputs, conv, advance
+        cls._consensus_inputs, cls._converged, cls._advance_stage, cls._receive = inputs, conv, advance, receive
+        agent_mod._dynamic_msg = dynamic_msg
         RigidEKF.start = start
         plant = Plant(sc)
         team = build_team([sc.agent_view(i) for i in range(sc.n)], age + 1)
@@ -125,6 +143,7 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         for m, f in orig.items():
             setattr(cls, m, f)
         RigidEKF.start = orig_start
+        agent_mod._dynamic_msg = orig_msg
     return recs
 
 
@@ -168,13 +187,16 @@ def _call(kernel, name: str, banks: tuple, args: tuple, b: int = 0):  # noqa: AN
         return kernel(b, *args, dyn, Fa, fs, s, P)
     if name == "converged":
         return kernel(b, *args, dyn, Fa, Ia)
+    if name == "receive":
+        return kernel(b, *args, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia)
     if name == "advance":
         return kernel(b, *args, dyn, dnb, nbr_mask, rx_order, S, fs, s, P, sens, Qd, aug, innov, sens_h)
     return kernel(b, *args, dyn, cum, cum_t)
 
 
 KERNELS = {"predict": K.dyn_predict, "body": K.body_frame, "update": K.dyn_filter_update, "late": K.note_late,
-           "inputs": K.consensus_inputs, "converged": K.converged, "advance": K.dyn_advance_stage}
+           "inputs": K.consensus_inputs, "converged": K.converged, "advance": K.dyn_advance_stage,
+           "receive": K.dyn_receive}
 
 
 def test_the_recording_covers_the_branches(recs):
@@ -269,6 +291,15 @@ def test_advance_stage_equals_the_python_phase(recs):
     assert want <= entered, entered
     if recs["scenario"] == "online":
         assert any(r[2][0][0]["twin_slot"] >= 0 and r[0][0][0]["twin_slot"] < 0 for r in recs["advance"])
+
+
+def test_receive_equals_the_python_phase(recs):
+    """dyn_receive from the IN row == DynamicPhase._receive of its decoded message (but the decision's flood)."""
+    assert len(recs["receive"]) > 100
+    for before, args, after in recs["receive"]:
+        got = _copy(before)
+        _call(K.dyn_receive, "receive", got, args)
+        _same_by_role(got, after)
 
 
 def test_the_slope_index_is_the_detections():

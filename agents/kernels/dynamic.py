@@ -54,6 +54,7 @@ from agents.kernels.agreement import (
 )
 from agents.kernels.agreement import N as BN
 from agents.kernels.libm import pow_libm
+from net.rows import C0, L_B0, L_BS, L_BT, L_DG, L_NBK, L_NCH, L_P0, L_PS, L_SK, OM, PAIR_HEAD, PHASE, TICK, Layout
 
 # the stages (net/vocabulary.py) and the channels (agents/dynamic_phase.py) the kernels read
 SPINUP, KINEMATIC, M_EXCITE, M_AVERAGE, J_EXCITE, J_AVERAGE, DONE, BACKGROUND = range(8)
@@ -703,6 +704,46 @@ def dyn_advance_stage(b, tick, v, omega_hat, phi, zi, trusted, om_init, slope_un
     return ev
 
 
+@jit
+def dyn_receive(b, k, v, lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia):  # noqa: ANN001, ANN201
+    """A neighbour's accepted IN row ``v`` (net/rows.py, checked by the kinematic kernel) from slot k, in
+    arrival order (a later one replaces it): its channels, flows to us and degree into the flow average, its
+    stage, stage tick and barrier, and from the kinematic stage on its psi and omega_hat. First-heard orders
+    are appended on first write. The flooded decision (online detection) is the caller's."""
+    r = dyn[b]
+    nch = lay[L_NCH]
+    D = (Ia.shape[1] - HEARD) // 2
+    p = lay[L_P0] + PAIR_HEAD
+    for c in range(nch):
+        Fa[b, FLOW + D + k, c] = v[p + c]
+        Fa[b, FLOW + 2 * D + k, c] = v[C0 + c]
+    if not Ia[b, HEARD + k]:
+        rx_order[b, r["rx_n"]] = k
+        r["rx_n"] += 1
+    Ia[b, HEARD + k] = 1
+    Ia[b, HEARD + D + k] = int(v[lay[L_DG]])
+    e = dnb[b, k]
+    stage = int(v[PHASE])
+    e["heard"] = True
+    e["stage"] = stage
+    e["stage_tick"] = int(v[lay[L_SK]])
+    for c in range(lay[L_NBK]):
+        nbr_mask[b, k, c] = int(v[lay[L_B0] + c])
+    e["bar_tmax"] = int(v[lay[L_BT]])
+    e["bar_switch"] = int(v[lay[L_BS]])
+    if stage >= KINEMATIC:  # its filter (and psi) runs from the kinematic stage on
+        if not e["has_psi"]:
+            psi_order[b, r["psi_n"]] = k
+            r["psi_n"] += 1
+        e["has_psi"] = True
+        e["psi"] = v[lay[L_PS]]
+        e["psi_t"] = int(v[TICK])
+        om = v[OM]
+        if om - om == 0.0:
+            e["om"] = om
+            e["has_om"] = True
+
+
 def new_banks(B: int, D: int, nch: int, d: int, hist: int = 64, win_n: int = 200, nbk: int = 1) -> tuple:
     """Every array of B dynamical phases, one flat tuple: the 8 of :func:`new_dyn_bank`, the flow average's
     (F, I), the 8 of a filter bank of 3 slots (filter.py's order)."""
@@ -725,6 +766,8 @@ def warm() -> None:
     for stage in (M_EXCITE, J_EXCITE, DONE):
         stage_wrench(0, stage, 3, 0.1 + 0.2j, 1 + 0j, 0.5j, 0.1, 0.2, 0.3, dyn)
     dither(0, 3, dyn)
+    lay = Layout(True, 10, 1, False, 1)
+    dyn_receive(0, 0, np.zeros(lay.size_in), lay.lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia)
     lock_check(0, 3, 0.1 + 0.2j, 0.3, 0.01, 0.0, 0.0, dyn, win, fs, s, P, sens, innov, sens_h)
     dyn_reseed(0, 3, 0.1 + 0.2j, 1 + 0j, 0.3, dyn, fs, s, P, sens, Qd, aug, innov, sens_h)
     hold_shape_check(0, 3, 1 + 0j, 1 + 0j, dyn, Fa, fs, s, P, Qd)
