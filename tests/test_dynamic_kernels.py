@@ -37,10 +37,11 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     from simulator.plant import Plant, sensor_rng
 
     recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": [], "inputs": [], "converged": [],
-                             "advance": [], "receive": []}
+                             "advance": [], "receive": [], "estimates": []}
     cls = DP.DynamicPhase
     orig = {m: getattr(cls, m) for m in ("_predict", "_body_frame", "_filter_update", "_note_late",
-                                         "_consensus_inputs", "_converged", "_advance_stage", "_receive")}
+                                         "_consensus_inputs", "_converged", "_advance_stage", "_receive",
+                                         "_estimates")}
 
     def take(dp: DP.DynamicPhase, tick: int) -> bool:
         return dp.id in AGENTS and (tick % 3 == 0 or dp.shadow is not None or dp.twin is not None)
@@ -125,11 +126,18 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
             args = (self.avg.ids.index(m.sender), v, lay)
             recs["receive"].append((before, args, _banks_of(self)))
 
+    def estimates(self):  # noqa: ANN202
+        out = orig["_estimates"](self)
+        if self.id in AGENTS and (self.stage_tick % 3 == 0 or len(recs["estimates"]) % 7 == 0):
+            recs["estimates"].append((_banks_of(self), self._on(), out))
+        return out
+
     sc = load_scenario("quick-dynamics", overrides)
     try:
         cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
         cls._consensus_inputs, cls._converged, cls._advance_stage, cls._receive = inputs, conv, advance, receive
         agent_mod._dynamic_msg = dynamic_msg
+        cls._estimates = estimates
         RigidEKF.start = start
         plant = Plant(sc)
         team = build_team([sc.agent_view(i) for i in range(sc.n)], age + 1)
@@ -300,6 +308,17 @@ def test_receive_equals_the_python_phase(recs):
         got = _copy(before)
         _call(K.dyn_receive, "receive", got, args)
         _same_by_role(got, after)
+
+
+def test_estimates_equal_the_python_phase(recs):
+    assert len(recs["estimates"]) > 100
+    for banks, on, want in recs["estimates"]:
+        assert tuple(want) == K.ESTIMATES
+        dyn, Fa, s = banks[0], banks[9], banks[12]
+        for fn in (K.dyn_estimates, K.dyn_estimates.py_func):
+            out = np.zeros(len(K.ESTIMATES))
+            fn(0, on, dyn, Fa, s, out)
+            assert repr(out.tolist()) == repr(list(want.values()))
 
 
 def test_the_slope_index_is_the_detections():

@@ -744,6 +744,52 @@ def dyn_receive(b, k, v, lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia): 
             e["has_om"] = True
 
 
+ESTIMATES = ("J", "m", "zc_x", "zc_y", "vc_x", "vc_y", "J_local", "m_local", "late_switches", "b", "c", "fc", "fb_x",
+             "fb_y", "b_local", "c_local", "filter_restarts")
+"""The estimate entries of the dynamical phase, in :func:`dyn_estimates`' order (``ESTIMATE_NAMES`` from "J" on)."""
+
+
+@jit
+def _ratio(Fa, b, num, wch, ok):  # noqa: ANN001, ANN202
+    """The average num / wch if the channel exists, has weight and ``ok``; NaN else."""
+    if Fa.shape[2] > num and Fa[b, X, wch] > 0.0 and ok:
+        return Fa[b, X, num] / Fa[b, X, wch]
+    return math.nan
+
+
+@jit
+def dyn_estimates(b, on, dyn, Fa, s, out):  # noqa: ANN001, ANN201
+    """The dynamical phase's estimate values (DynamicPhase._estimates) into ``out`` (:data:`ESTIMATES` order);
+    ``on``: the effects in the model (``_on``)."""
+    r = dyn[b]
+    kf = r["kf_slot"]
+    nan = math.nan
+    out[0] = _ratio(Fa, b, CH_JN, CH_JW, True)
+    out[1] = _ratio(Fa, b, CH_MN, CH_MW, True)
+    if r["stage"] >= M_AVERAGE:
+        psi = r["psi"]
+        zc = complex(Fa[b, X, CH_ZX], Fa[b, X, CH_ZY]) * complex(cos(psi), sin(psi))
+        vc = complex(s[b, kf, 0], s[b, kf, 1])
+    else:
+        zc = vc = complex(nan, nan)
+    out[2] = zc.real
+    out[3] = zc.imag
+    out[4] = vc.real
+    out[5] = vc.imag
+    out[6] = r["j_local"]
+    out[7] = r["m_local"]
+    out[8] = float(r["late_switches"])
+    # augmented model (estimate_effects): b with m's weights, c with J's
+    out[9] = _ratio(Fa, b, CH_BN, CH_MW, on & 1 and r["b_offered"])
+    out[10] = _ratio(Fa, b, CH_CN, CH_JW, on & 2 and r["c_offered"])
+    out[11] = _ratio(Fa, b, CH_FN, CH_MW, on & 4 and r["f_offered"])
+    out[12] = _ratio(Fa, b, CH_FBX, CH_MW, on & 8 and r["fb_offered"])
+    out[13] = _ratio(Fa, b, CH_FBY, CH_MW, on & 8 and r["fb_offered"])
+    out[14] = r["b_local"] if on & 1 else nan
+    out[15] = r["c_local"] if on & 2 else nan
+    out[16] = float(r["reseeds"])
+
+
 def new_banks(B: int, D: int, nch: int, d: int, hist: int = 64, win_n: int = 200, nbk: int = 1) -> tuple:
     """Every array of B dynamical phases, one flat tuple: the 8 of :func:`new_dyn_bank`, the flow average's
     (F, I), the 8 of a filter bank of 3 slots (filter.py's order)."""
@@ -767,6 +813,7 @@ def warm() -> None:
         stage_wrench(0, stage, 3, 0.1 + 0.2j, 1 + 0j, 0.5j, 0.1, 0.2, 0.3, dyn)
     dither(0, 3, dyn)
     lay = Layout(True, 10, 1, False, 1)
+    dyn_estimates(0, 3, dyn, Fa, s, np.zeros(len(ESTIMATES)))
     dyn_receive(0, 0, np.zeros(lay.size_in), lay.lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia)
     lock_check(0, 3, 0.1 + 0.2j, 0.3, 0.01, 0.0, 0.0, dyn, win, fs, s, P, sens, innov, sens_h)
     dyn_reseed(0, 3, 0.1 + 0.2j, 1 + 0j, 0.3, dyn, fs, s, P, sens, Qd, aug, innov, sens_h)
