@@ -86,8 +86,11 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         if before is not None:
             recs["late"].append((before, (t, zz), _banks_of(self)))
 
+    calls = [0]
+
     def inputs(self, stage, q, zc, held, rot, fx, fy, tau, jstage):  # noqa: ANN001, ANN202
-        before = _banks_of(self) if take(self, self.stage_tick) else None
+        calls[0] += 1
+        before = _banks_of(self) if take(self, calls[0]) else None
         orig["_consensus_inputs"](self, stage, q, zc, held, rot, fx, fy, tau, jstage)
         if before is not None:
             args = (stage, q, zc, held is not None, 0j if held is None else held, rot, fx, fy, tau, jstage,
@@ -162,6 +165,9 @@ SCENARIOS = {
     "online": (["duration=16", "plant.friction.viscous=5", "dynamics.online_detection=true"], 2),
     # restarts on trial (a low lock threshold: each goes back to the old filter) and the shape hold of done
     "lock": (["dynamics.lock_nis=1.8", "dynamics.lock_hold_s=0.5", "dynamics.brake=0.5"], 1),
+    # Algorithm 2 with the augmented model: the background stage's offers, dither and releases
+    "background": (["duration=20", 'dynamics.algorithm="background"',
+                    'dynamics.estimate_effects=["viscous_friction", "rotational_damping"]'], 1),
 }
 
 
@@ -210,6 +216,9 @@ KERNELS = {"predict": K.dyn_predict, "body": K.body_frame, "update": K.dyn_filte
 def test_the_recording_covers_the_branches(recs):
     assert all(len(recs[k]) > 100 for k in ("predict", "body", "update", "inputs"))
     dyn = [r[0][0][0] for r in recs["predict"]]
+    if recs["scenario"] == "background":
+        assert any(r[1][0] == K.BACKGROUND and r[2][0][0]["b_offered"] for r in recs["inputs"])
+        return
     assert K.M_EXCITE in {int(r["stage"]) for r in dyn}
     if recs["scenario"] == "quick-dynamics":
         assert any(r[1][2] for r in recs["predict"])  # the J stage's torque
@@ -293,8 +302,8 @@ def test_advance_stage_equals_the_python_phase(recs):
         if st1 != st0:
             entered.add(st1)
             assert bool(ev & K.E_REGIME) == bool(before[0][0]["has_detect"])
-    want = {K.KINEMATIC, K.M_EXCITE}
-    if recs["scenario"] != "online":
+    want = {K.KINEMATIC, K.BACKGROUND} if recs["scenario"] == "background" else {K.KINEMATIC, K.M_EXCITE}
+    if recs["scenario"] in ("quick-dynamics", "lock"):
         want |= {K.M_AVERAGE, K.J_EXCITE, K.J_AVERAGE, K.DONE}
     assert want <= entered, entered
     if recs["scenario"] == "online":
