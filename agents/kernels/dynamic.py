@@ -1,22 +1,42 @@
 """The dynamical phase (agents/dynamic_phase.py) as row kernels over a leading agent axis: layouts and kernels.
 
-WORK IN PROGRESS (slice S6 of docs/fast-core-plan.md; not wired into AgentCore, the Python class still runs).
-Done, each tested compiled == ``py_func`` and == DynamicPhase on inputs recorded from quick-dynamics runs
-(tests/test_dynamic_kernels.py):
-  * the layouts: record ``DYN`` (B,), record ``DNB`` (B, D) and the plain arrays of section 1.3
-    (:func:`new_dyn_bank`), a row's parameters and initial state from a ``DynamicsSpec``
-    (:func:`init_dyn_row`, as ``DynamicPhase.__init__``), and :func:`load_row`, which copies a live
-    DynamicPhase into row b of the banks (the tests' recorder; the bridge while Python and kernels coexist);
-  * B1 :func:`body_frame` (``_body_frame``), B2 first half :func:`dyn_filter_update` (``_filter_update`` up to
-    the monitor: the cum ring, u_var, ``_u_age``, the kf and twin updates), D4 :func:`dyn_predict`
-    (``_predict``), and :func:`note_late` (``_note_late``).
-Not done (next steps, in this order): A6 stage advance (``_advance_stage``, ``_enter``, ``_advance``: needs the
-barrier as chunked masks, the S3a barrier kernels of branch s3a, and the detection's ``regime_change``/
-``push_reverses`` as event flags); B2's monitor and detection observe (window_stats.py's monitor kernel; the
-monitor needs vc0, om0, q0 read from the kf slot before :func:`dyn_filter_update`); B3 lock check and
-``_judge`` (slot swaps) with P2 ``_reseed`` staying Python; C1 ``excitation.stage_wrench/j_sign/dither``;
-D1 ``_consensus_inputs``/``_offer``/``_clean_share``; D3 ``_converged``; D5 ``_estimates``,
-``uncertainties``, ``_shared``; ``dyn_receive``; then the view class and the wiring (helper 7's half).
+WORK IN PROGRESS (slice S6 of docs/fast-core-plan.md): not wired into AgentCore; DynamicPhase still runs and is
+still the one implementation. Every kernel below is tested bit for bit against the DynamicPhase method it
+replaces, on calls recorded from quick-dynamics runs (fault-free; 2-tick links with online detection and
+friction; restarts on trial and braking; Algorithm 2 with effects), compiled == ``py_func``, batch 1 == batch
+n (tests/test_dynamic_kernels.py).
+
+Done (section 3's names):
+  * layouts: ``DYN`` (B,), ``DNB`` (B, D) and the arrays of section 1.3 (:func:`new_dyn_bank`, :func:`new_banks`),
+    :func:`init_dyn_row` (DynamicPhase.__init__), :func:`load_row` (a live DynamicPhase into row b: the
+    tests' recorder, and the bridge for a view). The barrier is agreement.py's ``S`` row (S3a's kernels,
+    taken from branch s3a), not ``DYN.bar_*``.
+  * A3 :func:`dyn_receive` (``_receive`` from the IN row; the flooded decision stays the caller's),
+    :func:`note_late`; A6 :func:`dyn_advance_stage` (``_advance_stage``/``_enter``/``_advance``; events
+    E_REGIME, E_M_START for the detection; input ``slope_undecided``); B1 :func:`body_frame`; B2
+    :func:`dyn_filter_update` (up to the monitor); B3 :func:`lock_check` (+ ``_judge``, event E_BACK,
+    E_RESEED), :func:`dyn_reseed` (P2's restart once Python has fitted (omega, q)); C1
+    :func:`hold_shape_check`, :func:`stage_wrench`, :func:`j_sign`, :func:`dither`; D1
+    :func:`consensus_inputs`; D3 :func:`converged`; D4 :func:`dyn_predict`; D5 :func:`dyn_estimates`.
+
+Not done, next steps in this order:
+  1. ``uncertainties``: it uses ``math.hypot`` (CPython's own algorithm, banned in kernels); switch the Python
+     to ``abs(complex(sd, s))`` first (S0's rule; m_sd/J_sd change in the last bits, report-only: say so in
+     the commit) and port ``spread_sd`` over ``rx_order`` (its ``** 2`` as ``pow_libm``).
+  2. ``_shared`` into the OUT row (net/rows.py: channels, dg, Sk, ps, the ``S`` row's chunks, Bt, Bs; the
+     flood's Ds/De/Dz), and the feedback (om_meas, alpha, q held, team_waiting = KINEMATIC and not
+     ``barrier_complete``).
+  3. B2's observers: the monitor (window_stats.py's kernel; it needs the kf's vc, omega, q before
+     :func:`dyn_filter_update`) and the detection's ``observe`` (P1 or a kernel over ``DET``).
+  4. P1's ``_twin_decision`` as a slot swap (kf_slot = twin_slot, its sens zeroed) and P3 (``_law_wrench``,
+     Python) on the rows.
+  5. Helper 7's half: the view (``DynamicView``: stage, m_local, reseeds, alpha, kf, avg, barrier, detect) over
+     these rows, the event handlers, AgentCore calling the kernels in the order of ``DynamicPhase._step``
+     (see the tests' ``_filter_update`` chain), then delete the Python maths, excitation.py and tick_records.
+     Dispatch: at a batch of one each call costs 1-3 us and a record argument ~1 us more; chain the kernels
+     into as few calls as the event points allow (one before P1, one P1 -> P3, one after P3).
+  Untested branches: ``_judge`` keeping a restart (the recordings' trials all went back), the jump to a
+  neighbour two stages ahead (late join), the twin's handover.
 
 Banks. The consensus channels are agreement.py's flow-average bank ``(F, I)`` (channel values x at ``F[b, X]``,
 the degrees in ``I``); the filters are a filter.py bank of 3 slots per agent, ``DYN.kf_slot``,
