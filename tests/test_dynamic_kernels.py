@@ -402,3 +402,45 @@ def test_stage_wrench_and_dither_equal_the_python(spec):
                 assert repr(tuple(float(x) for x in got)) == repr(want), (stage, k)
             want = excitation.dither(k, sp, int(r["dither_ticks"]))
             assert repr(float(K.dither(0, k, dyn))) == repr(float(K.dither.py_func(0, k, dyn))) == repr(want)
+
+
+def _phase(spec_kw: dict | None = None) -> DP.DynamicPhase:
+    """Agent 1 of a line of 3, its filter started, in the kinematic stage with both neighbours heard."""
+    from agents.tick_records import DynamicMsg
+    from config.agent_params import DynamicsSpec
+
+    dp = DP.DynamicPhase(1, [0, 2], 3, 0.01, 0.1, DynamicsSpec(**(spec_kw or {})))
+    dp._advance_stage(0, 0.3 + 0.1j, 0.5, 0.2, 1.0 + 0.5j, False, True)
+    for j, stage in ((0, K.J_EXCITE), (2, K.KINEMATIC)):
+        dp._receive(DynamicMsg(j, 0, stage, 0.1, 1, [0.0] * 10, [0.0] * 10, (0, -1, -1), 57, 0.5))
+    return dp
+
+
+def test_advance_jumps_to_a_neighbour_two_stages_ahead():
+    dp = _phase()
+    before = _banks_of(dp)
+    args = (1, 0.3 + 0.1j, 0.5, 0.2, 1.0 + 0.5j, True, True, False)
+    dp._advance_stage(*args[:7])
+    assert dp.stage == K.J_EXCITE and dp.late_switches == 1
+    got = _copy(before)
+    _call(K.dyn_advance_stage, "advance", got, args)
+    _same_by_role(got, _banks_of(dp))
+
+
+@pytest.mark.parametrize("better", [True, False])
+def test_a_trial_is_kept_or_dropped_as_the_python_judges(better):
+    import copy
+
+    dp = _phase()
+    dp.restarted = True
+    dp.shadow = copy.copy(dp.kf)
+    dp.kf.start(0.3 + 0.1j, 1.1 + 0.4j, 0.45)
+    dp.nis_avg, dp.shadow_nis, dp.trial_tick, dp.lock_from = (0.5, 5.0, 3, 5) if better else (3.0, 4.0, 3, 5)
+    before = _banks_of(dp)
+    args, extra = (6, 0.31 + 0.12j, 0.47, 40.0), (1.0 + 0.5j, complex(0.8, 0.6), None)
+    out = dp._filter_update(*args, 0.5, extra[0], extra[1])
+    assert dp.shadow is None and dp.reseeds == int(better)
+    got = _copy(before)
+    q, zc, held, ev = _filter_update(got, args, (*extra, out))
+    _same_by_role(got, _banks_of(dp))
+    assert repr((q, zc, held)) == repr(out) and ev == (0 if better else K.E_BACK)

@@ -35,8 +35,8 @@ Not done, next steps in this order:
      (see the tests' ``_filter_update`` chain), then delete the Python maths, excitation.py and tick_records.
      Dispatch: at a batch of one each call costs 1-3 us and a record argument ~1 us more; chain the kernels
      into as few calls as the event points allow (one before P1, one P1 -> P3, one after P3).
-  Untested branches: ``_judge`` keeping a restart (the recordings' trials all went back), the jump to a
-  neighbour two stages ahead (late join), the twin's handover.
+  The recordings reach neither ``_judge`` keeping a restart nor the jump to a neighbour two stages ahead:
+  synthetic tests cover both.
 
 Banks. The consensus channels are agreement.py's flow-average bank ``(F, I)`` (channel values x at ``F[b, X]``,
 the degrees in ``I``); the filters are a filter.py bank of 3 slots per agent, ``DYN.kf_slot``,
