@@ -131,8 +131,11 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
 
     def estimates(self):  # noqa: ANN202
         out = orig["_estimates"](self)
-        if self.id in AGENTS and (self.stage_tick % 3 == 0 or len(recs["estimates"]) % 7 == 0):
-            recs["estimates"].append((_banks_of(self), self._on(), out))
+        if self.id in AGENTS and len(recs["estimates"]) < 400 and calls[0] % 3 == 0:
+            # the OUT row's dynamical part too: _shared and the flows are read at the same point of the tick
+            flows = {j: tuple(f) for j, f in self.avg.flow.items()}
+            recs["estimates"].append((_banks_of(self), self._on(), out, self._shared(), flows, self.avg.ids,
+                                      len(self.barrier.mask_keys)))
         return out
 
     sc = load_scenario("quick-dynamics", overrides)
@@ -321,13 +324,28 @@ def test_receive_equals_the_python_phase(recs):
 
 def test_estimates_equal_the_python_phase(recs):
     assert len(recs["estimates"]) > 100
-    for banks, on, want in recs["estimates"]:
+    for banks, on, want, *_ in recs["estimates"]:
         assert tuple(want) == K.ESTIMATES
         dyn, Fa, s = banks[0], banks[9], banks[12]
         for fn in (K.dyn_estimates, K.dyn_estimates.py_func):
             out = np.zeros(len(K.ESTIMATES))
             fn(0, on, dyn, Fa, s, out)
             assert repr(out.tolist()) == repr(list(want.values()))
+
+
+def test_out_row_equals_the_python_shared_states(recs):
+    from net.rows import Layout, state_from_row
+
+    for banks, _, _, shared, flows, ids, nbk in recs["estimates"]:
+        dyn, S, Fa, Ia = banks[0], banks[8], banks[9], banks[10]
+        lay = Layout(True, Fa.shape[2], nbk, bool(dyn[0]["has_detect"]), len(ids))
+        for fn in (K.dyn_write_out, K.dyn_write_out.py_func):
+            row = np.zeros(lay.size_out)
+            fn(0, row, lay.lay, dyn, S, Fa, Ia)
+            msg = state_from_row(row, lay, ids)
+            got = {key: msg.shared[key] for key in shared if key[0] != "D"}  # D*: the flood's, not the kernel's
+            assert repr(got) == repr({key: v for key, v in shared.items() if key[0] != "D"})
+            assert repr({j: p[4:] for j, p in msg.pair.items()}) == repr(flows)
 
 
 def test_the_slope_index_is_the_detections():

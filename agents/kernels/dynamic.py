@@ -17,15 +17,15 @@ Done (section 3's names):
     :func:`dyn_filter_update` (up to the monitor); B3 :func:`lock_check` (+ ``_judge``, event E_BACK,
     E_RESEED), :func:`dyn_reseed` (P2's restart once Python has fitted (omega, q)); C1
     :func:`hold_shape_check`, :func:`stage_wrench`, :func:`j_sign`, :func:`dither`; D1
-    :func:`consensus_inputs`; D3 :func:`converged`; D4 :func:`dyn_predict`; D5 :func:`dyn_estimates`.
+    :func:`consensus_inputs`; D3 :func:`converged`; D4 :func:`dyn_predict`; D5 :func:`dyn_estimates`,
+    :func:`dyn_write_out` (``_shared`` and the flows into the OUT row, but the flood's slots).
 
 Not done, next steps in this order:
   1. ``uncertainties``: it uses ``math.hypot`` (CPython's own algorithm, banned in kernels); switch the Python
      to ``abs(complex(sd, s))`` first (S0's rule; m_sd/J_sd change in the last bits, report-only: say so in
      the commit) and port ``spread_sd`` over ``rx_order`` (its ``** 2`` as ``pow_libm``).
-  2. ``_shared`` into the OUT row (net/rows.py: channels, dg, Sk, ps, the ``S`` row's chunks, Bt, Bs; the
-     flood's Ds/De/Dz), and the feedback (om_meas, alpha, q held, team_waiting = KINEMATIC and not
-     ``barrier_complete``).
+  2. The OUT row's flood slots (Ds/De/Dz, from ``DET``), and the feedback (om_meas, alpha, q held,
+     team_waiting = KINEMATIC and not ``barrier_complete``).
   3. B2's observers: the monitor (window_stats.py's kernel; it needs the kf's vc, omega, q before
      :func:`dyn_filter_update`) and the detection's ``observe`` (P1 or a kernel over ``DET``).
   4. P1's ``_twin_decision`` as a slot swap (kf_slot = twin_slot, its sens zeroed) and P3 (``_law_wrench``,
@@ -74,7 +74,24 @@ from agents.kernels.agreement import (
 )
 from agents.kernels.agreement import N as BN
 from agents.kernels.libm import pow_libm
-from net.rows import C0, L_B0, L_BS, L_BT, L_DG, L_NBK, L_NCH, L_P0, L_PS, L_SK, OM, PAIR_HEAD, PHASE, TICK, Layout
+from net.rows import (
+    C0,
+    L_B0,
+    L_BLOCK,
+    L_BS,
+    L_BT,
+    L_DG,
+    L_NBK,
+    L_NCH,
+    L_P0,
+    L_PS,
+    L_SK,
+    OM,
+    PAIR_HEAD,
+    PHASE,
+    TICK,
+    Layout,
+)
 
 # the stages (net/vocabulary.py) and the channels (agents/dynamic_phase.py) the kernels read
 SPINUP, KINEMATIC, M_EXCITE, M_AVERAGE, J_EXCITE, J_AVERAGE, DONE, BACKGROUND = range(8)
@@ -764,6 +781,29 @@ def dyn_receive(b, k, v, lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia): 
             e["has_om"] = True
 
 
+@jit
+def dyn_write_out(b, row, lay, dyn, S, Fa, Ia):  # noqa: ANN001, ANN201
+    """The dynamical slots of the agent's OUT row (net/rows.py; DynamicPhase._shared and its flows): the channels,
+    the degree, the stage tick, psi (0 before it exists), the barrier's chunks, latest ready tick and switch
+    tick, and each neighbour's block's flows F_ij. The stage (PHASE) and the flood's slots are the caller's."""
+    r = dyn[b]
+    nch = lay[L_NCH]
+    for c in range(nch):
+        row[C0 + c] = Fa[b, X, c]
+    row[lay[L_DG]] = float(Ia[b, DEG])
+    row[lay[L_SK]] = float(r["stage_tick"])
+    psi = r["psi"]
+    row[lay[L_PS]] = psi if psi == psi else 0.0
+    for c in range(lay[L_NBK]):
+        row[lay[L_B0] + c] = float(S[b, SBITS + c])
+    row[lay[L_BT]] = float(S[b, TMAX])
+    row[lay[L_BS]] = float(S[b, SWITCH])
+    for k in range(Ia[b, DEG]):
+        p = lay[L_P0] + k * lay[L_BLOCK] + PAIR_HEAD
+        for c in range(nch):
+            row[p + c] = Fa[b, FLOW + k, c]
+
+
 ESTIMATES = ("J", "m", "zc_x", "zc_y", "vc_x", "vc_y", "J_local", "m_local", "late_switches", "b", "c", "fc", "fb_x",
              "fb_y", "b_local", "c_local", "filter_restarts")
 """The estimate entries of the dynamical phase, in :func:`dyn_estimates`' order (``ESTIMATE_NAMES`` from "J" on)."""
@@ -835,6 +875,7 @@ def warm() -> None:
     lay = Layout(True, 10, 1, False, 1)
     dyn_estimates(0, 3, dyn, Fa, s, np.zeros(len(ESTIMATES)))
     dyn_receive(0, 0, np.zeros(lay.size_in), lay.lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia)
+    dyn_write_out(0, np.zeros(lay.size_out), lay.lay, dyn, S, Fa, Ia)
     lock_check(0, 3, 0.1 + 0.2j, 0.3, 0.01, 0.0, 0.0, dyn, win, fs, s, P, sens, innov, sens_h)
     dyn_reseed(0, 3, 0.1 + 0.2j, 1 + 0j, 0.3, dyn, fs, s, P, sens, Qd, aug, innov, sens_h)
     hold_shape_check(0, 3, 1 + 0j, 1 + 0j, dyn, Fa, fs, s, P, Qd)
