@@ -430,7 +430,8 @@ def _phase(spec_kw: dict | None = None) -> DP.DynamicPhase:
     dp = DP.DynamicPhase(1, [0, 2], 3, 0.01, 0.1, DynamicsSpec(**(spec_kw or {})))
     dp._advance_stage(0, 0.3 + 0.1j, 0.5, 0.2, 1.0 + 0.5j, False, True)
     for j, stage in ((0, K.J_EXCITE), (2, K.KINEMATIC)):
-        dp._receive(DynamicMsg(j, 0, stage, 0.1, 1, [0.0] * 10, [0.0] * 10, (0, -1, -1), 57, 0.5))
+        nch = dp.avg.nch
+        dp._receive(DynamicMsg(j, 0, stage, 0.1, 1, [0.0] * nch, [0.0] * nch, (0, -1, -1), 57, 0.5))
     return dp
 
 
@@ -462,3 +463,25 @@ def test_a_trial_is_kept_or_dropped_as_the_python_judges(better):
     q, zc, held, ev = _filter_update(got, args, (*extra, out))
     _same_by_role(got, _banks_of(dp))
     assert repr((q, zc, held)) == repr(out) and ev == (0 if better else K.E_BACK)
+
+
+@pytest.mark.parametrize("dec, undecided", [(SLOPE, False), (SLOPE, True), (-1, True), (-1, False), (0, False)])
+def test_twin_decision_equals_the_python(dec, undecided, monkeypatch):
+    """The twin handed over (its sensitivities from zero) or dropped, as _twin_decision does."""
+    import copy
+
+    dp = _phase({"online_detection": True})
+    dp.twin = copy.copy(dp.kf)
+    dp.twin.release_effect(SLOPE)
+    dp.twin.sens = None
+    dp.kf.sens = np.full_like(dp.kf.sens, 0.25)
+    twin = dp.twin
+    monkeypatch.setattr(type(dp.detect), "undecided", lambda self, k: undecided)  # the team's, after the decision
+    before = _banks_of(dp)
+    dp._twin_decision(dec)
+    assert (dp.kf is twin) == (dec == SLOPE) and (dp.twin is None) == (not undecided)
+    got = _copy(before)
+    dyn, fs, sens = got[0], got[11], got[14]
+    ev = K.dyn_twin_decision(0, dec, undecided, dyn, fs, sens)
+    assert ev == (K.E_REPLACED if dec == SLOPE else 0)
+    _same_by_role(got, _banks_of(dp))

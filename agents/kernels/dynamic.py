@@ -18,7 +18,8 @@ Done (section 3's names):
     E_RESEED), :func:`dyn_reseed` (P2's restart once Python has fitted (omega, q)); C1
     :func:`hold_shape_check`, :func:`stage_wrench`, :func:`j_sign`, :func:`dither`; D1
     :func:`consensus_inputs`; D3 :func:`converged`; D4 :func:`dyn_predict`; D5 :func:`dyn_estimates`,
-    :func:`dyn_write_out` (``_shared`` and the flows into the OUT row, but the flood's slots).
+    :func:`dyn_write_out` (``_shared`` and the flows into the OUT row, but the flood's slots); P1's
+    :func:`dyn_twin_decision` (``_twin_decision`` as a slot swap; event E_REPLACED).
 
 Not done, next steps in this order:
   1. ``uncertainties``: it uses ``math.hypot`` (CPython's own algorithm, banned in kernels); switch the Python
@@ -28,8 +29,7 @@ Not done, next steps in this order:
      team_waiting = KINEMATIC and not ``barrier_complete``).
   3. B2's observers: the monitor (window_stats.py's kernel; it needs the kf's vc, omega, q before
      :func:`dyn_filter_update`) and the detection's ``observe`` (P1 or a kernel over ``DET``).
-  4. P1's ``_twin_decision`` as a slot swap (kf_slot = twin_slot, its sens zeroed) and P3 (``_law_wrench``,
-     Python) on the rows.
+  4. P3 (``_law_wrench``, Python) on the rows.
   5. Helper 7's half: the view (``DynamicView``: stage, m_local, reseeds, alpha, kf, avg, barrier, detect) over
      these rows, the event handlers, AgentCore calling the kernels in the order of ``DynamicPhase._step``
      (see the tests' ``_filter_update`` chain), then delete the Python maths, excitation.py and tick_records.
@@ -103,6 +103,7 @@ E_RESEED = 1  # the lock check asks for a restart on trial: P2 fits (omega, q_i)
 E_BACK = 2  # a trial went back to the old filter: the monitor resets and the detection's regime changes
 E_REGIME = 4  # a stage entered or the filter restarted: the detection's regime_change()
 E_M_START = 8  # the m stage entered: the detection's push_reverses(m_start + m_switch)
+E_REPLACED = 16  # the twin became the kf: the monitor resets, the detection's filter_replaced()
 SLOPE = 3  # agents/effect_decision.SLOPE (force_bias, EFFECTS order): the effect the slope's twin carries
 
 DYN = np.dtype([
@@ -782,6 +783,31 @@ def dyn_receive(b, k, v, lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia): 
 
 
 @jit
+def dyn_twin_decision(b, dec, slope_undecided, dyn, fs, sens):  # noqa: ANN001, ANN201
+    """The slope's twin after the team's decision ``dec`` (DynamicPhase._twin_decision; -1: none): the slope
+    switched on, the twin becomes the kf (an index swap), its sensitivities from zero as at a filter's start;
+    once the slope is decided (``slope_undecided`` False, read after the decision) it is dropped. Returns
+    E_REPLACED when the kf changed."""
+    r = dyn[b]
+    tw = r["twin_slot"]
+    if tw < 0:
+        return 0
+    ev = 0
+    if dec == SLOPE:
+        kf = r["kf_slot"]
+        if fs[b, kf]["has_sens"]:  # from zero, as at a filter's start
+            for i in range(fs[b, kf]["d"]):
+                for c in range(sens.shape[3]):
+                    sens[b, tw, i, c] = 0.0
+            fs[b, tw]["has_sens"] = True
+        r["kf_slot"] = tw
+        ev = E_REPLACED
+    if not slope_undecided:
+        r["twin_slot"] = -1
+    return ev
+
+
+@jit
 def dyn_write_out(b, row, lay, dyn, S, Fa, Ia):  # noqa: ANN001, ANN201
     """The dynamical slots of the agent's OUT row (net/rows.py; DynamicPhase._shared and its flows): the channels,
     the degree, the stage tick, psi (0 before it exists), the barrier's chunks, latest ready tick and switch
@@ -876,6 +902,7 @@ def warm() -> None:
     dyn_estimates(0, 3, dyn, Fa, s, np.zeros(len(ESTIMATES)))
     dyn_receive(0, 0, np.zeros(lay.size_in), lay.lay, dyn, dnb, nbr_mask, rx_order, psi_order, Fa, Ia)
     dyn_write_out(0, np.zeros(lay.size_out), lay.lay, dyn, S, Fa, Ia)
+    dyn_twin_decision(0, SLOPE, False, dyn, fs, sens)
     lock_check(0, 3, 0.1 + 0.2j, 0.3, 0.01, 0.0, 0.0, dyn, win, fs, s, P, sens, innov, sens_h)
     dyn_reseed(0, 3, 0.1 + 0.2j, 1 + 0j, 0.3, dyn, fs, s, P, sens, Qd, aug, innov, sens_h)
     hold_shape_check(0, 3, 1 + 0j, 1 + 0j, dyn, Fa, fs, s, P, Qd)
