@@ -1,15 +1,16 @@
-"""The dynamical phase's row kernels (agents/kernels/dynamic.py, work in progress): on inputs recorded from
-DynamicPhase in quick-dynamics runs (the phase's state copied into a bank row before and after each call of
-the method a kernel replaces), the kernel gives the Python's state bit for bit, compiled equals the same
-source interpreted (``py_func``), and a row's result does not depend on the batch it is in."""
+"""The dynamical phase's row kernels (agents/kernels/dynamic.py): on inputs recorded from the Python
+DynamicPhase they replaced (tests/dynamic_reference.py, frozen) in quick-dynamics runs (the phase's state
+copied into a bank row before and after each call of the method a kernel replaces), the kernel gives the
+Python's state bit for bit, compiled equals the same source interpreted (``py_func``), and a row's result
+does not depend on the batch it is in."""
 
 from __future__ import annotations
 
+import dynamic_reference as DP
 import numpy as np
 import pytest
 
-from agents import agent as agent_mod
-from agents import dynamic_phase as DP
+from agents import dynamic_phase as phase_mod
 from agents.effect_decision import SLOPE
 from agents.kernels import dynamic as K
 from agents.rigid_filter import RigidEKF
@@ -114,7 +115,7 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
             recs["advance"].append((before, (tick, v, omega_hat, phi, zi, trusted, om_init, slope), _banks_of(self)))
 
     rows: dict[int, tuple] = {}
-    orig_msg = agent_mod._dynamic_msg
+    orig_msg = DP._dynamic_msg
 
     def dynamic_msg(v, lay):  # noqa: ANN001, ANN202
         m = orig_msg(v, lay)
@@ -139,10 +140,12 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         return out
 
     sc = load_scenario("quick-dynamics", overrides)
+    live = phase_mod.DynamicPhase
     try:
         cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
         cls._consensus_inputs, cls._converged, cls._advance_stage, cls._receive = inputs, conv, advance, receive
-        agent_mod._dynamic_msg = dynamic_msg
+        DP._dynamic_msg = dynamic_msg
+        phase_mod.DynamicPhase = DP.DynamicPhase  # the team runs the reference
         cls._estimates = estimates
         RigidEKF.start = start
         plant = Plant(sc)
@@ -157,7 +160,8 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         for m, f in orig.items():
             setattr(cls, m, f)
         RigidEKF.start = orig_start
-        agent_mod._dynamic_msg = orig_msg
+        DP._dynamic_msg = orig_msg
+        phase_mod.DynamicPhase = live
     return recs
 
 
@@ -402,8 +406,9 @@ SPECS = {
 
 @pytest.mark.parametrize("spec", list(SPECS))
 def test_stage_wrench_and_dither_equal_the_python(spec):
-    from agents import excitation
     from config.agent_params import DynamicsSpec
+
+    excitation = DP  # the Python stage_wrench, j_sign and dither
 
     sp = DynamicsSpec(**SPECS[spec])
     dyn = np.zeros(1, K.DYN)
@@ -424,8 +429,9 @@ def test_stage_wrench_and_dither_equal_the_python(spec):
 
 def _phase(spec_kw: dict | None = None) -> DP.DynamicPhase:
     """Agent 1 of a line of 3, its filter started, in the kinematic stage with both neighbours heard."""
-    from agents.tick_records import DynamicMsg
     from config.agent_params import DynamicsSpec
+
+    DynamicMsg = DP.DynamicMsg
 
     dp = DP.DynamicPhase(1, [0, 2], 3, 0.01, 0.1, DynamicsSpec(**(spec_kw or {})))
     dp._advance_stage(0, 0.3 + 0.1j, 0.5, 0.2, 1.0 + 0.5j, False, True)
