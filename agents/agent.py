@@ -234,7 +234,7 @@ class AgentCore:
             self._fb = out.feedback
             stage = out.stage
             fx, fy, tau = out.wrench
-            taken = kin.inbox[:, (SENDER, TICK)].astype(np.int64).tolist()
+            taken = [(int(s), int(t)) for t, s in kin.inbox[:, TICK:SENDER + 1].tolist()]
             self._trust.observe(tick, stage, taken)  # type: ignore[union-attr]
             est = out.estimates
         self.stage = stage

@@ -96,6 +96,9 @@ class DynamicPhase:
         self._ids = np.array([ids], np.int64).reshape(1, len(ids))
         self._res = np.zeros((1, T.NR))
         self._est = np.zeros((1, len(K.ESTIMATES)))
+        self._res[0, T.R_M_SD] = self._res[0, T.R_J_SD] = math.nan
+        self._last = self._res[0].tolist()  # the last tick's results
+        self._nx_order: list[int] = []
         self.lay = Layout(True, nch, self.nbk, spec.online_detection, len(ids))
         self._on = 3 | int(self._r["declared"])  # the effects in the model without online detection
         # innovation monitor (report-only), fed from the filter's restart at kinematic readiness on
@@ -172,32 +175,30 @@ class DynamicPhase:
         while T.dyn_tick(self._rows, at, self._kin, inbox, self._in_ptr, self._late_t, self._late_z, self.lay.lay,
                          self._ids, self._res, out, self._est, *self._banks):
             p = int(at[0])
-            ev = int(self._res[0, T.R_EV])
+            res = self._res[0].tolist()
+            ev = int(res[T.R_EV])
             if p == T.AT_UPDATE:
                 self._detection(kin.tick, ev)
                 continue
             if not observed:
                 observed = True
-                self._observe()
+                self._observe(res)
             self._events(ev)
             if p == T.AT_CONTROL:
-                self._reseed(kin.tick, v, zi, kin.omega)
+                self._reseed(kin.tick, v, zi, kin.omega, res)
             else:
-                self._law_wrench(kin.tick, v)
+                self._law_wrench(kin.tick, v, res)
+        self._last = res = self._res[0].tolist()
         if not observed:
-            self._observe()
-        res = self._res[0].tolist()
+            self._observe(res)
         self._events(int(res[T.R_EV]))
-        stage = int(self._r["stage"])
         if det is not None:
             s, e, z = det.flood.best
             ds = self.lay.ds
-            out_row[ds] = float(s)
-            out_row[ds + 1] = float(e)
-            out_row[ds + 2] = z if z == z else 0.0
+            out_row[ds:ds + 3] = (float(s), float(e), z if z == z else 0.0)
         return DynamicOut(
             wrench=(res[T.R_FX], res[T.R_FY], res[T.R_TAU]),
-            stage=stage,
+            stage=int(res[T.R_STAGE]),
             estimates=dict(zip(K.ESTIMATES, self._est[0].tolist(), strict=True)),
             feedback=DynamicFeedback(res[T.R_OM_MEAS], res[T.R_ALPHA], res[T.R_HOLD] != 0.0, res[T.R_WAITING] != 0.0),
         )
@@ -222,20 +223,18 @@ class DynamicPhase:
             if self.detect is not None:
                 self.detect.regime_change()
 
-    def _observe(self) -> None:
+    def _observe(self, res: list[float]) -> None:
         """The monitor's and the detection's observation of the kf's update (if the kernel ran it for them)."""
-        res = self._res[0]
         if res[T.R_OBS] == 0.0:
             return
-        k = int(res[T.R_KF0])
-        innov = self._fbank[6][0, k]
+        e0, e1, s00, s01, s11 = res[T.R_INNOV:T.R_INNOV + 5]
         if self.monitor is not None:
-            e0, e1, s00, s01, s11 = innov.tolist()
-            r = res.tolist()
-            self.monitor.observe(complex(e0, e1), s00, s01, s11, complex(r[T.R_VC0], r[T.R_VC0 + 1]), r[T.R_OM0],
-                                 complex(r[T.R_Q0], r[T.R_Q0 + 1]), complex(r[T.R_LF], r[T.R_LF + 1]))
+            self.monitor.observe(complex(e0, e1), s00, s01, s11, complex(res[T.R_VC0], res[T.R_VC0 + 1]),
+                                 res[T.R_OM0], complex(res[T.R_Q0], res[T.R_Q0 + 1]),
+                                 complex(res[T.R_LF], res[T.R_LF + 1]))
         if self.detect is not None:
-            self.detect.observe(innov, self._fbank[7][0, k])
+            k = int(res[T.R_KF0])
+            self.detect.observe(self._fbank[6][0, k], self._fbank[7][0, k])
 
     def _detection(self, tick: int, ev: int) -> None:
         """P1: the stage's events for the detection, its window and the team's decision applied to the filters,
@@ -255,7 +254,7 @@ class DynamicPhase:
             det.filter_replaced()
         self._kin[0, T.K_ON] = det.on
 
-    def _reseed(self, tick: int, v: complex, zi: complex, omega_hat: float) -> None:
+    def _reseed(self, tick: int, v: complex, zi: complex, omega_hat: float, res: list[float]) -> None:
         """P2: restart, on trial, the filter that seems to have lost lock: (omega, q_i) fitted to the own contact
         velocities of the last window (:func:`fit_rotation`; before it is full, the neighbours' omega_hat and
         the kinematic z_i + z_C), 1/m and 1/J forgotten: where half the team has lost lock the neighbours'
@@ -266,7 +265,6 @@ class DynamicPhase:
         dnb = self._dnb[0]
         oms = [float(dnb[k]["om"]) for k in range(len(self.nbr_ids)) if dnb[k]["has_om"]]
         om0 = statistics.median(oms) if oms else omega_hat
-        res = self._res[0].tolist()
         x = self._F[0, X].tolist()
         zc = complex(x[CH_ZX], x[CH_ZY]) * complex(res[T.R_ROT], res[T.R_ROT + 1])
         q0 = zi + zc if zc == zc else zi
@@ -288,12 +286,10 @@ class DynamicPhase:
         if self.detect is not None:
             self.detect.restart_filter(self.kf)
 
-    def _law_wrench(self, tick: int, v: complex) -> None:
+    def _law_wrench(self, tick: int, v: complex, r: list[float]) -> None:
         """P3: the user's law with this tick's estimates (agents/laws.py); its output is checked here, at the edge,
         and replaces the stage's wrench in the kernel's results."""
         x = self._F[0, X].tolist()
-        res = self._res[0]
-        r = res.tolist()
         q = complex(r[T.R_Q], r[T.R_Q + 1])
         zc = complex(r[T.R_ZC], r[T.R_ZC + 1])
         li = LawInput()
@@ -319,7 +315,7 @@ class DynamicPhase:
         except Exception as exc:  # the user's code: one line naming it, where and when, not a bare traceback
             raise ControlLawError(f"control.law {self.law_ref!r} raised {type(exc).__name__}: {exc} at tick {tick} "
                                   f"(agent {self.id})") from exc
-        res[T.R_FX:T.R_TAU + 1] = checked_wrench(out, self.law_ref, tick, self.id)
+        self._res[0, T.R_FX:T.R_TAU + 1] = checked_wrench(out, self.law_ref, tick, self.id)
 
     # ------------------------------------------------------------------ outputs
     def monitor_entries(self) -> dict[str, float]:
@@ -332,11 +328,19 @@ class DynamicPhase:
         """One standard deviation of the m and J consensus values (NaN while there is none): the filter's sd
         of the own local value and the spread to the neighbours' values that the averaging has not removed,
         in quadrature (docs/estimate-trust.md)."""
+        r = self._last
         x = self._F[0, X].tolist()
-        D = (self._F.shape[1] - FLOW) // 3
-        nx = [self._F[0, FLOW + 2 * D + k].tolist() for k in self._rx_order[0, :self._r["rx_n"]]]
+        n = int(r[T.R_RX_N])
+        if n != len(self._nx_order):  # the neighbours heard so far, in first-heard order
+            self._nx_order = self._rx_order[0, :n].tolist()
+        if n:
+            D = len(self.nbr_ids)
+            xs = self._F[0, FLOW + 2 * D:FLOW + 3 * D].tolist()
+            nx = [xs[k] for k in self._nx_order]
+        else:
+            nx = []
         out = []
-        for num, wch, sd in ((CH_MN, CH_MW, self.m_local_sd), (CH_JN, CH_JW, self.j_local_sd)):
+        for num, wch, sd in ((CH_MN, CH_MW, r[T.R_M_SD]), (CH_JN, CH_JW, r[T.R_J_SD])):
             if x[wch] <= 0.0:
                 out.append(math.nan)
                 continue

@@ -35,10 +35,13 @@ AT_BEGIN, AT_UPDATE, AT_CONTROL, AT_FINISH, AT_END = range(5)
 NK = 16
 # the tick's results, res[b, :]: events; whether the observers (monitor, detection) see this update and the kf
 # slot they read; the kf's vc, omega, q before the update and the own force of the last prediction; e^{i psi};
-# q_i and z_C (world); the wrench; the stage's tick k; the feedback (agents/tick_records.DynamicFeedback order)
+# q_i and z_C (world); the wrench; the stage's tick k; the feedback (agents/tick_records.DynamicFeedback order);
+# the kf's innovation (e0, e1, s00, s01, s11) for the observers; the stage after the tick; the sd of m_local and
+# J_local and the neighbours heard (the uncertainties' inputs)
 (R_EV, R_OBS, R_KF0, R_VC0, R_OM0, R_Q0, R_LF, R_ROT, R_Q, R_ZC, R_FX, R_FY, R_TAU, R_K, R_OM_MEAS, R_ALPHA, R_HOLD,
- R_WAITING) = (0, 1, 2, 3, 5, 6, 8, 10, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23)
-NR = 24
+ R_WAITING, R_INNOV, R_STAGE, R_M_SD, R_J_SD, R_RX_N) = (0, 1, 2, 3, 5, 6, 8, 10, 12, 14, 16, 17, 18, 19, 20, 21, 22,
+                                                        23, 24, 29, 30, 31, 32)
+NR = 33
 
 
 @jit
@@ -93,6 +96,9 @@ def _update(b, kin, res, dyn, dnb, psi_order, cum, cum_t, win, Ia, fs, s, P, sen
     res[b, R_ROT + 1] = rot.imag
     u_var, u_dc, u_dw = K.dyn_filter_update(b, tick, v, u, kr[K_UDEN], dyn, cum, cum_t, fs, s, P, sens, innov,
                                             sens_h)
+    if obs:
+        for i in range(5):
+            res[b, R_INNOV + i] = innov[b, kf, i]
     ev = K.lock_check(b, tick, v, u, u_var, u_dc, u_dw, dyn, win, fs, s, P, sens, innov, sens_h)
     res[b, R_EV] = float(int(res[b, R_EV]) | ev)
     return ev
@@ -158,6 +164,10 @@ def _finish(b, kin, res, out, est, lay, dyn, S, Fa, Ia, cum, cum_t, fs, s, P, se
     res[b, R_ALPHA] = r["alpha"]
     res[b, R_HOLD] = 1.0 if r["has_q_held"] else 0.0
     res[b, R_WAITING] = 1.0 if r["stage"] == K.KINEMATIC and not barrier_complete(b, S) else 0.0
+    res[b, R_STAGE] = float(r["stage"])
+    res[b, R_M_SD] = r["m_local_sd"]
+    res[b, R_J_SD] = r["j_local_sd"]
+    res[b, R_RX_N] = float(r["rx_n"])
 
 
 @jit
