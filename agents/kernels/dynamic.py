@@ -1,42 +1,21 @@
-"""The dynamical phase (agents/dynamic_phase.py) as row kernels over a leading agent axis: layouts and kernels.
+"""The dynamical phase as row kernels over a leading agent axis: layouts and kernels (docs/fast-core-plan.md, S6).
 
-WORK IN PROGRESS (slice S6 of docs/fast-core-plan.md): not wired into AgentCore; DynamicPhase still runs and is
-still the one implementation. Every kernel below is tested bit for bit against the DynamicPhase method it
-replaces, on calls recorded from quick-dynamics runs (fault-free; 2-tick links with online detection and
-friction; restarts on trial and braking; Algorithm 2 with effects), compiled == ``py_func``, batch 1 == batch
-n (tests/test_dynamic_kernels.py).
+agents/kernels/dynamic_step.py fuses them into the tick :class:`agents.dynamic_phase.DynamicPhase` runs (one
+compiled call per stretch between its Python handlers); each kernel is tested bit for bit against the Python
+method it replaced (tests/dynamic_reference.py, frozen) on calls recorded from quick-dynamics runs, compiled ==
+``py_func``, batch 1 == batch n (tests/test_dynamic_kernels.py).
 
-Done (section 3's names):
-  * layouts: ``DYN`` (B,), ``DNB`` (B, D) and the arrays of section 1.3 (:func:`new_dyn_bank`, :func:`new_banks`),
-    :func:`init_dyn_row` (DynamicPhase.__init__), :func:`load_row` (a live DynamicPhase into row b: the
-    tests' recorder, and the bridge for a view). The barrier is agreement.py's ``S`` row (S3a's kernels,
-    taken from branch s3a), not ``DYN.bar_*``.
-  * A3 :func:`dyn_receive` (``_receive`` from the IN row; the flooded decision stays the caller's),
-    :func:`note_late`; A6 :func:`dyn_advance_stage` (``_advance_stage``/``_enter``/``_advance``; events
-    E_REGIME, E_M_START for the detection; input ``slope_undecided``); B1 :func:`body_frame`; B2
-    :func:`dyn_filter_update` (up to the monitor); B3 :func:`lock_check` (+ ``_judge``, event E_BACK,
-    E_RESEED), :func:`dyn_reseed` (P2's restart once Python has fitted (omega, q)); C1
-    :func:`hold_shape_check`, :func:`stage_wrench`, :func:`j_sign`, :func:`dither`; D1
-    :func:`consensus_inputs`; D3 :func:`converged`; D4 :func:`dyn_predict`; D5 :func:`dyn_estimates`,
-    :func:`dyn_write_out` (``_shared`` and the flows into the OUT row, but the flood's slots); P1's
-    :func:`dyn_twin_decision` (``_twin_decision`` as a slot swap; event E_REPLACED).
+Contents (section 3's names): the layouts ``DYN`` (B,), ``DNB`` (B, D) and the arrays of section 1.3
+(:func:`new_dyn_bank`, :func:`new_banks`), :func:`init_dyn_row`, :func:`load_row` (a Python phase into row b: the
+tests' recorder); A3 :func:`dyn_receive`, :func:`note_late`; A6 :func:`dyn_advance_stage` (events E_REGIME,
+E_M_START for the detection); B1 :func:`body_frame`; B2 :func:`dyn_filter_update`; B3 :func:`lock_check`
+(E_BACK, E_RESEED), :func:`dyn_reseed` (P2's restart once Python has fitted (omega, q)); C1
+:func:`hold_shape_check`, :func:`stage_wrench`, :func:`j_sign`, :func:`dither`; D1 :func:`consensus_inputs`; D3
+:func:`converged`; D4 :func:`dyn_predict`; D5 :func:`dyn_estimates`, :func:`dyn_write_out`; P1's
+:func:`dyn_twin_decision` (E_REPLACED). The barrier is agreement.py's ``S`` row.
 
-Not done, next steps in this order:
-  1. ``uncertainties``: it uses ``math.hypot`` (CPython's own algorithm, banned in kernels); switch the Python
-     to ``abs(complex(sd, s))`` first (S0's rule; m_sd/J_sd change in the last bits, report-only: say so in
-     the commit) and port ``spread_sd`` over ``rx_order`` (its ``** 2`` as ``pow_libm``).
-  2. The OUT row's flood slots (Ds/De/Dz, from ``DET``), and the feedback (om_meas, alpha, q held,
-     team_waiting = KINEMATIC and not ``barrier_complete``).
-  3. B2's observers: the monitor (window_stats.py's kernel; it needs the kf's vc, omega, q before
-     :func:`dyn_filter_update`) and the detection's ``observe`` (P1 or a kernel over ``DET``).
-  4. P3 (``_law_wrench``, Python) on the rows.
-  5. Helper 7's half: the view (``DynamicView``: stage, m_local, reseeds, alpha, kf, avg, barrier, detect) over
-     these rows, the event handlers, AgentCore calling the kernels in the order of ``DynamicPhase._step``
-     (see the tests' ``_filter_update`` chain), then delete the Python maths, excitation.py and tick_records.
-     Dispatch: at a batch of one each call costs 1-3 us and a record argument ~1 us more; chain the kernels
-     into as few calls as the event points allow (one before P1, one P1 -> P3, one after P3).
-  The recordings reach neither ``_judge`` keeping a restart nor the jump to a neighbour two stages ahead:
-  synthetic tests cover both.
+Still Python (DynamicPhase): ``uncertainties`` (its ``math.hypot``), the OUT row's flood slots, the innovation
+monitor's and the detection's observations, P1-P3.
 
 Banks. The consensus channels are agreement.py's flow-average bank ``(F, I)`` (channel values x at ``F[b, X]``,
 the degrees in ``I``); the filters are a filter.py bank of 3 slots per agent, ``DYN.kf_slot``,
