@@ -182,9 +182,10 @@ def _chunks(mask: int, nbk: int) -> list[int]:
 
 
 def load_row(dp, banks: tuple, b: int) -> None:  # noqa: ANN001
-    """Copies the state of DynamicPhase ``dp`` into row b of ``banks`` (:func:`new_banks`: dyn, dnb, nbr_mask,
-    rx_order, psi_order, cum, cum_t, win, the flow average's F, I, then the 8 arrays of a 3-slot filter bank).
-    The parameters come from :func:`init_dyn_row`, called here first."""
+    """Copies the state of a Python phase ``dp`` (tests/dynamic_reference.py, the tests' recorder) into row b of
+    ``banks`` (:func:`new_banks`: dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, win, the flow average's
+    F, I, then the 8 arrays of a 3-slot filter bank). The parameters come from :func:`init_dyn_row`, called
+    here first."""
     dyn, dnb, nbr_mask, rx_order, psi_order, cum, cum_t, win, S, Fa, Ia = banks[:11]
     fbank = banks[11:]
     init_dyn_row(dyn, b, dp.n, dp.dt, dp.sigma_v, dp.spec, dp.hist, dp.law is not None, S, dp.id)
