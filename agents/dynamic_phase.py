@@ -28,7 +28,7 @@ from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.kernels import dynamic as K
 from agents.kernels import dynamic_step as T
 from agents.kernels import filter as F
-from agents.kernels.agreement import DEG, FLOW, SBITS, SWITCH, TMAX, U, X
+from agents.kernels.agreement import DEG, FLOW, HORIZON, SBITS, SWITCH, TMAX, U, X
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation, init_slot
 from agents.stage_agreement import MASK_BITS, StageBarrier, mask_keys
@@ -142,7 +142,7 @@ class DynamicPhase:
     def barrier(self) -> StageBarrier:
         """The stage barrier (a copy of its row)."""
         S = self._S[0].tolist()
-        bar = StageBarrier(self.id, self.n, 1)
+        bar = StageBarrier(self.id, self.n, S[HORIZON])
         bar.mask = sum(int(c) << (k * MASK_BITS) for k, c in enumerate(S[SBITS:]))
         bar.tmax, bar.switch = S[TMAX], S[SWITCH]
         return bar
