@@ -23,12 +23,11 @@ import numpy as np
 
 from agents.consensus import FlowAverage
 from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
-from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.kernels import dynamic as K
 from agents.kernels import dynamic_step as T
 from agents.kernels import filter as F
-from agents.kernels.agreement import DEG, FLOW, HORIZON, SBITS, SWITCH, TMAX, U, X
+from agents.kernels.agreement import DEG, HORIZON, SBITS, SWITCH, TMAX, U, X
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation, init_slot
 from agents.stage_agreement import MASK_BITS, StageBarrier, mask_keys
@@ -98,7 +97,6 @@ class DynamicPhase:
         self._est = np.zeros((1, len(K.ESTIMATES)))
         self._res[0, T.R_M_SD] = self._res[0, T.R_J_SD] = math.nan
         self._last = self._res[0].tolist()  # the last tick's results
-        self._nx_order: list[int] = []
         self.lay = Layout(True, nch, self.nbk, spec.online_detection, len(ids))
         self._on = 3 | int(self._r["declared"])  # the effects in the model without online detection
         # innovation monitor (report-only), fed from the filter's restart at kinematic readiness on
@@ -325,25 +323,7 @@ class DynamicPhase:
         return out
 
     def uncertainties(self) -> tuple[float, float]:
-        """One standard deviation of the m and J consensus values (NaN while there is none): the filter's sd
-        of the own local value and the spread to the neighbours' values that the averaging has not removed,
-        in quadrature (docs/estimate-trust.md)."""
-        r = self._last
-        x = self._F[0, X].tolist()
-        n = int(r[T.R_RX_N])
-        if n != len(self._nx_order):  # the neighbours heard so far, in first-heard order
-            self._nx_order = self._rx_order[0, :n].tolist()
-        if n:
-            D = len(self.nbr_ids)
-            xs = self._F[0, FLOW + 2 * D:FLOW + 3 * D].tolist()
-            nx = [xs[k] for k in self._nx_order]
-        else:
-            nx = []
-        out = []
-        for num, wch, sd in ((CH_MN, CH_MW, r[T.R_M_SD]), (CH_JN, CH_JW, r[T.R_J_SD])):
-            if x[wch] <= 0.0:
-                out.append(math.nan)
-                continue
-            s = spread_sd(x[num] / x[wch], (xj[num] / xj[wch] for xj in nx if xj[wch] > 0.0))
-            out.append(abs(complex(sd if sd == sd else 0.0, s)))  # libm's hypot, as in the kernels
-        return out[0], out[1]
+        """One standard deviation of the m and J consensus values after the last tick (NaN while there is none):
+        the filter's sd of the own local value and the spread to the neighbours' values that the averaging has
+        not removed, in quadrature (docs/estimate-trust.md; computed by the tick's kernel)."""
+        return self._last[T.R_M_SD], self._last[T.R_J_SD]

@@ -756,7 +756,7 @@ class DynamicPhase:
                 out.append(math.nan)
                 continue
             s = spread_sd(x[num] / x[wch], (xj[num] / xj[wch] for xj in nx if xj[wch] > 0.0))
-            out.append(math.hypot(sd if sd == sd else 0.0, s))
+            out.append(abs(complex(sd if sd == sd else 0.0, s)))  # libm's hypot, as in the kernels
         return out[0], out[1]
 
     def _shared(self) -> dict[str, float]:

@@ -13,7 +13,7 @@ at; the caller runs the handler of that point and calls again for the rows not a
 * ``AT_CONTROL``: the shape hold, the stage's wrench; under the user's law (done or background stage) it stops
   at ``AT_FINISH``: P3 writes the law's wrench into ``res[b, R_FX:R_TAU + 1]``.
 * ``AT_FINISH``: the dither, the consensus inputs and update, the averaging stages' readiness, the
-  prediction, the OUT row's dynamical slots, the estimates and the feedback.
+  prediction, the OUT row's dynamical slots, the estimates, the feedback and the sd of m and J.
 
 ``res[b, R_EV]`` accumulates the events (dynamic.py's ``E_*``) of the points run since the row's call began.
 """
@@ -25,6 +25,7 @@ import numpy as np
 from agents.kernels import dynamic as K
 from agents.kernels import jit, register_warm
 from agents.kernels.agreement import barrier_complete, barrier_set_ready, flow_average_update
+from agents.kernels.uncertainty import uncertainties
 from net.rows import PHASE, SENDER, Layout
 
 AT_BEGIN, AT_UPDATE, AT_CONTROL, AT_FINISH, AT_END = range(5)
@@ -36,12 +37,12 @@ NK = 16
 # the tick's results, res[b, :]: events; whether the observers (monitor, detection) see this update and the kf
 # slot they read; the kf's vc, omega, q before the update and the own force of the last prediction; e^{i psi};
 # q_i and z_C (world); the wrench; the stage's tick k; the feedback (agents/tick_records.DynamicFeedback order);
-# the kf's innovation (e0, e1, s00, s01, s11) for the observers; the stage after the tick; the sd of m_local and
-# J_local and the neighbours heard (the uncertainties' inputs)
+# the kf's innovation (e0, e1, s00, s01, s11) for the observers; the stage after the tick; the sd of m and J
+# (agents/kernels/uncertainty.py)
 (R_EV, R_OBS, R_KF0, R_VC0, R_OM0, R_Q0, R_LF, R_ROT, R_Q, R_ZC, R_FX, R_FY, R_TAU, R_K, R_OM_MEAS, R_ALPHA, R_HOLD,
- R_WAITING, R_INNOV, R_STAGE, R_M_SD, R_J_SD, R_RX_N) = (0, 1, 2, 3, 5, 6, 8, 10, 12, 14, 16, 17, 18, 19, 20, 21, 22,
-                                                        23, 24, 29, 30, 31, 32)
-NR = 33
+ R_WAITING, R_INNOV, R_STAGE, R_M_SD, R_J_SD) = (0, 1, 2, 3, 5, 6, 8, 10, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23, 24,
+                                                29, 30, 31)
+NR = 32
 
 
 @jit
@@ -128,7 +129,7 @@ def _control(b, kin, res, dyn, Fa, fs, s, P, Qd):  # noqa: ANN001, ANN202
 
 
 @jit
-def _finish(b, kin, res, out, est, lay, dyn, S, Fa, Ia, cum, cum_t, fs, s, P, sens, Qd, aug):  # noqa: ANN001, ANN202
+def _finish(b, kin, res, out, est, lay, dyn, rx_order, S, Fa, Ia, cum, cum_t, fs, s, P, sens, Qd, aug):  # noqa: ANN001, ANN202
     r = dyn[b]
     kr = kin[b]
     tick = int(kr[K_TICK])
@@ -165,9 +166,9 @@ def _finish(b, kin, res, out, est, lay, dyn, S, Fa, Ia, cum, cum_t, fs, s, P, se
     res[b, R_HOLD] = 1.0 if r["has_q_held"] else 0.0
     res[b, R_WAITING] = 1.0 if r["stage"] == K.KINEMATIC and not barrier_complete(b, S) else 0.0
     res[b, R_STAGE] = float(r["stage"])
-    res[b, R_M_SD] = r["m_local_sd"]
-    res[b, R_J_SD] = r["j_local_sd"]
-    res[b, R_RX_N] = float(r["rx_n"])
+    m_sd, j_sd = uncertainties(b, Fa, rx_order, r["m_local_sd"], r["j_local_sd"])
+    res[b, R_M_SD] = m_sd
+    res[b, R_J_SD] = j_sd
 
 
 @jit
@@ -207,7 +208,7 @@ def dyn_tick(rows, at, kin, inbox, in_ptr, late_t, late_z, lay, ids, res, out, e
                 left += 1
                 continue
         if p == AT_FINISH:
-            _finish(b, kin, res, out, est, lay, dyn, S, Fa, Ia, cum, cum_t, fs, s, P, sens, Qd, aug)
+            _finish(b, kin, res, out, est, lay, dyn, rx_order, S, Fa, Ia, cum, cum_t, fs, s, P, sens, Qd, aug)
             p = AT_END
         at[b] = p
     return left
