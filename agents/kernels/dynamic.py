@@ -14,8 +14,8 @@ E_M_START for the detection); B1 :func:`body_frame`; B2 :func:`dyn_filter_update
 :func:`converged`; D4 :func:`dyn_predict`; D5 :func:`dyn_estimates`, :func:`dyn_write_out`; P1's
 :func:`dyn_twin_decision` (E_REPLACED). The barrier is agreement.py's ``S`` row.
 
-Still Python (DynamicPhase): ``uncertainties`` (its ``math.hypot``), the OUT row's flood slots, the innovation
-monitor's and the detection's observations, P1-P3.
+Still Python (DynamicPhase): the OUT row's flood slots, the innovation monitor's and the detection's
+observations, P1-P3 (the sd of m and J is agents/kernels/uncertainty.py's, called by dynamic_step.py).
 
 Banks. The consensus channels are agreement.py's flow-average bank ``(F, I)`` (channel values x at ``F[b, X]``,
 the degrees in ``I``); the filters are a filter.py bank of 3 slots per agent, ``DYN.kf_slot``,
