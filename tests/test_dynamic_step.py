@@ -1,5 +1,5 @@
 """The fused tick of the dynamical phase (agents/kernels/dynamic_step.py): on its calls recorded from
-quick-dynamics runs (every stop for a Python handler included: the detection, a restart's fit), compiled
+quick-dynamics runs (every stop for a Python handler included: the detection, a restart's fit, a law), compiled
 equals the same source interpreted (``py_func``) bit for bit, and two agents' rows in one call give each
 the bits of its own call."""
 
@@ -17,6 +17,7 @@ SCENARIOS = {
     "quick-dynamics": ([], 1),
     "online": (["duration=16", "plant.friction.viscous=5", "dynamics.online_detection=true"], 2),
     "lock": (["dynamics.lock_nis=1.8", "dynamics.lock_hold_s=0.5", "dynamics.brake=0.5"], 1),
+    "law": (['control.law="agents.laws:TrackVelocity"', "control.law_params={v_ref=[0.3, 0.0], omega_ref=0.0}"], 1),
 }
 
 
@@ -73,6 +74,8 @@ def test_the_recording_covers_the_stops(recs):
         assert T.AT_UPDATE in stops and T.AT_UPDATE in starts  # P1 every tick
     if name == "lock":
         assert T.AT_CONTROL in stops and T.AT_CONTROL in starts  # P2's restarts
+    if name == "law":
+        assert T.AT_FINISH in stops and T.AT_FINISH in starts  # P3 from the done stage on
     assert T.AT_END in stops
 
 
