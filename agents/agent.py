@@ -46,29 +46,15 @@ from agents.kernels.kinematic import (
 from agents.kernels.pair import pair_bank, pair_checkpoints
 from agents.laws import LawInput
 from agents.pair_estimator import PairEstimator
-from agents.stage_agreement import MASK_BITS
-from agents.tick_records import DynamicFeedback, DynamicMsg, KinematicTick
+from agents.tick_records import DynamicFeedback, KinematicTick
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
-from net.rows import C0, OM, PAIR_HEAD, PHASE, SENDER, TICK, Layout, row_values
+from net.rows import OM, PAIR_HEAD, PHASE, SENDER, TICK, VX, VY, YY, Layout, row_values, state_from_row
 from net.vocabulary import ESTIMATE_NAMES, KINEMATIC, SPINUP
 
 _DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
 _NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)
 
-
-def _dynamic_msg(v: list[float], lay: Layout) -> DynamicMsg:
-    """A neighbour's dynamical states from its IN row's values (net/rows.py row_values), whose status
-    says they were decoded and checked."""
-    nch = lay.nch
-    mask = 0
-    for c in range(lay.nbk):
-        mask |= int(v[lay.b0 + c]) << (c * MASK_BITS)
-    p = lay.p0 + PAIR_HEAD
-    ds = lay.ds
-    dec = (int(v[ds]), int(v[ds + 1]), v[ds + 2]) if lay.detection else None
-    return DynamicMsg(int(v[SENDER]), int(v[TICK]), int(v[PHASE]), v[lay.ps], int(v[lay.dg]), v[C0:C0 + nch],
-                      v[p:p + nch], (mask, int(v[lay.bt]), int(v[lay.bs])), int(v[lay.sk]), v[OM], dec)
 
 @dataclass(frozen=True, slots=True)
 class StepResult:
@@ -118,7 +104,7 @@ class AgentCore:
                                         dynamics.trust_alpha, tail)
             self._dyn = dyn = dynamic_phase.DynamicPhase(self.id, ids, self.n, self.dt, sig, dynamics,
                                                          estimator.history_ticks, law=law, law_ref=control.law)
-            self._lay = Layout(True, dyn.avg.nch, len(dyn.barrier.mask_keys), dyn.detect is not None, len(ids))
+            self._lay = dyn.lay
         else:
             self._lay = Layout(False, 0, 0, False, len(ids))
         # the kinematic phase: a bank of one agent (agents/kernels/kinematic.py) and its pair estimators
@@ -138,6 +124,13 @@ class AgentCore:
         self._no_rows = np.zeros((0, self._lay.size_in))
         self._in_ptr = np.zeros(2, np.int64)
         self._res = np.zeros((1, R_PAIRS + 4 * len(ids)))
+        # the agent's OUT row (net/rows.py): the header and the kinematic slots written here, then the
+        # dynamical phase's; ``_heads``: each pair block's zx, zy, Fx, Fy, in the kernel's results' order
+        lay = self._lay
+        self._out = np.zeros(lay.size_out)
+        self._out[SENDER] = self.id
+        self._heads = np.array([lay.p0 + k * lay.block + c for k in range(len(ids)) for c in range(PAIR_HEAD)],
+                               np.int64)
         self._grow(0)
 
     def _grow(self, n: int) -> None:
@@ -205,7 +198,7 @@ class AgentCore:
         nl = int(r[R_NLATE])
         late = tuple(zip(self._late_t[0, :nl].tolist(), self._late_z[0, :nl].tolist(), strict=True)) if nl else ()
         na = int(r[R_NACC])
-        dyn_in = tuple(_dynamic_msg(vals[e], lay) for e in self._acc[:na].tolist()) if na else ()
+        dyn_in = rows[self._acc[:na]] if na else self._no_rows
         p = R_PAIRS
         pairs = tuple((j, complex(r[p + 4 * k], r[p + 4 * k + 1]), complex(r[p + 4 * k + 2], r[p + 4 * k + 3]))
                       for k, j in enumerate(self._nbr_ids))
@@ -224,25 +217,31 @@ class AgentCore:
         on recorded ticks)."""
         dyn = self._dyn
         kin = self._kinematic(tick, vx, vy, inbox)
-        shared = {"om": kin.omega, "oi": 1.0 if kin.om_init else 0.0, "ph": kin.phi, "yx": kin.y.real, "yy": kin.y.imag}
+        o = self._out
+        o[TICK] = tick
+        o[VX] = vx
+        o[VY] = vy
+        y = kin.y
+        o[OM:YY + 1] = (kin.omega, 1.0 if kin.om_init else 0.0, kin.phi, y.real, y.imag)
+        o[self._heads] = self._res[0, R_PAIRS:]
         if dyn is None:
             stage = KINEMATIC if kin.om_init else SPINUP
+            o[PHASE] = stage
             fx, fy, tau = kin.wrench
-            pairs = {j: (z.real, z.imag, f.real, f.imag) for j, z, f in kin.pairs}
             est = None
         else:
-            out = dyn.step(kin)
+            out = dyn.step(kin, o)
             self._fb = out.feedback
             stage = out.stage
             fx, fy, tau = out.wrench
-            shared.update(out.shared)
-            pairs = {j: (z.real, z.imag, f.real, f.imag, *out.flows[j]) for j, z, f in kin.pairs}
-            self._trust.observe(tick, stage, [(m.sender, m.tick) for m in kin.inbox])  # type: ignore[union-attr]
+            taken = [(int(s), int(t)) for t, s in kin.inbox[:, TICK:SENDER + 1].tolist()]
+            self._trust.observe(tick, stage, taken)  # type: ignore[union-attr]
             est = out.estimates
         self.stage = stage
+        state = state_from_row(o, self._lay, self._nbr_ids)
         # what the estimate of this tick needs beyond the phases' state, which the next advance changes
-        self._last = (tick, kin, est, pairs)
-        return StateMsg(tick, self.id, vx, vy, stage, shared, pairs), Wrench(tick, self.id, fx, fy, tau)
+        self._last = (tick, kin, est, state.pair)
+        return state, Wrench(tick, self.id, fx, fy, tau)
 
     def estimate(self) -> Estimate:
         """The estimate of the last :meth:`advance`'s tick (valid until the next advance)."""

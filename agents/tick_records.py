@@ -1,14 +1,16 @@
 """The records one agent tick passes between its kinematic and dynamical phases (docs/agent-step.md).
 
 :class:`KinematicTick` goes from the kinematic phase to the dynamical phase, :class:`DynamicOut` back
-to the agent, and its :class:`DynamicFeedback` into the kinematic phase of the next tick. Nothing else
-crosses: neither phase reads the other's fields.
+to the agent (the phase's states go into the agent's OUT row), and its :class:`DynamicFeedback` into the
+kinematic phase of the next tick. Nothing else crosses: neither phase reads the other's fields.
 """
 
 from __future__ import annotations
 
 import math
 from typing import Any, NamedTuple
+
+import numpy as np
 
 
 class DynamicFeedback(NamedTuple):
@@ -18,22 +20,6 @@ class DynamicFeedback(NamedTuple):
     alpha: float = 0.0  # modelled angular acceleration, fed forward into omega_hat (rad/s^2)
     hold_shape: bool = False  # z_i is held: the load may stop turning, and z_i is observable only while it turns
     team_waiting: bool = False  # kinematic stage and some agent not ready yet (the omega boost applies)
-
-
-class DynamicMsg(NamedTuple):
-    """A neighbour's dynamical-phase states of one message, decoded and checked (``DynamicPhase.decode``)."""
-
-    sender: int
-    tick: int
-    stage: int
-    psi: float  # its body-frame angle of the consensus on body-fixed vectors
-    deg: int  # its degree (Metropolis weights)
-    x: list[float]  # its consensus channels
-    flows: list[float]  # its flows to us
-    barrier: tuple[int, int, int]  # (ready mask, latest ready tick, switch tick)
-    stage_tick: int  # tick its stage began
-    omega_hat: float  # its kinematic omega_hat (NaN if absent)
-    decision: tuple[int, int, float] | None = None  # its flooded effect switch (online detection only)
 
 
 class KinematicTick(NamedTuple):
@@ -53,7 +39,7 @@ class KinematicTick(NamedTuple):
     ready: int  # neighbours whose z_ij is estimated
     trusted: bool  # every pair estimated
     wrench: tuple[float, float, float]  # the kinematic control law's (fx, fy, tau)
-    inbox: tuple[DynamicMsg, ...]  # the neighbours' dynamical states taken this tick, in order
+    inbox: np.ndarray  # the neighbours' IN rows (net/rows.py) whose dynamical states are taken, in taking order
     dropped_unknown: int  # counters so far (see ESTIMATE_NAMES)
     dropped_stale: int
 
@@ -63,7 +49,5 @@ class DynamicOut(NamedTuple):
 
     wrench: tuple[float, float, float]  # to apply (fx, fy, tau)
     stage: int
-    shared: dict[str, float]  # its StateMsg.shared entries
-    flows: dict[int, tuple[float, ...]]  # its flows to each neighbour, appended to the StateMsg.pair entry
     estimates: dict[str, Any]  # its estimate values, ESTIMATE_NAMES from "J" on
     feedback: DynamicFeedback  # for the kinematic phase of the next tick
