@@ -97,6 +97,26 @@ class FlowAverage:
         self.nx: dict[int, list[float]] = {}
         self.ndeg = dict.fromkeys(self.ids, 1)
 
+    @classmethod
+    def view(cls, nbr_ids: Sequence[int], bank: tuple[np.ndarray, np.ndarray], b: int) -> FlowAverage:
+        """Row ``b`` of ``bank`` as it stands (the kernels' row: ``u`` a view of its inputs, ``x`` and ``nx``
+        copies of its values, the neighbours in first-heard order not known: ``nx`` in slot order)."""
+        new = cls.__new__(cls)
+        new.ids = tuple(nbr_ids)
+        new.deg = len(new.ids)
+        new._slot = {j: k for k, j in enumerate(new.ids)}
+        new._F, new._I = bank
+        new._b = b
+        new.nch = new._F.shape[2]
+        D = (new._F.shape[1] - FLOW) // 3
+        new._nf, new._nx, new._ndeg = FLOW + D, FLOW + 2 * D, HEARD + D
+        new.u = new._F[b, U]
+        new.x = new._F[b, X].tolist()
+        heard = new._I[b, HEARD:HEARD + new.deg].tolist()
+        new.nx = {j: new._F[b, new._nx + k].tolist() for k, j in enumerate(new.ids) if heard[k]}
+        new.ndeg = {j: int(new._I[b, new._ndeg + k]) for k, j in enumerate(new.ids)}
+        return new
+
     @property
     def flow(self) -> dict[int, list[float]]:
         """F_ij per neighbour, in neighbour order (a copy)."""

@@ -1,56 +1,40 @@
 """The dynamical phase of paper 000 (Sec. V, Algorithm 1) and its background variant (Sec. VI, Algorithm 2).
 
-:meth:`DynamicPhase.step` (the tick's :class:`agents.tick_records.KinematicTick`) ->
-:class:`agents.tick_records.DynamicOut`: the stage machine over the rigid-body filter
-(:mod:`agents.rigid_filter`), the flow-updating consensus channels (:class:`agents.consensus.FlowAverage`)
-and the stage agreement (:mod:`agents.stage_agreement`). Pure: no clock, socket or RNG.
+:meth:`DynamicPhase.step` (the tick's :class:`agents.tick_records.KinematicTick`, the agent's OUT row) ->
+:class:`agents.tick_records.DynamicOut`: the stage machine over the rigid-body filters, the flow-updating
+consensus channels and the stage agreement. The maths is compiled (agents/kernels/dynamic.py, fused into
+one call per stretch between Python handlers by agents/kernels/dynamic_step.py); this class holds the banks
+of one agent, runs the handlers the kernels stop for (P1 the online detection, P2 a restart's fit, P3 the
+user's law, the innovation monitor) and is a view of its state for tests and tools.
 
 Stages: kinematic until every pair is estimated; m excitation (the common force, switched) and the
 averaging of m and z_C; J excitation (f_i = k_z s(t) z_i^perp, tau_i = 0, Result 5) and the averaging
 of J; done (optional braking or the user's law). Algorithm 2 runs one background stage instead.
-Symbols, choices and measurements: docs/dynamics.md. (Over 600 lines: one class whose parts share the
-filter, the channels and the lock check's state; the parts that stand alone are the modules above.)
+Symbols, choices and measurements: docs/dynamics.md; the kernels' layout: docs/fast-core-plan.md.
 """
 
 from __future__ import annotations
 
-import copy
 import math
 import statistics
 from collections.abc import Callable, Sequence
-from math import cos, sin
 
 import numpy as np
 
-from agents import excitation
-from agents.consensus import FlowAverage, weighted_average_step
-from agents.effect_decision import (
-    ALL,
-    DETECT_NAMES,
-    EFFECTS,
-    N_POOL,
-    SLOPE,
-    OnlineDetection,
-)
-from agents.estimate_trust import spread_sd
+from agents.consensus import FlowAverage
+from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
-from agents.kernels.agreement import FLOW
+from agents.kernels import dynamic as K
+from agents.kernels import dynamic_step as T
+from agents.kernels import filter as F
+from agents.kernels.agreement import DEG, HORIZON, SBITS, SWITCH, TMAX, U, X
 from agents.laws import ControlLawError, LawInput, checked_wrench
-from agents.rigid_filter import RigidEKF, fit_rotation
-from agents.stage_agreement import MASK_BITS, StageBarrier
-from agents.tick_records import DynamicFeedback, DynamicMsg, DynamicOut, KinematicTick
+from agents.rigid_filter import RigidEKF, fit_rotation, init_slot
+from agents.stage_agreement import MASK_BITS, StageBarrier, mask_keys
+from agents.tick_records import DynamicFeedback, DynamicOut, KinematicTick
 from config.agent_params import DynamicsSpec
-from net.rows import C0, KIN_KEYS, OM, PAIR_HEAD, PHASE, SENDER, TICK, Layout
-from net.vocabulary import (
-    BACKGROUND,
-    DONE,
-    J_AVERAGE,
-    J_EXCITE,
-    KINEMATIC,
-    M_AVERAGE,
-    M_EXCITE,
-    SPINUP,
-)
+from net.rows import Layout
+from net.vocabulary import DONE
 
 # Flow-average channels: the mean force (FX, FY: world-fixed, so a common force passes through at once);
 # JG: g_i = k_z q_i . (q_i - z_C), whose mean times s(t) is the J stage's torque (rotation-invariant, fed
@@ -67,22 +51,8 @@ CH_POOL = N_CH_AUG
 CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG + N_POOL))  # their names in StateMsg.shared
 
 
-def _dynamic_msg(v: list[float], lay: Layout) -> DynamicMsg:
-    """A neighbour's dynamical states from its IN row's values (net/rows.py), whose status says they
-    were decoded and checked."""
-    nch = lay.nch
-    mask = 0
-    for c in range(lay.nbk):
-        mask |= int(v[lay.b0 + c]) << (c * MASK_BITS)
-    p = lay.p0 + PAIR_HEAD
-    ds = lay.ds
-    dec = (int(v[ds]), int(v[ds + 1]), v[ds + 2]) if lay.detection else None
-    return DynamicMsg(int(v[SENDER]), int(v[TICK]), int(v[PHASE]), v[lay.ps], int(v[lay.dg]), v[C0:C0 + nch],
-                      v[p:p + nch], (mask, int(v[lay.bt]), int(v[lay.bs])), int(v[lay.sk]), v[OM], dec)
-
-
 class DynamicPhase:
-    """One agent's dynamical phase (see module docstring). Driven by AgentCore.step."""
+    """One agent's dynamical phase (see module docstring): row 0 of the kernels' banks. Driven by AgentCore.step."""
 
     def __init__(self, agent_id: int, nbr_ids: Sequence[int], n: int, dt: float, sigma_v: float,
                  spec: DynamicsSpec, hist: int = 64, law: Callable[[LawInput], Sequence[float]] | None = None,
@@ -90,614 +60,260 @@ class DynamicPhase:
         self.id = agent_id
         self.law = law  # the user's control law (agents/laws.py): done stage of Algorithm 1, Algorithm 2
         self.law_ref = law_ref
-        self.q_held: complex | None = None  # q_i in the shared body frame, held from done on (see step)
-        # delayed eq. (9) samples (RigidEKF.update): cumulative dt T and dt omega of the filter's
-        # predictions up to each of the last ``hist`` state ticks, and this tick's |z|^2-weighted sums
-        # over the late samples (note_late)
-        self.hist = hist
-        self.cum_c = [0.0] * hist
-        self.cum_w = [0.0] * hist
-        self.cum_t = [-1] * hist
-        self.cc = 0.0  # dt sum T up to the current state tick
-        self.cw = 0.0  # dt sum omega
-        self.late_z = self.late_c = self.late_w = 0.0
         self.n = n
         self.dt = dt
         self.spec = spec
-        self.background = spec.algorithm == "background"
-        nch = N_CH_AUG + N_POOL if spec.online_detection else N_CH_AUG if spec.estimate_effects else N_CH
-        self.avg = FlowAverage(nbr_ids, nch)
-        self.ch_keys = CH_KEYS[:self.avg.nch]
-        self.m_local_sd = self.j_local_sd = math.nan  # the filter's sd of m_local and J_local when offered
-        self.b_local = math.nan  # augmented model: own b = beta m and c = gamma J, before the averaging
-        self.c_local = math.nan
-        # whether b (c, F_c) was offered while its effect was in the model: with online detection the rates are
-        # carried pinned at 0 from the start, and an effect switched on after m (J) froze has no average
-        self.b_offered = self.c_offered = self.f_offered = self.fb_offered = False
-        self.released = False
-        ticks = lambda s: max(1, int(round(s / dt)))  # noqa: E731
-        self.barrier = StageBarrier(agent_id, n, ticks(spec.horizon_s))
-        self.kf = RigidEKF(sigma_v, spec, self.background)
         self.sigma_v = sigma_v
-        self.stage = SPINUP
-        self.stage_tick = 0
-        self.late_switches = 0
-        self.kin_since = -1
-        self.settle = ticks(spec.kin_settle_s)
-        self.m_ticks = ticks(spec.m_excite_s)
-        self.m_switch = ticks(spec.m_switch_s)
-        self.j_ticks = ticks(spec.j_excite_s)
-        self.avg_window = ticks(spec.avg_window_s)
-        self.dither_ticks = ticks(spec.dither_period_s)
-        self.conv_since = -1
-        self.m_local = math.nan
-        self.j_local = math.nan
-        self.nbr_stage: dict[int, int] = {}
-        self.nbr_stage_tick: dict[int, int] = {}
-        self.alpha = 0.0  # modelled angular acceleration for the next tick (rad/s^2)
-        self.nbr_psi: dict[int, tuple[float, int]] = {}  # (psi_j predicted for t + 1, t)
-        # psi: the body-frame angle of the consensus on body-fixed vectors (z_C). Integral of the
-        # filter's omega, which follows omega ramps without lag (the kinematic phi = integral of
-        # omega_hat fell ~1.6 rad behind during the J stage), kept common by phase consensus.
-        self.psi = math.nan
-        self.nbr_barrier: dict[int, tuple[int, int, int]] = {}
-        self.frozen_m = False
-        self.frozen_j = False
-        self.restarted = False  # the filter's restart at kinematic readiness is done
-        # lock check (DynamicsSpec.lock_nis): running mean of the filter's velocity NIS from the restart on;
-        # a filter that locked onto a wrong (q_i, omega) is restarted on trial (_reseed, _judge)
-        self.lock_thr = spec.lock_nis
-        self.lock_alpha = min(1.0, dt / spec.lock_tau_s)
-        self.lock_hold = ticks(spec.lock_hold_s)
-        self.nis_avg = 2.0
-        self.lock_from = 0  # no judgement before this tick (a fresh start's transient)
-        self.reseeds = 0  # restarts by the lock check
-        self.kf_tick = -1  # tick of the last such restart: excitation before it is not in the weights
-        self.shadow: RigidEKF | None = None  # the filter a restart on trial replaced (see _reseed)
-        # online detection with the slope a candidate: the filter that has carried the slope's rates from the m
-        # stage's start, handed over if the team switches the slope on (see _twin_decision)
-        self.twin: RigidEKF | None = None
-        self.shadow_nis = 2.0
-        self.trial_tick = -1
-        self.lock_fails = 0  # restarts in a row that did no better than the filter they replaced
-        self.m_start = self.j_start = -1  # first ticks of the m and J excitation stages
-        self.nbr_om: dict[int, float] = {}  # neighbours' omega_hat (their kinematic shared state)
-        # the own contact velocities of the last lock_window_s and v_C's change per unit 1/m up to each
-        # (dt sum of the total force): the restart point of a lost filter is fitted to them (fit_rotation)
+        self.hist = hist
+        self.background = spec.algorithm == "background"
+        self.nbr_ids = ids = tuple(sorted(nbr_ids))
+        self.nch = nch = N_CH_AUG + N_POOL if spec.online_detection else N_CH_AUG if spec.estimate_effects else N_CH
+        self.ch_keys = CH_KEYS[:nch]
+        self.nbk = len(mask_keys(n))
+
+        def ticks(s: float) -> int:
+            return max(1, int(round(s / dt)))
+
         self.win_n = ticks(spec.lock_window_s)
-        self.win_v = np.zeros(self.win_n, complex)
-        self.win_f = np.zeros(self.win_n, complex)
-        self.win_k = 0
-        self.f_int = 0j
-        # omega_hat's measurement for the next tick (AgentCore): the filter's predicted omega once it has
-        # restarted at kinematic readiness (``DynamicsSpec.filter_omega``), NaN before (the eq. (9) rate)
-        self.om_meas = math.nan
+        aug = spec.estimate_effects or spec.online_detection
+        self._banks = banks = K.new_banks(1, len(ids), nch, F.D_AUGMENTED if aug else F.D_NOMINAL, hist, self.win_n,
+                                          self.nbk)
+        (self._dyn, self._dnb, _, self._rx_order, _, _, _, self._win, self._S, self._F, self._I,
+         *self._fbank) = banks
+        self._fs, self._s, self._sens = self._fbank[0], self._fbank[1], self._fbank[3]
+        K.init_dyn_row(self._dyn, 0, n, dt, sigma_v, spec, hist, law is not None, self._S, agent_id)
+        init_slot(tuple(self._fbank), 0, K.KF, sigma_v, spec, self.background)
+        self._I[0, DEG] = len(ids)
+        self._r = self._dyn[0]
+        # the fused kernel's arguments (agents/kernels/dynamic_step.py): one row, its inputs and results
+        self._rows = np.zeros(1, np.int64)
+        self._at = np.zeros(1, np.int64)
+        self._kin = np.zeros((1, T.NK))
+        self._in_ptr = np.zeros(2, np.int64)
+        self._late_t = np.full((1, 1), -1, np.int64)
+        self._late_z = np.zeros((1, 1))
+        self._ids = np.array([ids], np.int64).reshape(1, len(ids))
+        self._res = np.zeros((1, T.NR))
+        self._est = np.zeros((1, len(K.ESTIMATES)))
+        self._res[0, T.R_M_SD] = self._res[0, T.R_J_SD] = math.nan
+        self._last = self._res[0].tolist()  # the last tick's results
+        self.lay = Layout(True, nch, self.nbk, spec.online_detection, len(ids))
+        self._on = 3 | int(self._r["declared"])  # the effects in the model without online detection
         # innovation monitor (report-only), fed from the filter's restart at kinematic readiness on
         self.monitor = (InnovationMonitor(ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha)
                         if spec.monitor_window_s > 0.0 else None)
-        self.last_f = 0j  # the own force applied over the last prediction (a signature of the monitor)
         # online detection: the team pools its filters' scores and switches a missing effect on
-        self.declared = declared = sum(1 << k for k, e in enumerate(EFFECTS) if e in spec.estimate_effects)
         self.detect = (OnlineDetection(n, ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha,
-                                       ticks(spec.horizon_s), CH_POOL, declared,
+                                       ticks(spec.horizon_s), CH_POOL, int(self._r["declared"]),
                                        ALL if spec.online_force_bias else ALL & ~(1 << EFFECTS.index("force_bias")))
                        if spec.online_detection else None)
-        # its OUT row's slots (net/rows.py)
-        self.lay = Layout(True, nch, len(self.barrier.mask_keys), self.detect is not None, len(nbr_ids))
 
-    # ------------------------------------------------------------------ messages
-    def _receive(self, m: DynamicMsg) -> None:
-        """A decoded neighbour state (in arrival order: a later one of the same neighbour replaces it)."""
-        j = m.sender
-        self.avg.receive(j, m.x, m.flows, m.deg)
-        self.nbr_stage[j] = m.stage
-        self.nbr_stage_tick[j] = m.stage_tick
-        self.nbr_barrier[j] = m.barrier
-        if m.decision is not None and self.detect is not None:
-            self.detect.merge(m.decision)
-        if m.stage >= KINEMATIC:  # its filter (and psi) runs from the kinematic stage on
-            self.nbr_psi[j] = (m.psi, m.tick)
-            if m.omega_hat - m.omega_hat == 0.0:
-                self.nbr_om[j] = m.omega_hat
+    # ------------------------------------------------------------------ the view (tests and tools)
+    def _slot(self, role: str) -> RigidEKF | None:
+        k = int(self._r[role])
+        return None if k < 0 else RigidEKF.view(tuple(self._fbank), 0, k)
 
-    def _note_late(self, t: int, zz: float) -> None:
-        """An eq. (9) sample of tick t with pooling weight zz went into this tick's u (only samples older
-        than the state tick on entry: fault-free ones are 1 tick old and not reported)."""
-        i = t % self.hist
-        if self.cum_t[i] == t:
-            self.late_z += zz
-            self.late_c += zz * self.cum_c[i]
-            self.late_w += zz * self.cum_w[i]
+    kf = property(lambda self: self._slot("kf_slot"), doc="The agent's filter (a view of its slot).")
+    shadow = property(lambda self: self._slot("shadow_slot"), doc="The filter a restart on trial replaced.")
+    twin = property(lambda self: self._slot("twin_slot"), doc="The slope's twin (online detection).")
+    stage = property(lambda self: int(self._r["stage"]))
+    stage_tick = property(lambda self: int(self._r["stage_tick"]))
+    late_switches = property(lambda self: int(self._r["late_switches"]))
+    reseeds = property(lambda self: int(self._r["reseeds"]), doc="Restarts by the lock check.")
+    restarted = property(lambda self: bool(self._r["restarted"]))
+    m_local = property(lambda self: float(self._r["m_local"]))
+    j_local = property(lambda self: float(self._r["j_local"]))
+    m_local_sd = property(lambda self: float(self._r["m_local_sd"]))
+    j_local_sd = property(lambda self: float(self._r["j_local_sd"]))
+    alpha = property(lambda self: float(self._r["alpha"]))
+    psi = property(lambda self: float(self._r["psi"]))
+    om_meas = property(lambda self: float(self._r["om_meas"]))
+    nis_avg = property(lambda self: float(self._r["nis_avg"]))
+    q_held = property(lambda self: complex(self._r["q_held"]) if self._r["has_q_held"] else None)
 
-    def _u_age(self, tick: int, u_den: float) -> tuple[float, float]:
-        """(dt sum T, dt sum omega) from the pooled u's samples to the state tick: the pooled value is
-        the |z|^2-weighted mean of per-sample omegas, so its prediction is the weighted mean of theirs."""
-        i = (tick - 1) % self.hist
-        c1, w1 = (self.cum_c[i], self.cum_w[i]) if self.cum_t[i] == tick - 1 else (self.cc, self.cw)
-        w0 = u_den - self.late_z  # the samples of tick - 1 (and any older than the buffer)
-        cbar = (self.late_c + w0 * c1) / u_den
-        wbar = (self.late_w + w0 * w1) / u_den
-        return self.cc - cbar, self.cw - wbar
+    @property
+    def avg(self) -> FlowAverage:
+        """The consensus channels (a view of the flow-average row)."""
+        return FlowAverage.view(self.nbr_ids, (self._F, self._I), 0)
 
-    # ------------------------------------------------------------------ helpers
-    def _filters(self) -> tuple[RigidEKF, ...]:
-        """The filters that see every step: the agent's, the one a restart on trial replaced, the slope's twin."""
-        return (self.kf, *(f for f in (self.shadow, self.twin) if f is not None))
+    @property
+    def barrier(self) -> StageBarrier:
+        """The stage barrier (a copy of its row)."""
+        S = self._S[0].tolist()
+        bar = StageBarrier(self.id, self.n, S[HORIZON])
+        bar.mask = sum(int(c) << (k * MASK_BITS) for k, c in enumerate(S[SBITS:]))
+        bar.tmax, bar.switch = S[TMAX], S[SWITCH]
+        return bar
 
-    def _enter(self, stage: int, tick: int) -> None:
-        filters = self._filters()
-        if stage >= M_EXCITE and self.spec.estimate_effects and not self.released:
-            self.released = True  # the excitation starts (or we jumped past it): see release_effects
-            for kf in filters:
-                kf.release_effects()
-        self.stage = stage
-        self.stage_tick = tick
-        if self.detect is not None:
-            self.detect.regime_change()
-        if stage == M_EXCITE:
-            self.m_start = tick
-            if self.detect is not None:
-                self.detect.push_reverses(tick + self.m_switch)
-                if self.kf.ready and self.twin is None and self.detect.undecided(SLOPE):
-                    # a slope switched on later restarts 1/m, which then rests on what is left of the stage; the
-                    # twin has estimated the slope beside 1/m from the stage's start, as a declared slope is
-                    self.twin = copy.copy(self.kf)  # its arrays are replaced on every step, never changed in place
-                    self.twin.release_effect(SLOPE)
-                    self.twin.sens = None  # the scores are the agent's filter's; the twin's start at the handover
-        elif stage == J_EXCITE:
-            self.j_start = tick
-            self.twin = None  # m is averaged: a slope switched from here on changes neither m nor f's average
-        self.barrier.reset()
-        self.conv_since = -1
-        for kf in filters:
-            if kf.ready and stage == J_EXCITE:
-                kf.forget_iota()  # J from the J stage's exactly known torque alone (Result 5)
-                kf.set_omega_walk(self.spec.j_omega_walk)
-            elif stage != J_EXCITE:
-                kf.set_omega_walk(self.spec.omega_walk)
+    @property
+    def nbr_stage(self) -> dict[int, int]:
+        """Each neighbour heard from: its stage (first-heard order)."""
+        return {self.nbr_ids[k]: int(self._dnb[0, k]["stage"]) for k in self._rx_order[0, :self._r["rx_n"]]}
 
-    def _advance(self, tick: int) -> None:
-        """Stage agreement: neighbours ahead, barrier merges, own readiness, due switches."""
-        st = self.stage
-        # a neighbour two or more stages ahead (we restarted / joined late): jump there
-        if not self.background and st >= KINEMATIC:
-            ahead, j_ahead = max(((s, j) for j, s in self.nbr_stage.items()), default=(-1, -1))
-            if st + 1 < ahead <= DONE:
-                self._enter(ahead, self.nbr_stage_tick[j_ahead])
-                self.late_switches += 1
-                return
-        for j, s in self.nbr_stage.items():
-            if s == st:
-                mask, tmax, sw = self.nbr_barrier[j]
-                self.barrier.merge(mask, tmax, sw)
-            elif s == st + 1 and st in (KINEMATIC, M_AVERAGE, J_AVERAGE):
-                # the neighbour has switched already: its stage start is the agreed tick
-                self.barrier.merge(0, -1, self.nbr_stage_tick[j])
-        sw = self.barrier.switch
-        if sw >= 0 and tick >= sw and st in (KINEMATIC, M_AVERAGE, J_AVERAGE):
-            if tick > sw:
-                self.late_switches += 1
-            nxt = {KINEMATIC: BACKGROUND if self.background else M_EXCITE, M_AVERAGE: J_EXCITE,
-                   J_AVERAGE: DONE}[st]
-            self._enter(nxt, tick)
-        elif st == M_EXCITE and tick >= self.stage_tick + self.m_ticks:
-            self._enter(M_AVERAGE, tick)
-        elif st == J_EXCITE and tick >= self.stage_tick + self.j_ticks:
-            self._enter(J_AVERAGE, tick)
+    # ------------------------------------------------------------------ the tick
+    def step(self, kin: KinematicTick, out_row: np.ndarray) -> DynamicOut:
+        """Advance one tick on the kinematic phase's results of it; the phase's slots of ``out_row``
+        (net/rows.py's OUT row, ``self.lay``) written."""
+        v, zi = kin.v, kin.zi
+        det = self.detect
+        on = self._on if det is None else det.on
+        fx, fy, tau = kin.wrench
+        self._kin[0] = (kin.tick, v.real, v.imag, kin.u, kin.u_den, kin.omega, kin.om_init, kin.phi, zi.real, zi.imag,
+                        kin.trusted, fx, fy, tau, det is not None and det.undecided(SLOPE), on)
+        inbox = kin.inbox
+        self._in_ptr[1] = len(inbox)
+        if kin.late:
+            self._late(kin.late)
+        elif self._late_t[0, 0] >= 0:
+            self._late_t[0, 0] = -1
+        out = out_row.reshape(1, -1)
+        at = self._at
+        at[0] = T.AT_BEGIN
+        observed = False
+        while T.dyn_tick(self._rows, at, self._kin, inbox, self._in_ptr, self._late_t, self._late_z, self.lay.lay,
+                         self._ids, self._res, out, self._est, *self._banks):
+            p = int(at[0])
+            res = self._res[0].tolist()
+            ev = int(res[T.R_EV])
+            if p == T.AT_UPDATE:
+                self._detection(kin.tick, ev)
+                continue
+            if not observed:
+                observed = True
+                self._observe(res)
+            self._events(ev)
+            if p == T.AT_CONTROL:
+                self._reseed(kin.tick, v, zi, kin.omega, res)
+            else:
+                self._law_wrench(kin.tick, v, res)
+        self._last = res = self._res[0].tolist()
+        if not observed:
+            self._observe(res)
+        self._events(int(res[T.R_EV]))
+        if det is not None:
+            s, e, z = det.flood.best
+            ds = self.lay.ds
+            out_row[ds:ds + 3] = (float(s), float(e), z if z == z else 0.0)
+        return DynamicOut(
+            wrench=(res[T.R_FX], res[T.R_FY], res[T.R_TAU]),
+            stage=int(res[T.R_STAGE]),
+            estimates=dict(zip(K.ESTIMATES, self._est[0].tolist(), strict=True)),
+            feedback=DynamicFeedback(res[T.R_OM_MEAS], res[T.R_ALPHA], res[T.R_HOLD] != 0.0, res[T.R_WAITING] != 0.0),
+        )
 
-    def _offer(self, inv: float, var: float, num: int, wch: int, w: float = 1.0, sure: bool = False) -> float | None:
-        """Hands the local estimate 1/inv (the filter's 1/m or 1/J) to its average channels with weight w;
-        None if the filter has no usable value yet (with ``sure``, also while its sd is not below the value:
-        a restarted filter's 1/m starts at 0 with sd 1). Weight 1 (a plain average over the agents that have one)
-        unless the lock check restarted the filter during the excitation (:meth:`_clean_share`): the
-        filters' variances proved overconfident as inverse-variance weights."""
-        if not (inv > 0.0 and var > 0.0) or (sure and var >= inv * inv):
-            return None
-        au = self.avg.u
-        au[num] = w / inv
-        au[wch] = w
-        return 1.0 / inv
+    def _late(self, late: Sequence[tuple[int, float]]) -> None:
+        """This tick's late samples (tick, pooling weight) into the kernel's arrays (-1 ends them)."""
+        n = len(late)
+        if self._late_t.shape[1] <= n:
+            self._late_t = np.full((1, n + 1), -1, np.int64)
+            self._late_z = np.zeros((1, n + 1))
+        for m, (t, zz) in enumerate(late):
+            self._late_t[0, m] = t
+            self._late_z[0, m] = zz
+        self._late_t[0, n] = -1
 
-    def _clean_share(self, start: int, ticks: int) -> float:
-        """The weight of an estimate learnt over the excitation ticks [start, start + ticks): the share of
-        them since the filter's last restart by the lock check (1 without one), near 0 if the filter is
-        lost now (not 0: a team whose filters are all lost must still reach an average)."""
-        w = 1.0
-        if start >= 0 and self.kf_tick > start:
-            w = max(0.0, (start + ticks - self.kf_tick) / ticks)
-        if self.nis_avg > self.lock_thr > 0.0:  # lost
-            w = 0.0
-        return w if w > 1e-3 else 1e-3
-
-    def _reseed(self, tick: int, v: complex, zi: complex, omega_hat: float, zc: complex) -> None:
-        """Restart, on trial, the filter that seems to have lost lock: (omega, q_i) fitted to the own contact
-        velocities of the last window (:func:`fit_rotation`; before it is full, the neighbours' omega_hat and
-        the kinematic z_i + z_C), 1/m and 1/J forgotten: where half the team has lost lock the neighbours'
-        omega_hat is no seed (docs/high-noise.md). The old filter runs beside it until :meth:`_judge` keeps the one whose velocity innovations are the
-        more consistent: a wrong lock is fixed by a restart, an effect the model lacks (sensor lag, friction)
-        raises every filter's NIS and is not, so there the old filter and what it learnt are kept."""
-        oms = list(self.nbr_om.values())
-        om0 = statistics.median(oms) if oms else omega_hat
-        q0 = zi + zc if zc == zc else zi
-        if self.win_k >= self.win_n:
-            k = self.win_k % self.win_n  # the oldest sample
-            lim = self.spec.lock_omega_max
-            # not the lost filter's own omega (it may be anything); capped, so that the scan stays small
-            om_max = min(max(lim, 2.0 * abs(omega_hat), *(2.0 * abs(o) for o in oms)), 5.0 * lim)
-            om_fit, q_fit, _ = fit_rotation(np.roll(self.win_v, -k), np.roll(self.win_f, -k), self.dt, om_max)
-            if abs(om_fit) * self.win_n * self.dt >= 2.0:
-                # the load turned by 2 rad or more in the window: the fit is determined (slower, q is not),
-                # else the fallback above
-                om0, q0 = om_fit, q_fit
-        kf = self.kf
-        self.shadow = copy.copy(kf)  # its arrays are replaced on every step, never changed in place
-        self.shadow_nis = self.nis_avg
-        self.twin = None  # it shares the lost filter's lock: a slope switched later is released in the restart
-        kf.start(v, q0, om0)
-        if self.monitor is not None:
-            self.monitor.reset()
-        if self.released:
-            kf.release_effects()
-        if self.detect is not None:
-            self.detect.restart_filter(kf)
-        # the trial's running mean starts at the threshold, not at the consistent 2: what is left of the
-        # start after the trial (13 % at 4 s over 2 s) then leans towards keeping the old filter
-        self.nis_avg = self.lock_thr
-        self.trial_tick = tick
-        self.lock_from = tick + self.lock_hold
-
-    def _twin_decision(self, dec: int) -> None:
-        """The slope's twin after the team's decision ``dec`` (-1: none; effect_decision's codes): the slope
-        switched on, the twin becomes the agent's filter, its sensitivities to the candidates' rates starting
-        from zero as at a filter's start; ruled out or decided, it is dropped; any other effect's switch or
-        withdrawal was applied to it too (docs/online-detection.md, "The slope's twin")."""
-        if self.twin is None:
-            return
-        if dec == SLOPE:
-            if self.kf.sens is not None:  # from zero, as at a filter's start
-                self.twin.sens = np.zeros_like(self.kf.sens)
-            self.kf = self.twin
-            if self.monitor is not None:
-                self.monitor.reset()
-            self.detect.filter_replaced()
-        if not self.detect.undecided(SLOPE):
-            self.twin = None
-
-    def _judge(self, tick: int) -> None:
-        """End of a restart's trial (see :meth:`_reseed`)."""
-        if self.nis_avg < min(self.lock_thr, 0.5 * self.shadow_nis):
-            # consistent, and clearly better: a fresh filter's wide covariance lowers its NIS for a while,
-            # so a small gain (or one that is still inconsistent) is not evidence of a wrong lock
-            self.kf_tick = self.trial_tick
-            self.reseeds += 1
-            self.lock_fails = 0
-            self.lock_from = tick
-        else:  # the restart did no better: back to the old filter, and wait longer before the next try
+    def _events(self, ev: int) -> None:
+        """The Python side of the kernels' events after the observers have seen the update: a trial that went
+        back to the old filter resets the monitor and changes the detection's regime."""
+        if ev & K.E_BACK:
             if self.monitor is not None:
                 self.monitor.reset()
             if self.detect is not None:
                 self.detect.regime_change()
-            self.kf = self.shadow
-            self.nis_avg = self.shadow_nis
-            self.lock_fails += 1
-            self.lock_from = tick + (self.lock_hold << min(self.lock_fails, 5))
-        self.shadow = None
 
-    def _converged(self, num: int, wch: int, tick: int) -> bool:
-        """Local convergence of a weighted average: own value and every neighbour's within tolerance."""
-        x = self.avg.x
-        if x[wch] <= 0.0:
-            return False
-        mine = x[num] / x[wch]
-        tol = self.spec.avg_tol * abs(mine)
-        ok = True
-        for xj in self.avg.nx.values():
-            if xj[wch] <= 0.0 or abs(xj[num] / xj[wch] - mine) > tol:
-                ok = False
-                break
-        if not ok:
-            self.conv_since = -1
-            return False
-        if self.conv_since < 0:
-            self.conv_since = tick
-        return tick - self.conv_since >= self.avg_window
-
-    # ------------------------------------------------------------------ the tick
-    def step(self, kin: KinematicTick, out_row: np.ndarray) -> DynamicOut:
-        """Advance one tick on the kinematic phase's results of it; write this phase's slots of the agent's
-        OUT row ``out_row`` (net/rows.py; its header, kinematic slots and pair heads are the caller's)."""
-        lay = self.lay
-        for v in kin.inbox.tolist():
-            self._receive(_dynamic_msg(v, lay))
-        for t, zz in kin.late:
-            self._note_late(t, zz)
-        fx, fy, tau = self._step(kin.tick, kin.v, kin.u, kin.u_den, kin.omega, kin.phi, kin.zi, kin.trusted,
-                                 kin.om_init, kin.wrench)
-        self._write_out(out_row)
-        return DynamicOut(
-            wrench=(fx, fy, tau),
-            stage=self.stage,
-            estimates=self._estimates(),
-            feedback=DynamicFeedback(
-                om_meas=self.om_meas,
-                alpha=self.alpha,
-                hold_shape=self.q_held is not None,
-                team_waiting=self.stage == KINEMATIC and not self.barrier.complete,
-            ),
-        )
-
-    def _step(
-        self, tick: int, v: complex, u: float, u_den: float, omega_hat: float, phi: float, zi: complex,
-        trusted: bool, om_init: bool, wrench: tuple[float, float, float],
-    ) -> tuple[float, float, float]:
-        self._advance_stage(tick, v, omega_hat, phi, zi, trusted, om_init)
+    def _observe(self, res: list[float]) -> None:
+        """The monitor's and the detection's observation of the kf's update (if the kernel ran it for them)."""
+        if res[T.R_OBS] == 0.0:
+            return
+        e0, e1, s00, s01, s11 = res[T.R_INNOV:T.R_INNOV + 5]
+        if self.monitor is not None:
+            self.monitor.observe(complex(e0, e1), s00, s01, s11, complex(res[T.R_VC0], res[T.R_VC0 + 1]),
+                                 res[T.R_OM0], complex(res[T.R_Q0], res[T.R_Q0 + 1]),
+                                 complex(res[T.R_LF], res[T.R_LF + 1]))
         if self.detect is not None:
-            self._twin_decision(self.detect.step_filters(
-                tick, self.avg.u, self.avg.x, (self.kf,) if self.shadow is None else (self.kf, self.shadow),
-                self.twin))
-        stage = self.stage
-        rot = self._body_frame(tick, phi)
-        q, zc, held = self._filter_update(tick, v, u, u_den, omega_hat, zi, rot)
+            k = int(res[T.R_KF0])
+            self.detect.observe(self._fbank[6][0, k], self._fbank[7][0, k])
 
-        # control
-        spec = self.spec
-        k = tick - self.stage_tick
-        fx, fy, tau = excitation.stage_wrench(stage, k, spec, self.m_switch, self.j_ticks, v, q, zc, wrench)
-        jstage = stage == J_EXCITE  # the J stage's forces (torque from the JG channel, net force zero)
-        if self.law is not None and (stage == DONE or stage == BACKGROUND):
-            fx, fy, tau = self._law_wrench(tick, stage, v, q, zc, (fx, fy, tau))
-        if stage == BACKGROUND:  # Prop. 6 (above; or the user's law) + the regulation torque + a dither for J
-            tau += excitation.dither(k, spec, self.dither_ticks)
-
-        self._consensus_inputs(stage, q, zc, held, rot, fx, fy, tau, jstage)
-        self.avg.update()
-        # readiness of the averaging stages
-        if stage == M_AVERAGE and self._converged(CH_MN, CH_MW, tick):
-            self.barrier.set_ready(tick)
-        elif stage == J_AVERAGE and self._converged(CH_JN, CH_JW, tick):
-            self.barrier.set_ready(tick)
-        self.last_f = complex(fx, fy)
-        self._predict(tick, rot, excitation.j_sign(k, self.j_ticks, spec) if jstage else None)
-        return fx, fy, tau
-
-    def _advance_stage(self, tick: int, v: complex, omega_hat: float, phi: float, zi: complex, trusted: bool,
-                       om_init: bool) -> None:
-        """The filter's start and restart, the kinematic stage's readiness, then the stage agreement."""
+    def _detection(self, tick: int, ev: int) -> None:
+        """P1: the stage's events for the detection, its window and the team's decision applied to the filters,
+        the slope's twin after it; then the effects in the model for the kernel."""
+        det = self.detect
+        if ev & K.E_REGIME:
+            det.regime_change()
+        if ev & K.E_M_START:
+            det.push_reverses(int(self._r["m_start"]) + int(self._r["m_switch"]))
+        shadow = self.shadow
         kf = self.kf
-        if self.stage == SPINUP and om_init:
-            self._enter(KINEMATIC, tick)
-        if self.stage >= KINEMATIC:
-            if not kf.ready:
-                kf.start(v, zi, omega_hat)
-                self.psi = phi
-            if self.stage == KINEMATIC:
-                if trusted:
-                    if self.kin_since < 0:
-                        self.kin_since = tick
-                    if tick - self.kin_since >= self.settle:
-                        if not self.restarted:
-                            # restart the filter from the settled kinematic z_i and omega_hat: started at
-                            # spin-up from z_i = 0 it can lock onto a wrong (q, omega) and take most of
-                            # the m stage to recover
-                            self.restarted = True
-                            kf.start(v, zi, omega_hat)
-                            if self.detect is not None:
-                                self.detect.regime_change()
-                            self.lock_from = tick + self.lock_hold
-                        self.barrier.set_ready(tick)
-                else:
-                    self.kin_since = -1
-            self._advance(tick)
+        dec = det.step_filters(tick, self._F[0, U], self._F[0, X].tolist(), (kf,) if shadow is None else (kf, shadow),
+                               self.twin)
+        if K.dyn_twin_decision(0, dec, det.undecided(SLOPE), self._dyn, self._fs, self._sens) & K.E_REPLACED:
+            if self.monitor is not None:
+                self.monitor.reset()
+            det.filter_replaced()
+        self._kin[0, T.K_ON] = det.on
 
-    def _body_frame(self, tick: int, phi: float) -> complex:
-        """e^{i psi}, psi kept common by phase consensus with the neighbours' values predicted to now."""
-        kf = self.kf
-        if not kf.ready:
-            return complex(cos(phi), sin(phi))
-        om = kf.omega
-        dt = self.dt
-        deg = self.avg.deg
-        self.psi = psi = weighted_average_step(self.psi, (
-            (pj + om * dt * (tick - 1 - tj), 1.0 / (1.0 + max(deg, self.avg.ndeg[j])))
-            for j, (pj, tj) in self.nbr_psi.items()))
-        return complex(cos(psi), sin(psi))
+    def _reseed(self, tick: int, v: complex, zi: complex, omega_hat: float, res: list[float]) -> None:
+        """P2: restart, on trial, the filter that seems to have lost lock: (omega, q_i) fitted to the own contact
+        velocities of the last window (:func:`fit_rotation`; before it is full, the neighbours' omega_hat and
+        the kinematic z_i + z_C), 1/m and 1/J forgotten: where half the team has lost lock the neighbours'
+        omega_hat is no seed (docs/high-noise.md). The old filter runs beside it until the trial's judgement
+        keeps the one whose velocity innovations are the more consistent: a wrong lock is fixed by a restart,
+        an effect the model lacks (sensor lag, friction) raises every filter's NIS and is not, so there the old
+        filter and what it learnt are kept."""
+        dnb = self._dnb[0]
+        oms = [float(dnb[k]["om"]) for k in range(len(self.nbr_ids)) if dnb[k]["has_om"]]
+        om0 = statistics.median(oms) if oms else omega_hat
+        x = self._F[0, X].tolist()
+        zc = complex(x[CH_ZX], x[CH_ZY]) * complex(res[T.R_ROT], res[T.R_ROT + 1])
+        q0 = zi + zc if zc == zc else zi
+        win_k, win_n = int(self._r["win_k"]), self.win_n
+        if win_k >= win_n:
+            k = win_k % win_n  # the oldest sample
+            lim = self.spec.lock_omega_max
+            # not the lost filter's own omega (it may be anything); capped, so that the scan stays small
+            om_max = min(max(lim, 2.0 * abs(omega_hat), *(2.0 * abs(o) for o in oms)), 5.0 * lim)
+            win = self._win[0]
+            om_fit, q_fit, _ = fit_rotation(np.roll(win[:, 0], -k), np.roll(win[:, 1], -k), self.dt, om_max)
+            if abs(om_fit) * win_n * self.dt >= 2.0:
+                # the load turned by 2 rad or more in the window: the fit is determined (slower, q is not),
+                # else the fallback above
+                om0, q0 = om_fit, q_fit
+        K.dyn_reseed(0, tick, v, complex(q0), float(om0), self._dyn, *self._fbank)
+        if self.monitor is not None:
+            self.monitor.reset()
+        if self.detect is not None:
+            self.detect.restart_filter(self.kf)
 
-    def _filter_update(self, tick: int, v: complex, u: float, u_den: float, omega_hat: float, zi: complex,
-                       rot: complex) -> tuple[complex, complex, complex | None]:
-        """The filter's update with this tick's data, the lock check, the shape hold from done on.
-        Returns (q_i, z_C, q_i held in the body frame or None), world frame."""
-        spec = self.spec
-        kf = self.kf
-        i = tick % self.hist
-        if self.cum_t[i] != tick:  # the first tick
-            self.cum_t[i], self.cum_c[i], self.cum_w[i] = tick, self.cc, self.cw
-        if kf.ready:
-            u_var = spec.u_var_scale * 2.0 * self.sigma_v**2 / u_den if u_den > 0.0 and spec.u_var_scale > 0 else 0.0
-            u_dc = u_dw = 0.0
-            if spec.u_delayed and u_var > 0.0:
-                u_dc, u_dw = self._u_age(tick, u_den)
-            mon = self.monitor if self.restarted and self.q_held is None else None
-            if mon is not None:
-                vc0, om0, q0 = kf.vc, kf.omega, kf.q  # the prediction's: known before the innovation
-            kf.update(v, u, u_var, u_dc, u_dw)
-            if self.twin is not None:
-                self.twin.update(v, u, u_var, u_dc, u_dw)
-            if mon is not None:
-                e0, e1, s00, s01, s11 = kf.innov
-                mon.observe(complex(e0, e1), s00, s01, s11, vc0, om0, q0, self.last_f)
-            if self.detect is not None and self.restarted and self.q_held is None:
-                self.detect.observe(kf.innov, kf.sens_h)
-            q = kf.q
-        else:
-            q = zi
-        x = self.avg.x
-        zc = complex(x[CH_ZX], x[CH_ZY]) * rot  # z_C, world (the consensus runs in the shared body frame)
-        held = self.q_held
-        if self.restarted and held is None and self.lock_thr > 0.0:
-            w = self.win_k % self.win_n
-            self.win_v[w] = v
-            self.win_f[w] = self.f_int
-            self.win_k += 1
-            a = self.lock_alpha
-            self.nis_avg = na = self.nis_avg + a * (kf.nis - self.nis_avg)
-            old = self.shadow
-            if old is not None:  # a restart on trial: the filter it replaced runs beside it
-                old.update(v, u, u_var, u_dc, u_dw)
-                self.shadow_nis += a * (old.nis - self.shadow_nis)
-                if tick >= self.lock_from:
-                    self._judge(tick)
-                    kf = self.kf
-                    q = kf.q
-            elif na > self.lock_thr and tick >= self.lock_from:
-                self._reseed(tick, v, zi, omega_hat, zc)
-                q = kf.q
-        if held is None and self.stage == DONE and kf.ready and (self.law is not None or spec.brake > 0.0):
-            # the user's law or Prop. 7 braking may stop the rotation, and q_i (so z_C) is observable only
-            # while the load turns (v_Ci = v_C + omega q_i^perp): from done on, q_i is held in the shared
-            # body frame
-            if self.shadow is not None:  # a restart on trial: judged now, no more lock checks from here on
-                self._judge(tick)
-                kf = self.kf
-                q = kf.q
-            held = self.q_held = q * rot.conjugate()
-            kf.hold_shape()
-            kf.set_omega_walk(spec.j_omega_walk)
-        if held is not None:
-            q = held * rot
-        return q, zc, held
-
-    def _consensus_inputs(self, stage: int, q: complex, zc: complex, held: complex | None, rot: complex,
-                          fx: float, fy: float, tau: float, jstage: bool) -> None:
-        """This tick's inputs to the consensus channels (``avg.u``)."""
-        spec = self.spec
-        kf = self.kf
-        x = self.avg.x
-        au = self.avg.u
-        if jstage:
-            # sum_i f_i = 0 and the torque is s sum_i g_i (JG); DT gets 0 so that it has no J-stage
-            # values to forget when the kinematic control resumes
-            au[CH_FX] = au[CH_FY] = au[CH_DT] = 0.0
-        else:
-            au[CH_FX] = fx
-            au[CH_FY] = fy
-            df = complex(fx, fy) - complex(x[CH_FX], x[CH_FY])
-            au[CH_DT] = (q.real * df.imag - q.imag * df.real) + tau  # q_i x (f_i - fbar) + tau_i
-        if kf.ready and M_EXCITE <= stage <= J_EXCITE:
-            # g_i = q_i x (J-stage f_i / s) with this tick's q_i and z_C, exactly as the force is built
-            au[CH_JG] = spec.k_z * (q.real * (q.real - zc.real) + q.imag * (q.imag - zc.imag))
-        if kf.ready:
-            qp = q * rot.conjugate() if held is None else held  # q_i in the shared body frame; their mean is z_C
-            au[CH_ZX] = qp.real
-            au[CH_ZY] = qp.imag
-        # not while a restart is on trial (its 1/m and 1/J start from nothing; the offer waits for the
-        # judgement, at most lock_hold_s): the old filter's last offer stays in the background average
-        take_m = self.shadow is None and (stage == BACKGROUND or (stage == M_AVERAGE and not self.frozen_m))
-        take_j = self.shadow is None and (stage == BACKGROUND or (stage == J_AVERAGE and not self.frozen_j))
-        # after a kept restart, only a determined value (sd below the value) is offered
-        sure = self.kf_tick >= 0
-        if kf.ready and take_m:
-            w = 1.0 if stage == BACKGROUND else self._clean_share(self.m_start, self.m_ticks)
-            m_local = self._offer(kf.mu, kf.mu_var, CH_MN, CH_MW, w, sure)
-            if m_local is not None:
-                self.m_local = m_local
-                self.m_local_sd = math.sqrt(kf.mu_var) * m_local * m_local  # delta method: sd(1/mu)
-                self.frozen_m = stage == M_AVERAGE
-                if kf.aug is not None:  # b = beta m, F_c = kappa m and f = a m, averaged with m's weights
-                    self.b_local = kf.beta * m_local
-                    au[CH_BN] = w * self.b_local
-                    au[CH_FN] = w * kf.kappa * m_local
-                    fb = w * kf.accel * m_local
-                    au[CH_FBX], au[CH_FBY] = fb.real, fb.imag
-                    self.b_offered = self.b_offered or bool(self._on() & 1)
-                    self.f_offered = self.f_offered or bool(self._on() & 4)
-                    self.fb_offered = self.fb_offered or bool(self._on() & 8)
-        if kf.ready and take_j:
-            w = 1.0 if stage == BACKGROUND else self._clean_share(self.j_start, self.j_ticks)
-            j_local = self._offer(kf.iota, kf.iota_var, CH_JN, CH_JW, w, sure)
-            if j_local is not None:
-                self.j_local = j_local
-                self.j_local_sd = math.sqrt(kf.iota_var) * j_local * j_local
-                self.frozen_j = stage == J_AVERAGE
-                if kf.aug is not None:  # c = gamma J, averaged with J's weights
-                    self.c_local = kf.gamma * j_local
-                    au[CH_CN] = w * self.c_local
-                    self.c_offered = self.c_offered or bool(self._on() & 2)
-
-    def _predict(self, tick: int, rot: complex, j_sign: float | None) -> None:
-        """Prediction to tick + 1 with the total force and torque (decomposition (12)-(14)); ``j_sign``:
-        s(t) in the J stage (its torque is s(t) n mean_i g_i), None elsewhere."""
-        spec = self.spec
-        kf = self.kf
-        dt = self.dt
-        n = self.n
-        x = self.avg.x
-        if kf.ready:
-            fbar = complex(x[CH_FX], x[CH_FY])
-            if j_sign is not None:
-                torque = n * j_sign * x[CH_JG]
-            else:
-                zc = complex(x[CH_ZX], x[CH_ZY]) * rot
-                torque = n * ((zc.real * fbar.imag - zc.imag * fbar.real) + x[CH_DT])
-            self.psi += dt * kf.omega  # the body turns by the pre-update omega (semi-implicit Euler)
-            self.cc += dt * torque
-            self.cw += dt * kf.omega
-            self.f_int += dt * n * fbar
-            # the detection's nuisance: the known error of the consensus force, which lags the applied one
-            # (the m stage's common force is n times the own; the J stage's net force is zero)
-            ferr = 0j
-            if self.detect is not None:
-                if self.stage == M_EXCITE:
-                    ferr = n * (self.last_f - fbar)
-                elif j_sign is not None:
-                    ferr = -n * fbar
-            kf.predict(n * fbar, torque, dt, ferr)
-            for f in (self.shadow, self.twin):
-                if f is not None:
-                    f.predict(n * fbar, torque, dt, ferr)
-            iota = kf.iota
-            # only once 1/J is known to 10 % (or, with j_feedforward, through the whole J stage: its torque
-            # is exact and 1/J keeps its pre-stage value when it is forgotten)
-            if iota > 0.0 and (kf.iota_var < (0.1 * iota) ** 2 or (j_sign is not None and spec.j_feedforward)):
-                self.alpha = iota * torque
-                if kf.aug is not None:
-                    self.alpha -= kf.gamma * kf.omega
-            else:
-                self.alpha = 0.0  # not a stale acceleration from before 1/J was forgotten
-            if self.restarted and spec.filter_omega:
-                om = kf.omega
-                self.om_meas = om if om - om == 0.0 else math.nan  # a diverged filter: back to eq. (9)
-        i = (tick + 1) % self.hist
-        self.cum_t[i], self.cum_c[i], self.cum_w[i] = tick + 1, self.cc, self.cw
-        self.late_z = self.late_c = self.late_w = 0.0
-
-    def _law_wrench(self, tick: int, stage: int, v: complex, q: complex, zc: complex,
-                    default: tuple[float, float, float]) -> tuple[float, float, float]:
-        """The user's law with this tick's estimates (agents/laws.py); its output is checked here, at the edge."""
-        x = self.avg.x
-        kf = self.kf
+    def _law_wrench(self, tick: int, v: complex, r: list[float]) -> None:
+        """P3: the user's law with this tick's estimates (agents/laws.py); its output is checked here, at the edge,
+        and replaces the stage's wrench in the kernel's results."""
+        x = self._F[0, X].tolist()
+        q = complex(r[T.R_Q], r[T.R_Q + 1])
+        zc = complex(r[T.R_ZC], r[T.R_ZC + 1])
         li = LawInput()
         li.tick = tick
         li.t = tick * self.dt
-        li.stage = "done" if stage == DONE else "background"
+        li.stage = "done" if int(self._r["stage"]) == DONE else "background"
         li.m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else math.nan
         li.J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else math.nan
-        if kf.ready:
-            vc = kf.vc
-            li.omega = kf.omega
-            li.vc = (vc.real, vc.imag)
+        k = int(self._r["kf_slot"])
+        if self._fs[0, k]["ready"]:
+            s = self._s[0, k].tolist()
+            li.omega = s[5]
+            li.vc = (s[0], s[1])
             li.q = (q.real, q.imag)
         else:
             li.omega = math.nan
             li.vc = li.q = (math.nan, math.nan)
         li.zc = (zc.real, zc.imag)
         li.v = (v.real, v.imag)
-        li.default = default
+        li.default = (r[T.R_FX], r[T.R_FY], r[T.R_TAU])
         try:
             out = self.law(li)
         except Exception as exc:  # the user's code: one line naming it, where and when, not a bare traceback
             raise ControlLawError(f"control.law {self.law_ref!r} raised {type(exc).__name__}: {exc} at tick {tick} "
                                   f"(agent {self.id})") from exc
-        return checked_wrench(out, self.law_ref, tick, self.id)
+        self._res[0, T.R_FX:T.R_TAU + 1] = checked_wrench(out, self.law_ref, tick, self.id)
 
     # ------------------------------------------------------------------ outputs
     def monitor_entries(self) -> dict[str, float]:
@@ -707,78 +323,7 @@ class DynamicPhase:
         return out
 
     def uncertainties(self) -> tuple[float, float]:
-        """One standard deviation of the m and J consensus values (NaN while there is none): the filter's sd
-        of the own local value and the spread to the neighbours' values that the averaging has not removed,
-        in quadrature (docs/estimate-trust.md)."""
-        x = self.avg.x
-        nx = self.avg.nx.values()
-        out = []
-        for num, wch, sd in ((CH_MN, CH_MW, self.m_local_sd), (CH_JN, CH_JW, self.j_local_sd)):
-            if x[wch] <= 0.0:
-                out.append(math.nan)
-                continue
-            s = spread_sd(x[num] / x[wch], (xj[num] / xj[wch] for xj in nx if xj[wch] > 0.0))
-            out.append(abs(complex(sd if sd == sd else 0.0, s)))  # libm's hypot, as in the kernels
-        return out[0], out[1]
-
-    def _shared(self) -> dict[str, float]:
-        """The StateMsg.shared entries of the dynamical phase."""
-        return dict(zip(self.lay.keys[len(KIN_KEYS):], self._shared_values(), strict=True))
-
-    def _shared_values(self) -> list[float]:
-        """:meth:`_shared`'s values, in the OUT row's order (net/rows.py Layout.keys after the kinematic ones)."""
-        out = [*self.avg.x, float(self.avg.deg), float(self.stage_tick), self.psi if self.psi == self.psi else 0.0,
-               *self.barrier.encode().values()]
-        if self.detect is not None:
-            out += self.detect.flood.encode().values()
-        return out
-
-    def _write_out(self, row: np.ndarray) -> None:
-        """The stage, :meth:`_shared_values` and each neighbour's flows into the agent's OUT row."""
-        lay = self.lay
-        avg = self.avg
-        row[PHASE] = self.stage
-        row[OM + len(KIN_KEYS):lay.p0] = self._shared_values()
-        if avg.deg:
-            # (the flow average's bank row: avg.flow's values without the lists)
-            row[lay.p0:lay.p0 + avg.deg * lay.block].reshape(avg.deg, lay.block)[:, PAIR_HEAD:] = \
-                avg._F[avg._b, FLOW:FLOW + avg.deg]
-
-    def _on(self) -> int:
-        """The effects in the model (bit k: EFFECTS[k]): declared (estimate_effects: the augmented filter
-        carries b and c, reported both) or switched on online."""
-        return 3 | self.declared if self.detect is None else self.detect.on
-
-    def _estimates(self) -> dict[str, float]:
-        """The estimate values of the dynamical phase (``ESTIMATE_NAMES`` from "J" on)."""
-        x = self.avg.x
-        s = self.kf.s
-        nan = math.nan
-        m = x[CH_MN] / x[CH_MW] if x[CH_MW] > 0.0 else nan
-        J = x[CH_JN] / x[CH_JW] if x[CH_JW] > 0.0 else nan
-        on = self._on()
-        if self.stage >= M_AVERAGE:
-            zc = complex(x[CH_ZX], x[CH_ZY]) * complex(cos(self.psi), sin(self.psi))
-            vc = complex(s[0], s[1])
-        else:
-            zc = vc = complex(nan, nan)
-        return {
-            "J": J,
-            "m": m,
-            "zc_x": zc.real,
-            "zc_y": zc.imag,
-            "vc_x": vc.real,
-            "vc_y": vc.imag,
-            "J_local": self.j_local,
-            "m_local": self.m_local,
-            "late_switches": float(self.late_switches),
-            # augmented model (estimate_effects): b with m's weights, c with J's
-            "b": x[CH_BN] / x[CH_MW] if len(x) > CH_BN and x[CH_MW] > 0.0 and on & 1 and self.b_offered else nan,
-            "c": x[CH_CN] / x[CH_JW] if len(x) > CH_CN and x[CH_JW] > 0.0 and on & 2 and self.c_offered else nan,
-            "fc": x[CH_FN] / x[CH_MW] if len(x) > CH_FN and x[CH_MW] > 0.0 and on & 4 and self.f_offered else nan,
-            "fb_x": x[CH_FBX] / x[CH_MW] if len(x) > CH_FBX and x[CH_MW] > 0.0 and on & 8 and self.fb_offered else nan,
-            "fb_y": x[CH_FBY] / x[CH_MW] if len(x) > CH_FBY and x[CH_MW] > 0.0 and on & 8 and self.fb_offered else nan,
-            "b_local": self.b_local if on & 1 else nan,
-            "c_local": self.c_local if on & 2 else nan,
-            "filter_restarts": float(self.reseeds),
-        }
+        """One standard deviation of the m and J consensus values after the last tick (NaN while there is none):
+        the filter's sd of the own local value and the spread to the neighbours' values that the averaging has
+        not removed, in quadrature (docs/estimate-trust.md; computed by the tick's kernel)."""
+        return self._last[T.R_M_SD], self._last[T.R_J_SD]

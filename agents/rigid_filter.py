@@ -60,6 +60,13 @@ class RigidEKF:
         self._set_bank(F.new_bank(1, 1, F.D_AUGMENTED if aug else F.D_NOMINAL))
         init_slot(self._bank, 0, 0, sigma_v, spec, background)
 
+    @classmethod
+    def view(cls, bank: tuple[np.ndarray, ...], b: int, k: int) -> RigidEKF:
+        """The filter of slot (b, k) of ``bank`` (filter.py's arrays), in place: its methods change the bank."""
+        new = cls.__new__(cls)
+        new._set_bank(tuple(a[b:b + 1, k:k + 1] for a in bank))
+        return new
+
     def _set_bank(self, bank: tuple[np.ndarray, ...]) -> None:
         self._bank = bank
         self._f = bank[0][0, 0]  # the slot's record (a view)

@@ -187,7 +187,7 @@ class TeamCore:
                                       tail)
                 dyn = dynamic_phase.DynamicPhase(int(m.agent_id), ids, int(m.n), float(m.dt), sig, spec,
                                                  m.estimator.history_ticks, law=m.law, law_ref=m.control.law)
-                lays.add((True, dyn.avg.nch, len(dyn.barrier.mask_keys), dyn.detect is not None))
+                lays.add((True, dyn.lay.nch, dyn.lay.nbk, dyn.lay.detection))
             elif m.law is not None:
                 raise ValueError("a control law needs the dynamical phase "
                                  "(dynamics.algorithm sequential or background)")

@@ -1,8 +1,8 @@
 """The records one agent tick passes between its kinematic and dynamical phases (docs/agent-step.md).
 
 :class:`KinematicTick` goes from the kinematic phase to the dynamical phase, :class:`DynamicOut` back
-to the agent, and its :class:`DynamicFeedback` into the kinematic phase of the next tick. Nothing else
-crosses: neither phase reads the other's fields.
+to the agent (the phase's states go into the agent's OUT row), and its :class:`DynamicFeedback` into the
+kinematic phase of the next tick. Nothing else crosses: neither phase reads the other's fields.
 """
 
 from __future__ import annotations
@@ -22,22 +22,6 @@ class DynamicFeedback(NamedTuple):
     team_waiting: bool = False  # kinematic stage and some agent not ready yet (the omega boost applies)
 
 
-class DynamicMsg(NamedTuple):
-    """A neighbour's dynamical-phase states of one message, decoded from its IN row (agents/dynamic_phase.py)."""
-
-    sender: int
-    tick: int
-    stage: int
-    psi: float  # its body-frame angle of the consensus on body-fixed vectors
-    deg: int  # its degree (Metropolis weights)
-    x: list[float]  # its consensus channels
-    flows: list[float]  # its flows to us
-    barrier: tuple[int, int, int]  # (ready mask, latest ready tick, switch tick)
-    stage_tick: int  # tick its stage began
-    omega_hat: float  # its kinematic omega_hat (NaN if absent)
-    decision: tuple[int, int, float] | None = None  # its flooded effect switch (online detection only)
-
-
 class KinematicTick(NamedTuple):
     """The kinematic phase's results of one tick (Sec. IV of paper 000)."""
 
@@ -55,7 +39,7 @@ class KinematicTick(NamedTuple):
     ready: int  # neighbours whose z_ij is estimated
     trusted: bool  # every pair estimated
     wrench: tuple[float, float, float]  # the kinematic control law's (fx, fy, tau)
-    inbox: np.ndarray  # the IN rows (net/rows.py) whose dynamical states are taken this tick, in order (k, size_in)
+    inbox: np.ndarray  # the neighbours' IN rows (net/rows.py) whose dynamical states are taken, in taking order
     dropped_unknown: int  # counters so far (see ESTIMATE_NAMES)
     dropped_stale: int
 

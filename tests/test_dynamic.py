@@ -16,13 +16,13 @@ from conftest import ROOT as REPO
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from agents import dynamic_phase as D
 from agents.consensus import FlowAverage
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import StageBarrier
 from coload.runs.engine import run_inproc
 from config.agent_params import DynamicsSpec
 from config.loader import load_scenario
+from net import vocabulary as D
 from simulator.plant import Plant
 
 FIG4 = REPO / "config" / "scenarios" / "paper-fig4.toml"

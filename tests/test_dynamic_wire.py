@@ -34,31 +34,43 @@ def test_dynamic_states_are_decoded_and_checked_at_the_edge() -> None:
     """A neighbour's dynamical states are checked as a whole by the edge codec (net/rows.py): one bad
     value or missing key marks the row malformed (nothing of it is taken); the flows default to zeros
     when it sent none for us yet."""
-    from agents.dynamic_phase import _dynamic_msg
+    from agents.kernels import dynamic as K
+    from agents.kernels.agreement import FLOW
     from config.agent_params import DynamicsSpec
     from net import rows as R
     from net.messages import StateMsg
 
     dyn = D.DynamicPhase(1, [0, 2], 3, 0.01, 0.1, DynamicsSpec())
-    out = {"om": 0.5, "oi": 1.0, "ph": 0.0, "yx": 0.0, "yy": 0.0, **dyn._shared()}
-    lay = R.Layout(True, dyn.avg.nch, len(dyn.barrier.mask_keys), False, 2)
-    flows = [0.5] * dyn.avg.nch
+    lay = dyn.lay
+    o = np.zeros(lay.size_out)
+    K.dyn_write_out(0, o, lay.lay, dyn._dyn, dyn._S, dyn._F, dyn._I)  # a fresh phase's OUT row
+    out = {"om": 0.5, "oi": 1.0, "ph": 0.0, "yx": 0.0, "yy": 0.0,
+           **dict(zip(lay.keys[len(R.KIN_KEYS):], o[R.OM + len(R.KIN_KEYS):lay.p0].tolist(), strict=True))}
+    nch = dyn.nch
+    flows = [0.5] * nch
 
     def row(sh: dict, fl: list | None = flows) -> np.ndarray:
-        return R.row_from_state(StateMsg(5, 0, 0.0, 0.0, D.KINEMATIC, sh, {} if fl is None else {1: (0, 0, 0, 0, *fl)}),
+        return R.row_from_state(StateMsg(5, 0, 0.0, 0.0, K.KINEMATIC, sh, {} if fl is None else {1: (0, 0, 0, 0, *fl)}),
                                 1, lay)
 
-    m = _dynamic_msg(row(dict(out)).tolist(), lay)
-    assert m.x == [float(out[k]) for k in dyn.ch_keys]
-    assert m.flows == flows
-    assert (m.psi, m.tick, m.omega_hat) == (out["ps"], 5, 0.5)
-    assert _dynamic_msg(row(dict(out), None).tolist(), lay).flows == [0.0] * dyn.avg.nch  # none sent for us yet
+    def receive(v: np.ndarray) -> None:  # neighbour 0's row into its slot 0
+        b = dyn._banks
+        K.dyn_receive(0, 0, v, lay.lay, b[0], b[1], b[2], b[3], b[4], dyn._F, dyn._I)
+
+    D2 = 2
+    receive(row(dict(out)))
+    assert dyn._F[0, FLOW + 2 * D2].tolist() == [float(out[k]) for k in dyn.ch_keys]
+    assert dyn._F[0, FLOW + D2].tolist() == flows
+    e = dyn._dnb[0, 0]
+    assert (float(e["psi"]), int(e["psi_t"]), float(e["om"])) == (out["ps"], 5, 0.5)
+    receive(row(dict(out), None))
+    assert dyn._F[0, FLOW + D2].tolist() == [0.0] * nch  # none sent for us yet
     for bad in ({"c3": math.nan}, {"ps": math.inf}, {"dg": 0.0}, {"B0": 0.5}, {"B0": -1.0}):
         assert row({**out, **bad})[R.STATUS] == R.MALFORMED
     for missing in ("c0", "ps", "dg", "Bt", "Bs", "B0", "Sk"):
         assert row({k: v for k, v in out.items() if k != missing})[R.STATUS] == R.MALFORMED
     assert row(dict(out), flows[:-1])[R.STATUS] == R.MALFORMED
-    assert row(dict(out), ["x"] * dyn.avg.nch)[R.STATUS] == R.MALFORMED
+    assert row(dict(out), ["x"] * nch)[R.STATUS] == R.MALFORMED
 
 
 @settings(max_examples=60, deadline=None)

@@ -1,16 +1,18 @@
-"""The uncertainty kernels (agents/kernels/uncertainty.py): on states recorded from DynamicPhase in quick-dynamics
-runs (the flow average's row, the first-heard order of its neighbours, the local sds, and what
-``DynamicPhase.uncertainties`` returned), the kernel gives the Python's result bit for bit, compiled equals the
-same source interpreted (``py_func``), and a row's result does not depend on the batch it is in."""
+"""The uncertainty kernels (agents/kernels/uncertainty.py): on states recorded from the Python DynamicPhase
+(tests/dynamic_reference.py) in quick-dynamics runs (the flow average's row, the first-heard order of its
+neighbours, the local sds, and what ``DynamicPhase.uncertainties`` returned), the kernel gives the Python's
+result bit for bit, compiled equals the same source interpreted (``py_func``), and a row's result does not
+depend on the batch it is in."""
 
 from __future__ import annotations
 
 import math
 
+import dynamic_reference as DP
 import numpy as np
 import pytest
 
-from agents import dynamic_phase as DP
+from agents import dynamic_phase as phase_mod
 from agents.estimate_trust import spread_sd
 from agents.kernels import uncertainty as K
 from agents.kernels.agreement import FLOW, X, flow_average_bank
@@ -47,8 +49,10 @@ def _record(overrides: list[str], loss: float, loss_until: int, seed: int) -> li
     nbrs = sc.neighbours()
     senders = [[i for i in range(sc.n) if r in nbrs[i]] for r in range(sc.n)]
     drop = np.random.default_rng(seed)
+    live = phase_mod.DynamicPhase
     try:
         DP.DynamicPhase.uncertainties = uncertainties
+        phase_mod.DynamicPhase = DP.DynamicPhase  # the team runs the reference
         plant = Plant(sc)
         team = build_team([sc.agent_view(i) for i in range(sc.n)], 2)
         rng = sensor_rng(sc.seed)
@@ -59,6 +63,7 @@ def _record(overrides: list[str], loss: float, loss_until: int, seed: int) -> li
             plant.apply_and_step(wr)
     finally:
         DP.DynamicPhase.uncertainties = orig
+        phase_mod.DynamicPhase = live
     return recs
 
 

@@ -1,12 +1,18 @@
-"""The agreement leaves of the dynamical phase, compiled: the flow-updating average.
+"""The agreement leaves of the dynamical phase, compiled: the flow-updating average, the stage barrier, the
+flooded decision.
 
 * :func:`flow_step` -- one edge of flow-updating consensus (the scalar of the kinematic phase's z_i and of every
   channel of the average; why this form: agents/consensus.py).
 * :func:`flow_average_update` -- row ``b`` of a bank of :class:`agents.consensus.FlowAverage`: every
   neighbour's flows from the latest received (x_j, F_ji, d_j), then x = u - sum_j F_ij.
+* ``barrier_*`` -- :class:`agents.stage_agreement.StageBarrier` on 50-bit mask chunks (int64 holds no n-bit
+  Python int): row ``b`` of ``S (B, SBITS + NBk)`` i8 = ME, N, HORIZON, TMAX, SWITCH, then the mask's chunks
+  (chunk c holds agents 50 c .. 50 c + 49, as on the wire).
+* ``flood_*``, :func:`better` -- :class:`agents.effect_decision.DecisionFlood`: row ``b`` of ``FI (B, 3)`` i8 =
+  the best proposal's switch tick and decision, the last applied switch tick; ``FZ (B,)`` f8 = its z.
 
-The stage barrier and the flooded decision stay Python until the team kernel calls them: at a batch of one
-a compiled call from Python costs more than their few integer operations (docs/fast-core-plan.md, S3).
+The barrier and flood kernels are not called by the agent yet: at a batch of one a compiled call from Python
+costs more than these few integer operations (docs/fast-core-plan.md, S3); the team kernel calls them.
 
 Flow-average bank (docs/fast-core-plan.md, section 1.5): two arenas, so that a call passes three arguments
 (numba's dispatch cost grows with their number). ``F (B, 2 + 3 D, nch)`` f8: rows ``U``, ``X``, then three
@@ -64,9 +70,131 @@ def flow_average_bank(B: int, D: int, nch: int) -> tuple[np.ndarray, np.ndarray]
     return F, I
 
 
+MASK_BITS = 50  # agents per chunk of the barrier's mask (exact in a double on the wire)
+ME, N, HORIZON, TMAX, SWITCH, SBITS = 0, 1, 2, 3, 4, 5  # columns of S; the mask's chunks from SBITS on
+
+
+def barrier_bank(B: int, nbk: int) -> np.ndarray:
+    """B barriers' rows with room for ``nbk`` mask chunks (all reset; ME, N, HORIZON set by the caller)."""
+    S = np.zeros((B, SBITS + nbk), np.int64)
+    S[:, TMAX] = S[:, SWITCH] = -1
+    return S
+
+
+@jit
+def _full_chunk(n, c):
+    """Chunk c of the full mask of a team of n."""
+    bits = min(MASK_BITS, n - MASK_BITS * c)
+    return (np.int64(1) << bits) - 1 if bits > 0 else np.int64(0)
+
+
+@jit
+def barrier_reset(b, S):
+    for c in range(SBITS, S.shape[1]):
+        S[b, c] = 0
+    S[b, TMAX] = -1
+    S[b, SWITCH] = -1
+
+
+@jit
+def barrier_complete(b, S):
+    """Every agent is known to be ready."""
+    for c in range(S.shape[1] - SBITS):
+        if S[b, SBITS + c] != _full_chunk(S[b, N], c):
+            return False
+    return True
+
+
+@jit
+def _barrier_check(b, S):
+    if S[b, SWITCH] < 0 and barrier_complete(b, S):
+        S[b, SWITCH] = S[b, TMAX] + S[b, HORIZON]
+
+
+@jit
+def barrier_set_ready(b, S, tick):
+    me = S[b, ME]
+    c = SBITS + me // MASK_BITS
+    bit = np.int64(1) << (me % MASK_BITS)
+    if not S[b, c] & bit:
+        S[b, c] |= bit
+        S[b, TMAX] = max(S[b, TMAX], tick)
+        _barrier_check(b, S)
+
+
+@jit
+def barrier_merge(b, S, mask, tmax, switch):
+    """A neighbour's (mask chunks, latest ready tick, switch tick); ``mask`` may be shorter than the row's."""
+    if switch >= 0 and S[b, SWITCH] < 0:
+        S[b, SWITCH] = switch
+    new = False
+    for c in range(mask.shape[0]):
+        if mask[c] & ~S[b, SBITS + c]:
+            new = True
+    if new:
+        for c in range(mask.shape[0]):
+            S[b, SBITS + c] |= mask[c] & _full_chunk(S[b, N], c)
+        S[b, TMAX] = max(S[b, TMAX], tmax)
+        _barrier_check(b, S)
+
+
+BEST_S, BEST_E, DONE = 0, 1, 2  # columns of FI
+
+
+def flood_bank(B: int) -> tuple[np.ndarray, np.ndarray]:
+    """B empty floods: (FI, FZ), no proposal, none applied."""
+    return np.full((B, 3), -1, np.int64), np.zeros(B)
+
+
+@jit
+def better(a_s, a_e, a_z, b_s, b_e, b_z):
+    """Is proposal a = (switch tick, decision, z) preferred to b? The earliest tick, then the largest |z|, then
+    the lowest decision: Python's tuple order on (s, -|z|, e), a NaN z comparing unequal and not smaller."""
+    if a_s < 0:
+        return False
+    if b_s < 0:
+        return True
+    if a_s != b_s:
+        return a_s < b_s
+    x, y = -abs(a_z), -abs(b_z)
+    if x != y:
+        return x < y
+    return a_e < b_e
+
+
+@jit
+def flood_merge(b, FI, FZ, s, e, z):
+    if s > FI[b, DONE] and better(s, e, z, FI[b, BEST_S], FI[b, BEST_E], FZ[b]):
+        FI[b, BEST_S] = s
+        FI[b, BEST_E] = e
+        FZ[b] = z
+
+
+@jit
+def flood_due(b, FI, FZ, tick):
+    """The pending proposal (s, e, z) if its switch tick has come, then cleared and ``DONE`` set; else s = -1."""
+    s = FI[b, BEST_S]
+    if s < 0 or tick < s:
+        return -1, -1, 0.0
+    e, z = FI[b, BEST_E], FZ[b]
+    FI[b, DONE] = s
+    FI[b, BEST_S] = FI[b, BEST_E] = -1
+    FZ[b] = 0.0
+    return s, e, z
+
+
 @register_warm
 def warm() -> None:
     for args in ((1.0, 0.5, 0.25, 0.1), (1.0, 0.5, 0.25, None), (1j, 0.5j, 0.25, 0.1j), (1j, 0.5j, 0.25, None)):
         flow_step(*args)
     F, I = flow_average_bank(1, 1, 1)
     flow_average_update(0, F, I)
+    S = barrier_bank(1, 1)
+    S[0, N] = 2
+    barrier_set_ready(0, S, 3)
+    barrier_merge(0, S, np.ones(1, np.int64), 4, -1)
+    barrier_complete(0, S)
+    barrier_reset(0, S)
+    FI, FZ = flood_bank(1)
+    flood_merge(0, FI, FZ, 5, 1, 2.5)
+    flood_due(0, FI, FZ, 6)
