@@ -17,13 +17,14 @@ from pathlib import Path
 
 from agents.agent import AgentCore
 from agents.laws import ControlLawError, LawFactory, LawSetup
-from agents.team import TeamCore
+from agents.team import Member, TeamCore
 from config.agent_params import LAW_REF
 from config.scenario import AgentView
 
 
-def build_agent(view: AgentView) -> AgentCore:
-    return AgentCore(
+def member(view: AgentView) -> Member:
+    """The agent of ``view`` as a team's member (its control law built)."""
+    return Member(
         agent_id=view.agent,
         neighbours=list(view.neighbours),
         n=view.n,
@@ -36,10 +37,14 @@ def build_agent(view: AgentView) -> AgentCore:
     )
 
 
+def build_agent(view: AgentView) -> AgentCore:
+    return AgentCore(*member(view))
+
+
 def build_team(views: Sequence[AgentView], ring: int = 2) -> TeamCore:
-    """The agents of ``views`` as one team (rows in that order), each built by :func:`build_agent`; ``ring``:
-    the slots of its OUT ring (agents.team.TeamCore)."""
-    return TeamCore([build_agent(v) for v in views], ring)
+    """The agents of ``views`` as one team (rows in that order), each as :func:`build_agent` builds it;
+    ``ring``: the slots of its OUT ring (agents.team.TeamCore)."""
+    return TeamCore([member(v) for v in views], ring)
 
 
 def build_law(view: AgentView):

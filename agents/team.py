@@ -1,79 +1,359 @@
-"""The agents that one process steps, behind one call per tick: the engines' side of the team core.
+"""The agents that one process steps, behind one call per tick: the team core.
 
 :meth:`TeamCore.step` (tick, measured velocities (B, 2), :class:`Inbox`) -> wrenches (B, 3): every agent's
-tick. The agents' messages of the tick stay in the team's OUT ring (slot ``tick % ring``); an inbox names
-each agent's due messages as a CSR over a ring of messages, in the order the agent takes them:
-``ref[ptr[b]:ptr[b + 1]]`` = rows (ring slot, sender row, block). Estimates are built on demand
+tick. The agents' messages are float rows (net/rows.py): each tick's OUT rows stay in the team's OUT ring
+``out`` (ring, B, size_out), slot ``tick % ring``; an inbox names each agent's due messages as a CSR over
+that ring, in the order the agent takes them: ``ref[ptr[b]:ptr[b + 1]]`` = rows (ring slot, sender row,
+the receiver's pair block in the sender's OUT row, -1: none). Estimates are built on demand
 (:meth:`TeamCore.estimates`), on the ticks that are recorded. docs/fast-core-plan.md, sections 2 and 4 (S7).
 
-Each row is an :class:`agents.agent.AgentCore` and a message is its ``StateMsg`` (block 0, the whole
-message), until the compiled team step replaces the loop over the rows.
+A tick: one compiled gather of every IN row from the ring (agents/kernels/message_rows.py), one
+kinematic kernel call for all B agents (agents/kernels/kinematic.py), one write of every OUT row's
+kinematic part, then per agent its dynamical phase (:class:`agents.dynamic_phase.DynamicPhase`) on its
+:class:`agents.tick_records.KinematicTick`, writing its own slots of its OUT row.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from agents.agent import AgentCore
+from agents import dynamic_phase
+from agents.estimate_trust import EstimateTrust
+from agents.kernels.kinematic import (
+    HOLD_MAX,
+    I_ALPHA,
+    I_HOLD,
+    I_OM_MEAS,
+    I_WAITING,
+    R_DROPPED_STALE,
+    R_DROPPED_UNKNOWN,
+    R_FX,
+    R_FY,
+    R_NACC,
+    R_NLATE,
+    R_OM_INIT,
+    R_OMEGA,
+    R_PAIRS,
+    R_PHI,
+    R_READY,
+    R_TAU,
+    R_TRUSTED,
+    R_U,
+    R_U_DEN,
+    R_Y,
+    R_ZI,
+    kin_bank,
+    kin_step,
+    set_kin_params,
+)
+from agents.kernels.message_rows import gather_inbox, write_kin_out
+from agents.kernels.pair import pair_bank, pair_checkpoints
+from agents.laws import LawInput
+from agents.pair_estimator import PairEstimator
+from agents.tick_records import KinematicTick
+from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg
+from net.rows import Layout, state_from_row
+from net.vocabulary import ESTIMATE_NAMES, KINEMATIC, SPINUP
+
+_DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
+_NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)
+
+
+class Member(NamedTuple):
+    """One agent of a team: what :class:`agents.agent.AgentCore` is built from."""
+
+    agent_id: int
+    neighbours: Sequence[int]
+    n: int
+    dt: float
+    sigma_v: float
+    estimator: EstimatorSpec
+    control: ControlSpec
+    dynamics: DynamicsSpec | None = None
+    law: Callable[[LawInput], Sequence[float]] | None = None  # a control law of the user's (agents/laws.py)
+
+
+def assumed_sigma_v(m: Member) -> float:
+    """The velocity noise the agent assumes: its estimator's, else the scenario's."""
+    return float(m.estimator.sigma_v if m.estimator.sigma_v is not None else m.sigma_v)
 
 
 @dataclass(frozen=True, slots=True)
 class Inbox:
     """The due messages of every agent of a tick: ``ref[ptr[b]:ptr[b + 1]]`` are agent b's, in taking order."""
 
-    msgs: Sequence[Sequence[StateMsg]]  # the ring the rows point into: msgs[slot][row]
     ptr: np.ndarray  # (B + 1,) int64
-    ref: np.ndarray  # (E, 3) int64: ring slot, sender row, block
+    ref: np.ndarray  # (E, 3) int64: ring slot, sender row, the receiver's block in the sender's OUT row
+
+
+class AgentView:
+    """Row ``_row`` of a team: one agent's kinematic state, dynamical phase and stage, read by tests and tools."""
+
+    _team: TeamCore
+    _row: int
+
+    @property
+    def id(self) -> int:
+        return self._team.ids[self._row]
+
+    @property
+    def stage(self) -> int:
+        """The stage of the last tick stepped."""
+        return self._team.stages[self._row]
+
+    @property
+    def _dyn(self) -> dynamic_phase.DynamicPhase | None:
+        return self._team.dyns[self._row]
+
+    @property
+    def omega(self) -> float:
+        """omega_hat (rad/s)."""
+        return self._team.kin["omega"].item(self._row)
+
+    @property
+    def phi(self) -> float:
+        """Body-frame angle (rad)."""
+        return self._team.kin["phi"].item(self._row)
+
+    @property
+    def y(self) -> complex:
+        """z_i in the body frame."""
+        return self._team.kin["y"].item(self._row)
+
+    @property
+    def x(self) -> complex:
+        """z_i estimate (world frame)."""
+        ph = self.phi
+        return self.y * complex(math.cos(ph), math.sin(ph))
+
+    @property
+    def trusted(self) -> bool:
+        """Every pair is estimated."""
+        return self._team.kin["trusted"].item(self._row)
+
+    @property
+    def dropped_unknown(self) -> int:
+        return self._team.kin["dropped_unknown"].item(self._row)
+
+    @property
+    def dropped_stale(self) -> int:
+        return self._team.kin["dropped_stale"].item(self._row)
+
+    @property
+    def pairs(self) -> dict[int, PairEstimator]:
+        """Each neighbour's pair estimator (z_ij)."""
+        t, b = self._team, self._row
+        return {j: PairEstimator.of(t._P, t._cps, t._prm, b, k) for k, j in enumerate(t.nbr_ids[b])}
+
+
+def _row_view(team: TeamCore, b: int) -> AgentView:
+    v = AgentView()
+    v._team, v._row = team, b
+    return v
 
 
 class TeamCore:
     """B agents' estimators and controllers, stepped together (module docstring)."""
 
-    def __init__(self, cores: Sequence[AgentCore], ring: int = 2) -> None:
+    def __init__(self, members: Sequence[Member], ring: int = 2) -> None:
         """``ring``: slots of the OUT ring; an inbox may reach back ``ring - 1`` ticks (a message sent at
         tick k - ring + 1 is the oldest one due at tick k)."""
         if ring < 2:
             raise ValueError("the OUT ring needs 2 slots at least (messages are due a tick after they are sent)")
-        self.cores = list(cores)
-        self.B = len(self.cores)
+        self.B = B = len(members)
         self.ring = ring
-        # out[slot][row]: the message of agent `row` of the tick in that slot
-        self.out: list[list[StateMsg | None]] = [[None] * self.B for _ in range(ring)]
-        self.stages = [0] * self.B  # each agent's stage at the last tick
+        self.ids: list[int] = []
+        self.nbr_ids: list[list[int]] = []  # each agent's neighbours, ascending (its pair blocks' order)
+        self.dyns: list[dynamic_phase.DynamicPhase | None] = []
+        self._trust: list[EstimateTrust | None] = []
+        lays = set()
+        for m in members:
+            if m.agent_id in m.neighbours:
+                raise ValueError("an agent cannot be its own neighbour")
+            ids = sorted(set(int(j) for j in m.neighbours))
+            sig = assumed_sigma_v(m)
+            dyn = trust = None
+            if m.dynamics is not None and m.dynamics.algorithm != "none":
+                spec = m.dynamics
+                # an averaging stage is judged on its convergence window and the agreement's horizon
+                tail = round((spec.avg_window_s + spec.horizon_s) / float(m.dt))
+                trust = EstimateTrust(len(ids), m.estimator.max_age_ticks, spec.trust_min_fresh, spec.trust_alpha,
+                                      tail)
+                dyn = dynamic_phase.DynamicPhase(int(m.agent_id), ids, int(m.n), float(m.dt), sig, spec,
+                                                 m.estimator.history_ticks, law=m.law, law_ref=m.control.law)
+                lays.add((True, dyn.lay.nch, dyn.lay.nbk, dyn.lay.detection))
+            elif m.law is not None:
+                raise ValueError("a control law needs the dynamical phase "
+                                 "(dynamics.algorithm sequential or background)")
+            else:
+                lays.add((False, 0, 0, False))
+            self.ids.append(int(m.agent_id))
+            self.nbr_ids.append(ids)
+            self.dyns.append(dyn)
+            self._trust.append(trust)
+        if len(lays) > 1:
+            raise ValueError("a team's agents share one message layout (all with or all without a dynamical phase)")
+        D = max(map(len, self.nbr_ids), default=0)
+        self._lay = Layout(*(lays.pop() if lays else (False, 0, 0, False)), D)
+        self._dynamic = self._lay.dynamic
+        # the kinematic phase: one bank for the team (agents/kernels/kinematic.py) and its pair estimators
+        H = max((m.estimator.history_ticks for m in members), default=1)
+        self._bank = kin_bank(B, D, H)
+        self.kin, self.nbr = self._bank[0], self._bank[1]
+        self.vbuf = self._bank[4]
+        self._P, self._cps, self._prm = pair_bank(B, D, max((pair_checkpoints(
+            m.estimator.fit_min_ticks, m.estimator.fit_max_ticks, m.estimator.fit_check_ticks) for m in members),
+            default=1))
+        for b, m in enumerate(members):
+            set_kin_params(self.kin, self.nbr, self._P, self._prm, b, self.ids[b], self.nbr_ids[b], float(m.dt),
+                           assumed_sigma_v(m), m.estimator, m.control, self.dyns[b] is not None)
+        self._id_arr = np.array(self.ids, np.int64)
+        self._deg = np.array([len(ids) for ids in self.nbr_ids], np.int64)
+        # (neighbour, its pair's first slot in a row of the kernel's results) per agent
+        self._pair_slots = [[(j, R_PAIRS + 4 * k) for k, j in enumerate(ids)] for ids in self.nbr_ids]
+        # blocks[s][r]: receiver row r's pair block in sender row s's OUT row
+        row_of = {j: b for b, j in enumerate(self.ids)}
+        self.blocks = [{row_of[j]: k for k, j in enumerate(ids) if j in row_of} for ids in self.nbr_ids]
+        self.out = np.zeros((ring, B, self._lay.size_out))  # out[slot, row]: the OUT row of that tick's agent
+        self.stages = [SPINUP] * B  # each agent's stage at the last tick
+        self._inp = np.zeros((B, 6))  # the kinematic kernel's inputs (agents/kernels/kinematic.py I_*)
+        self._inp[:, I_OM_MEAS] = math.nan  # (agents/tick_records.py DynamicFeedback's defaults)
+        self._late_cap = D * (H + HOLD_MAX)  # held samples a tick can release
+        self._res = np.zeros((B, R_PAIRS + 4 * D))
+        self._est: list[dict | None] = [None] * B  # the dynamical phases' estimate entries of the last tick
+        self._tick_no = -1
+        self._res_l: list[list[float]] | None = None  # the results of the last tick as Python floats (if made)
+        self._grow(0)
 
-    def agent(self, i: int) -> AgentCore:
-        """Row i's core (read by tests and tools)."""
-        return self.cores[i]
+    def _grow(self, n: int) -> None:
+        """Scratch for a tick of n IN rows."""
+        self._rows = np.zeros((n, self._lay.size_in))
+        self._order = np.zeros(n, np.int64)
+        self._acc = np.zeros(n, np.int64)
+        self._late_t = np.zeros((self.B, n + self._late_cap), np.int64)
+        self._late_z = np.zeros((self.B, n + self._late_cap))
+
+    def agent(self, i: int) -> AgentView:
+        """Row i's view (read by tests and tools)."""
+        return _row_view(self, i)
 
     def step(self, tick: int, meas: Sequence[Sequence[float]], inbox: Inbox) -> np.ndarray:
         """Every agent's tick: ``meas[b]`` its measured (vx, vy), ``inbox`` its due messages; the wrenches
-        (B, 3). The messages land in the OUT ring's slot ``tick % ring`` after every agent has read its inbox."""
-        ptr = inbox.ptr.tolist()
-        ref = inbox.ref.tolist()
-        msgs = inbox.msgs
-        states: list[StateMsg | None] = [None] * self.B
+        (B, 3). The OUT rows land in the ring's slot ``tick % ring`` after every agent has read its inbox."""
+        E = len(inbox.ref)
+        if E > len(self._order):
+            self._grow(E)
+        rows = self._rows[:E]
+        gather_inbox(self.out, inbox.ref, self._lay.lay, rows)
+        self._inp[:, :2] = meas
+        w = self._tick(tick, meas, rows, inbox.ptr)
+        return np.array(w, dtype=np.float64) if self._dynamic else w  # type: ignore[return-value]
+
+    def _tick(self, tick: int, meas: Sequence[Sequence[float]], rows: np.ndarray,
+              ptr: np.ndarray) -> np.ndarray | list[tuple[float, float, float]]:
+        """Every agent's tick on its IN rows ``rows[ptr[b]:ptr[b + 1]]`` (``meas`` already in the kernel's
+        inputs); the wrenches: (B, 3) without a dynamical phase, else a list of B (fx, fy, tau)."""
+        E = len(rows)
+        if E > len(self._order):
+            self._grow(E)
+        inp = self._inp
+        lay = self._lay
+        res = self._res
+        b = kin_step(*self._bank, self._P, self._cps, self._prm, tick, inp, rows, ptr, self._order, lay.lay,
+                     self._acc, self._late_t, self._late_z, res)
+        if b >= 0:
+            raise ValueError(f"ticks must increase: got {tick} after {self.kin['last_tick'].item(b)}")
+        self._tick_no = tick
+        out = self.out[tick % self.ring]
+        write_kin_out(out, tick, self._id_arr, inp, self._deg, res, lay.lay)
+        if not self._dynamic:
+            self._res_l = None
+            self.stages[:] = [KINEMATIC if o else SPINUP for o in res[:, R_OM_INIT].tolist()]
+            return res[:, R_FX:R_TAU + 1].copy()
         wrenches = []
         stages = self.stages
-        for b, core in enumerate(self.cores):
-            vx, vy = meas[b]
-            state, w = core.advance(tick, vx, vy, [msgs[s][r] for s, r, _ in ref[ptr[b]:ptr[b + 1]]])
-            states[b] = state
-            stages[b] = core.stage
-            wrenches.append((w.fx, w.fy, w.tau))
-        self.out[tick % self.ring] = states
-        return np.array(wrenches, dtype=np.float64)
+        acc = self._acc[:E].tolist()
+        heads = rows[:, :2].tolist()  # (tick, sender) of every IN row: TICK, SENDER are its first slots
+        self._res_l = res_l = res.tolist()
+        for b, (dyn, r, lo) in enumerate(zip(self.dyns, res_l, ptr.tolist(), strict=False)):
+            e = acc[lo:lo + int(r[R_NACC])]
+            # the taken rows: a view where they are consecutive rows in order (as a sorted inbox's are)
+            if not e:
+                taken = rows[lo:lo]
+            elif e == list(range(e[0], e[0] + len(e))):
+                taken = rows[e[0]:e[0] + len(e)]
+            else:
+                taken = rows[e]
+            o = dyn.step(self._kinematic_tick(b, tick, meas[b], r, taken), out[b])  # type: ignore[union-attr]
+            fb = o.feedback  # (by item: a tuple into a row costs more than four items)
+            inp[b, I_OM_MEAS] = fb.om_meas
+            inp[b, I_ALPHA] = fb.alpha
+            inp[b, I_HOLD] = fb.hold_shape
+            inp[b, I_WAITING] = fb.team_waiting
+            stages[b] = stage = o.stage
+            self._trust[b].observe(tick, stage, [(int(heads[i][1]), int(heads[i][0])) for i in e])  # type: ignore
+            self._est[b] = o.estimates
+            wrenches.append(o.wrench)
+        return wrenches
+
+    def _kinematic_tick(self, b: int, tick: int, v: Sequence[float], r: list[float],
+                        taken: np.ndarray) -> KinematicTick:
+        """Agent b's kinematic results of the tick as the dynamical phase reads them (``v``: its measured
+        velocity, ``r``: its row of the results, ``taken``: the IN rows whose dynamical states it takes)."""
+        nl = int(r[R_NLATE])
+        late = (tuple(zip(self._late_t[b, :nl].tolist(), self._late_z[b, :nl].tolist(), strict=True)) if nl
+                else ())
+        pairs = tuple((j, complex(r[p], r[p + 1]), complex(r[p + 2], r[p + 3])) for j, p in self._pair_slots[b])
+        vx, vy = v
+        # (KinematicTick's fields in order)
+        return KinematicTick(tick, complex(vx, vy), r[R_U], r[R_U_DEN], late, r[R_OMEGA], r[R_OM_INIT] != 0.0,
+                             r[R_PHI], complex(r[R_Y], r[R_Y + 1]), complex(r[R_ZI], r[R_ZI + 1]), pairs,
+                             int(r[R_READY]), r[R_TRUSTED] != 0.0, (r[R_FX], r[R_FY], r[R_TAU]), taken,
+                             int(r[R_DROPPED_UNKNOWN]), int(r[R_DROPPED_STALE]))
+
+    def _estimate(self, b: int) -> Estimate:
+        """Agent b's estimate of the last tick stepped."""
+        r = self._res_l[b] if self._res_l is not None else self._res[b].tolist()
+        dyn = self.dyns[b]
+        if dyn is None:
+            dyn_est = _NO_DYN
+        else:
+            est = self._est[b]
+            m_sd, j_sd = dyn.uncertainties()
+            dyn_est = {**est, **self._trust[b].entries(est["m"], m_sd, est["J"], j_sd),  # type: ignore
+                       **dyn.monitor_entries()}
+        values = {
+            "phase": float(self.stages[b]),
+            "omega": r[R_OMEGA],
+            "omega_local": r[R_U],
+            "zi_x": r[R_ZI],
+            "zi_y": r[R_ZI + 1],
+            "pairs_ready": float(int(r[R_READY])),
+            "dropped_unknown": float(int(r[R_DROPPED_UNKNOWN])),
+            "dropped_stale": float(int(r[R_DROPPED_STALE])),
+            **dyn_est,
+        }
+        p = R_PAIRS
+        pairs = {j: (r[p + 4 * k], r[p + 4 * k + 1]) for k, j in enumerate(self.nbr_ids[b])}
+        return Estimate(self._tick_no, self.ids[b], values, pairs)
 
     def estimates(self) -> list[Estimate]:
         """Every agent's estimate of the last tick stepped (valid until the next step)."""
-        return [core.estimate() for core in self.cores]
+        return [self._estimate(b) for b in range(self.B)]
 
-    def states(self, tick: int) -> list[StateMsg]:
-        """Every agent's message of ``tick`` (one of the last ``ring`` ticks stepped)."""
-        return self.out[tick % self.ring]  # type: ignore[return-value]
+    def message(self, tick: int, b: int) -> StateMsg:
+        """Agent b's message of ``tick`` (one of the last ``ring`` ticks stepped) as the wire carries it."""
+        return state_from_row(self.out[tick % self.ring, b], self._lay, self.nbr_ids[b])
+
+    def states(self, tick: int) -> np.ndarray:
+        """Every agent's OUT row of ``tick`` (one of the last ``ring`` ticks stepped): (B, size_out)."""
+        return self.out[tick % self.ring]
 
 
 def inbox_rows(ptr: Sequence[int], ref: Sequence[Sequence[int]]) -> tuple[np.ndarray, np.ndarray]:
@@ -88,21 +368,22 @@ def lockstep_inboxes(team: TeamCore, senders: Sequence[Sequence[int]], age: int)
     have :func:`empty_inbox`."""
     if not 1 <= age < team.ring:
         raise ValueError(f"a message due {age} ticks after it is sent needs a ring of more than {age} slots")
+    blocks = team.blocks
     out = []
     for k in range(team.ring):
         slot = (k - age) % team.ring
         ptr = [0]
         ref = []
-        for row in senders:
-            ref += [(slot, s, 0) for s in row]
+        for b, row in enumerate(senders):
+            ref += [(slot, s, blocks[s].get(b, -1)) for s in row]
             ptr.append(len(ref))
-        out.append(Inbox(team.out, *inbox_rows(ptr, ref)))
+        out.append(Inbox(*inbox_rows(ptr, ref)))
     return out
 
 
 def empty_inbox(team: TeamCore) -> Inbox:
     """No message for anyone."""
-    return Inbox(team.out, *inbox_rows([0] * (team.B + 1), []))
+    return Inbox(*inbox_rows([0] * (team.B + 1), []))
 
 
 def handle_inbox(team: TeamCore, tick: int, due: Sequence[Sequence[tuple[int, int]]]) -> Inbox:
@@ -110,12 +391,13 @@ def handle_inbox(team: TeamCore, tick: int, due: Sequence[Sequence[tuple[int, in
     messages that a link model delayed, lost, reordered or duplicated (a duplicate is two rows naming one
     message)."""
     ring = team.ring
+    blocks = team.blocks
     ptr = [0]
     ref = []
-    for handles in due:
+    for b, handles in enumerate(due):
         for t, s in handles:
             if not 0 < tick - t < ring:
                 raise ValueError(f"a message of tick {t} is due at {tick}: beyond the OUT ring ({ring} slots)")
-            ref.append((t % ring, s, 0))
+            ref.append((t % ring, s, blocks[s].get(b, -1)))
         ptr.append(len(ref))
-    return Inbox(team.out, *inbox_rows(ptr, ref))
+    return Inbox(*inbox_rows(ptr, ref))

@@ -3,19 +3,22 @@
 from __future__ import annotations
 
 import math
+
 import numpy as np
 import pytest
+from rigid_truth import line_neighbours, reference_load, run_closed_loop
 
-from agents.agent import ESTIMATE_NAMES, AgentCore, StepResult
+from agents.agent import AgentCore, StepResult
 from config.agent_params import ControlSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
-from rigid_truth import line_neighbours, reference_load, run_closed_loop
+from net.vocabulary import ESTIMATE_NAMES
 
 SECONDS = 12.0  # long enough for every pair to lock (first fits at ~5-6 s)
 
 
 def _clean(seed: int = 0):
-    return run_closed_loop(reference_load(), line_neighbours(10), sigma=0.3, seconds=SECONDS, seed=seed, record_every=25)
+    return run_closed_loop(reference_load(), line_neighbours(10), sigma=0.3, seconds=SECONDS, seed=seed,
+                           record_every=25)
 
 
 def _faulty(deliver, seed: int = 0):
@@ -81,8 +84,8 @@ def test_duplicates_and_same_tick_reordering_change_nothing(clean) -> None:
 
 def test_unknown_senders_are_ignored_and_counted(clean) -> None:
     def intruder(tick: int, i: int, msgs: list[StateMsg]) -> list[StateMsg]:
-        bogus = StateMsg(max(tick - 1, 0), 99 + i, 50.0, -50.0, 1, {"om": 100.0, "oi": 1.0, "ph": 3.0, "yx": 9.0, "yy": 9.0},
-                         {i: (7.0, 7.0)})
+        bogus = StateMsg(max(tick - 1, 0), 99 + i, 50.0, -50.0, 1,
+                         {"om": 100.0, "oi": 1.0, "ph": 3.0, "yx": 9.0, "yy": 9.0}, {i: (7.0, 7.0)})
         return [bogus] + msgs
 
     r = _faulty(intruder)

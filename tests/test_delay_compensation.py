@@ -20,6 +20,7 @@ from rigid_truth import line_neighbours, reference_load, run_closed_loop
 from test_agent_core import Links
 
 from agents.agent import AgentCore
+from agents.kernels.kinematic import I_OM_MEAS
 from agents.tick_records import DynamicFeedback
 from config.agent_params import ControlSpec, EstimatorSpec
 
@@ -83,7 +84,7 @@ def _ramp_onset_error(delay: int, seed: int) -> float:
     for k in range(int(round(18.0 / DT))):
         ramp = 0.3 if k * DT >= 15.0 else 0.0
         for a in agents:
-            a._fb = DynamicFeedback(alpha=ramp)  # this tick's, as the dynamical phase would have left it
+            a._inp[0, I_OM_MEAS:] = DynamicFeedback(alpha=ramp)  # this tick's, as the dynamical phase would leave it
         meas = load.contact_velocities() + rng.normal(0.0, 0.3, n) + 1j * rng.normal(0.0, 0.3, n)
         inboxes = due.pop(k, [[] for _ in range(n)])
         states = [agents[i].step(k, float(meas[i].real), float(meas[i].imag), inboxes[i]).state for i in range(n)]

@@ -7,12 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agents.factory import build_team
-from agents.team import Inbox, TeamCore, empty_inbox, handle_inbox, inbox_rows, lockstep_inboxes
+from agents.factory import build_agent, build_team
+from agents.team import TeamCore, empty_inbox, handle_inbox, lockstep_inboxes
 from coload.runs.engine import LinkNetwork
 from config.loader import load_scenario
 from config.scenario import Scenario
 from net.link import DelayLine
+from net.rows import SENDER, TICK
 from simulator.plant import Plant, sensor_rng
 from tests.conftest import SCENARIOS
 
@@ -22,33 +23,31 @@ ONLINE = ["plant.friction.viscous=5", "dynamics.online_detection=true"]
 
 
 def _team_equals_teams_of_one(sc: Scenario) -> int:
-    """Steps the scenario's agents as one team (B = n, its inboxes from handles through the link models, as the
-    in-process engine does with faults) and each as a team of its own (B = 1) fed the same inbox from the
-    messages of the teams of one; asserts their outputs equal at every tick; returns the ticks stepped."""
+    """Steps the scenario's agents as one team (B = n, its messages rows in its OUT ring, its inboxes from
+    handles through the link models, as the in-process engine does with faults) and each as an AgentCore (a
+    team of one behind the edge codec) fed the StateMsgs the link models deliver; asserts their outputs
+    (wrench, message, estimate, stage) equal at every tick; returns the ticks stepped."""
     n = sc.n
     plant = Plant(sc)
     rng = sensor_rng(sc.seed)
     net = LinkNetwork(sc, sc.mode)
     views = [sc.agent_view(i) for i in range(n)]
     team = build_team(views, ring=1 + net.reach)
-    alone = [build_team([v], ring=1 + net.reach) for v in views]
-    sent: dict[int, list] = {}  # the teams of one's messages by tick (not a ring: independent of its slots)
+    alone = [build_agent(v) for v in views]
+    sent: dict[int, list] = {}  # the agents' messages by tick (not a ring: independent of its slots)
     for k in range(sc.ticks):
         meas = plant.measure(rng).tolist()  # Python floats, as the engine gives the agents
         due = [pop(k) for pop in net.pops]
         wrenches = team.step(k, meas, handle_inbox(team, k, due))
         estimates = team.estimates()
-        states = team.states(k)
         sent[k] = []
         for i in range(n):
-            inbox = Inbox(sent, *inbox_rows([0, len(due[i])], [(t, s, 0) for t, s in due[i]]))
-            w = alone[i].step(k, meas[i:i + 1], inbox)
-            assert w.shape == (1, 3)
-            assert repr(w[0].tolist()) == repr(wrenches[i].tolist()), (k, i)
-            assert repr(alone[i].states(k)[0]) == repr(states[i]), (k, i)
-            assert repr(alone[i].estimates()[0]) == repr(estimates[i]), (k, i)
-            assert alone[i].stages[0] == team.stages[i]
-            sent[k].append(alone[i].states(k)[0])
+            res = alone[i].step(k, *meas[i], [sent[t][s] for t, s in due[i]])
+            assert repr([res.wrench.fx, res.wrench.fy, res.wrench.tau]) == repr(wrenches[i].tolist()), (k, i)
+            assert repr(res.state) == repr(team.message(k, i)), (k, i)
+            assert repr(res.estimate) == repr(estimates[i]), (k, i)
+            assert alone[i].stage == team.stages[i]
+            sent[k].append(res.state)
         sent.pop(k - team.ring, None)
         for i in range(n):
             net.send(i, k, (k, i))
@@ -90,12 +89,11 @@ def test_lockstep_inboxes_name_what_a_delay_line_releases():
         got = fixed[k % team.ring] if k >= 3 else empty_inbox(team)
         assert got.ptr.tolist() == want.ptr.tolist()
         assert got.ref.tolist() == want.ref.tolist()
-        assert got.msgs is team.out
 
 
 def test_inboxes_refuse_what_the_ring_cannot_hold():
     team = _three(ring=3)
-    assert handle_inbox(team, 5, [[(3, 1)], [], [(4, 1), (4, 1)]]).ref.tolist() == [[0, 1, 0], [1, 1, 0], [1, 1, 0]]
+    assert handle_inbox(team, 5, [[(3, 1)], [], [(4, 1), (4, 1)]]).ref.tolist() == [[0, 1, 0], [1, 1, 1], [1, 1, 1]]
     with pytest.raises(ValueError, match="beyond the OUT ring"):
         handle_inbox(team, 5, [[(2, 1)], [], []])
     with pytest.raises(ValueError, match="ring of more than 3"):
@@ -110,10 +108,11 @@ def test_messages_land_after_every_agent_read_its_inbox():
     fixed = lockstep_inboxes(team, [[1], [0, 2], [1]], age=1)
     w0 = team.step(0, meas, empty_inbox(team))
     assert w0.shape == (3, 3) and w0.dtype == np.float64
-    first = team.states(0)
-    assert [m.tick for m in first] == [0, 0, 0] and [m.sender for m in first] == [0, 1, 2]
+    first = team.states(0).copy()
+    assert first[:, TICK].tolist() == [0, 0, 0] and first[:, SENDER].tolist() == [0, 1, 2]
     team.step(1, meas, fixed[1])
-    assert team.states(0) is first  # tick 1 wrote the other slot
-    assert [m.tick for m in team.states(1)] == [1, 1, 1]
+    assert team.states(0).tobytes() == first.tobytes()  # tick 1 wrote the other slot
+    assert team.states(1)[:, TICK].tolist() == [1, 1, 1]
     assert [e.tick for e in team.estimates()] == [1, 1, 1]
-    assert team.agent(1) is team.cores[1]
+    assert [m.tick for m in (team.message(0, 1), team.message(1, 1))] == [0, 1]
+    assert team.agent(1).id == 1 and team.agent(1).omega == team.kin["omega"][1]
