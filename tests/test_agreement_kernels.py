@@ -71,17 +71,6 @@ def test_flow_average_update_compiled_equals_interpreted_and_rows_are_independen
         assert _bits(F[b, K.U:K.FLOW + deg]) == _bits(alone[b][0][0, K.U:K.FLOW + deg])
 
 
-def _barrier_state(S: np.ndarray, b: int) -> tuple[int, int, int]:
-    mask = 0
-    for c, v in enumerate(S[b, K.SBITS:].tolist()):
-        mask |= v << (c * K.MASK_BITS)
-    return mask, int(S[b, K.TMAX]), int(S[b, K.SWITCH])
-
-
-def _chunks(mask: int, nbk: int) -> np.ndarray:
-    return np.array([(mask >> (c * K.MASK_BITS)) & ((1 << K.MASK_BITS) - 1) for c in range(nbk)], np.int64)
-
-
 @SETTINGS
 @given(st.integers(2, 7), st.integers(0, 2**32 - 1), st.integers(1, 5))
 def test_flow_average_views_over_one_bank_equal_views_over_their_own(n, seed, nch):

@@ -1,5 +1,4 @@
-"""The agreement leaves of the dynamical phase, compiled: the flow-updating average, the stage barrier, the
-flooded decision.
+"""The agreement leaves of the dynamical phase, compiled: the flow-updating average and the stage barrier.
 
 * :func:`flow_step` -- one edge of flow-updating consensus (the scalar of the kinematic phase's z_i and of every
   channel of the average; why this form: agents/consensus.py).
@@ -8,11 +7,7 @@ flooded decision.
 * ``barrier_*`` -- :class:`agents.stage_agreement.StageBarrier` on 50-bit mask chunks (int64 holds no n-bit
   Python int): row ``b`` of ``S (B, SBITS + NBk)`` i8 = ME, N, HORIZON, TMAX, SWITCH, then the mask's chunks
   (chunk c holds agents 50 c .. 50 c + 49, as on the wire).
-* ``flood_*``, :func:`better` -- :class:`agents.effect_decision.DecisionFlood`: row ``b`` of ``FI (B, 3)`` i8 =
-  the best proposal's switch tick and decision, the last applied switch tick; ``FZ (B,)`` f8 = its z.
-
-The barrier and flood kernels are not called by the agent yet: at a batch of one a compiled call from Python
-costs more than these few integer operations (docs/fast-core-plan.md, S3); the team kernel calls them.
+(The detection's decision flood stays Python, agents/effect_decision.DecisionFlood, with the detection.)
 
 Flow-average bank (docs/fast-core-plan.md, section 1.5): two arenas, so that a call passes three arguments
 (numba's dispatch cost grows with their number). ``F (B, 2 + 3 D, nch)`` f8: rows ``U``, ``X``, then three
@@ -138,51 +133,6 @@ def barrier_merge(b, S, mask, tmax, switch):
         _barrier_check(b, S)
 
 
-BEST_S, BEST_E, DONE = 0, 1, 2  # columns of FI
-
-
-def flood_bank(B: int) -> tuple[np.ndarray, np.ndarray]:
-    """B empty floods: (FI, FZ), no proposal, none applied."""
-    return np.full((B, 3), -1, np.int64), np.zeros(B)
-
-
-@jit
-def better(a_s, a_e, a_z, b_s, b_e, b_z):
-    """Is proposal a = (switch tick, decision, z) preferred to b? The earliest tick, then the largest |z|, then
-    the lowest decision: Python's tuple order on (s, -|z|, e), a NaN z comparing unequal and not smaller."""
-    if a_s < 0:
-        return False
-    if b_s < 0:
-        return True
-    if a_s != b_s:
-        return a_s < b_s
-    x, y = -abs(a_z), -abs(b_z)
-    if x != y:
-        return x < y
-    return a_e < b_e
-
-
-@jit
-def flood_merge(b, FI, FZ, s, e, z):
-    if s > FI[b, DONE] and better(s, e, z, FI[b, BEST_S], FI[b, BEST_E], FZ[b]):
-        FI[b, BEST_S] = s
-        FI[b, BEST_E] = e
-        FZ[b] = z
-
-
-@jit
-def flood_due(b, FI, FZ, tick):
-    """The pending proposal (s, e, z) if its switch tick has come, then cleared and ``DONE`` set; else s = -1."""
-    s = FI[b, BEST_S]
-    if s < 0 or tick < s:
-        return -1, -1, 0.0
-    e, z = FI[b, BEST_E], FZ[b]
-    FI[b, DONE] = s
-    FI[b, BEST_S] = FI[b, BEST_E] = -1
-    FZ[b] = 0.0
-    return s, e, z
-
-
 @register_warm
 def warm() -> None:
     for args in ((1.0, 0.5, 0.25, 0.1), (1.0, 0.5, 0.25, None), (1j, 0.5j, 0.25, 0.1j), (1j, 0.5j, 0.25, None)):
@@ -195,6 +145,3 @@ def warm() -> None:
     barrier_merge(0, S, np.ones(1, np.int64), 4, -1)
     barrier_complete(0, S)
     barrier_reset(0, S)
-    FI, FZ = flood_bank(1)
-    flood_merge(0, FI, FZ, 5, 1, 2.5)
-    flood_due(0, FI, FZ, 6)
