@@ -23,7 +23,6 @@ from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import MASK_BITS, StageBarrier
-from agents.tick_records import DynamicFeedback, DynamicOut, KinematicTick
 from config.agent_params import DynamicsSpec
 from net.rows import C0, KIN_KEYS, OM, PAIR_HEAD, PHASE, SENDER, TICK, Layout
 from net.vocabulary import (
@@ -36,6 +35,7 @@ from net.vocabulary import (
     M_EXCITE,
     SPINUP,
 )
+from tests.tick_records import DynamicFeedback, DynamicOut, KinematicTick
 
 # Flow-average channels: the mean force (FX, FY: world-fixed, so a common force passes through at once);
 # JG: g_i = k_z q_i . (q_i - z_C), whose mean times s(t) is the J stage's torque (rotation-invariant, fed
