@@ -30,7 +30,6 @@ from agents import dynamic_phase
 from agents.estimate_trust import EstimateTrust
 from agents.kernels import dynamic as DK
 from agents.kernels import dynamic_step as DT
-from agents.kernels.dynamic_step import dyn_tick
 from agents.kernels.kinematic import (
     HOLD_MAX,
     I_OM_MEAS,
@@ -312,13 +311,13 @@ class TeamCore:
         at[:] = DT.AT_BEGIN
         args = (kin, taken, in_ptr, self._late_t, self._late_z, self._lay.lay, self._dids, res, out, self._dest,
                 *self._dbanks)
-        if dyn_tick(self._all, at, *args):
+        if DT.dyn_tick(self._all, at, *args):
             dyns = self.dyns
             while True:
                 stopped = np.flatnonzero(at != DT.AT_END)
                 for b, p in zip(stopped.tolist(), at[stopped].tolist(), strict=True):
                     dyns[b].handle(p)  # type: ignore[union-attr]
-                if not dyn_tick(stopped, at, *args):
+                if not DT.dyn_tick(stopped, at, *args):
                     break
         for d in self._py_rows:
             d.end(out[d.b])
