@@ -56,8 +56,8 @@ class DynamicPhase:
     def __init__(self, agent_id: int, nbr_ids: Sequence[int], n: int, dt: float, sigma_v: float,
                  spec: DynamicsSpec, hist: int = 64, law: Callable[[LawInput], Sequence[float]] | None = None,
                  law_ref: str = "", team: tuple | None = None, b: int = 0) -> None:
-        """``team``: (banks, kin, res, est) of a team (agents/team.py TeamCore) to be row ``b`` of; without it, one
-        row of its own."""
+        """``team``: (banks, kin, res, est, monitor rows or None) of a team (agents/team.py TeamCore) to be row ``b``
+        of; without it, one row of its own."""
         self.id = agent_id
         self.law = law  # the user's control law (agents/laws.py): done stage of Algorithm 1, Algorithm 2
         self.law_ref = law_ref
@@ -73,11 +73,11 @@ class DynamicPhase:
         self.ch_keys = CH_KEYS[:nch]
         if team is None:
             team = (K.new_banks(1, len(ids), nch, d, hist, self.win_n, self.nbk), np.zeros((1, T.NK)),
-                    np.zeros((1, T.NR)), np.zeros((1, len(K.ESTIMATES))))
+                    np.zeros((1, T.NR)), np.zeros((1, len(K.ESTIMATES))), None)
             team[2][0, T.R_M_SD] = team[2][0, T.R_J_SD] = math.nan
         self.b = b
         self._banks = banks = team[0]
-        self._kin, self._res, self._est = team[1:]  # the tick's values, results and estimates (dynamic_step.py)
+        self._kin, self._res, self._est = team[1:4]  # the tick's values, results and estimates (dynamic_step.py)
         (self._dyn, self._dnb, _, self._rx_order, _, _, _, self._win, self._S, self._F, self._I,
          *self._fbank) = banks
         self._fs, self._s, self._sens = self._fbank[0], self._fbank[1], self._fbank[3]
@@ -90,16 +90,17 @@ class DynamicPhase:
         def ticks(s: float) -> int:
             return max(1, int(round(s / dt)))
 
-        # innovation monitor (report-only), fed from the filter's restart at kinematic readiness on
-        self.monitor = (InnovationMonitor(ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha)
+        # innovation monitor (report-only), fed from the filter's restart at kinematic readiness on (by the team's
+        # kernel on the ticks no handler of this row runs)
+        self.monitor = (InnovationMonitor(ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha,
+                                          team[4], b if team[4] is not None else 0)
                         if spec.monitor_window_s > 0.0 else None)
         # online detection: the team pools its filters' scores and switches a missing effect on
         self.detect = (OnlineDetection(n, ticks(spec.monitor_window_s), spec.monitor_lags, spec.monitor_alpha,
                                        ticks(spec.horizon_s), CH_POOL, int(self._r["declared"]),
                                        ALL if spec.online_force_bias else ALL & ~(1 << EFFECTS.index("force_bias")))
                        if spec.online_detection else None)
-        self.python = self.monitor is not None or self.detect is not None  # Python of its own every tick
-        self._observed = False
+        self._observed = False  # the observers have seen this tick's update (in a handler)
 
     @staticmethod
     def shape(n: int, dt: float, spec: DynamicsSpec) -> tuple[int, int, int, int]:
@@ -154,14 +155,11 @@ class DynamicPhase:
 
     # ------------------------------------------------------------------ the tick (driven by TeamCore)
     def begin(self) -> None:
-        """Before the tick's kernel call (a phase with Python of its own): the detection's state into the tick's
-        values (K_SLOPE, K_ON)."""
-        self._observed = False
+        """Before the tick's kernel call (online detection): its state into the tick's values (K_SLOPE, K_ON)."""
         det = self.detect
-        if det is not None:
-            kr = self._kin[self.b]
-            kr[T.K_SLOPE] = det.undecided(SLOPE)
-            kr[T.K_ON] = det.on
+        kr = self._kin[self.b]
+        kr[T.K_SLOPE] = det.undecided(SLOPE)
+        kr[T.K_ON] = det.on
 
     def handle(self, at: int) -> None:
         """The handler of the point ``at`` the kernel stopped the row at (P1, P2, P3; the observers see the
@@ -184,10 +182,12 @@ class DynamicPhase:
             self._law_wrench(tick, complex(vx, vy), res)
 
     def end(self, out_row: np.ndarray) -> None:
-        """After the tick's last kernel call (a phase with Python of its own): the observers if no handler ran,
-        the last events, the detection's flood slots of ``out_row``."""
+        """After the tick's last kernel call (online detection, or a handler ran): the observers if no handler
+        has shown them the update, the last events, the detection's flood slots of ``out_row``."""
         res = self._res[self.b].tolist()
-        if not self._observed:
+        if self._observed:
+            self._observed = False
+        else:
             self._observe(res)
         self._events(int(res[T.R_EV]))
         det = self.detect

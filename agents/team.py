@@ -49,7 +49,7 @@ from agents.kernels.kinematic import (
 )
 from agents.kernels.message_rows import gather_inbox, write_kin_out
 from agents.kernels.pair import pair_bank, pair_checkpoints
-from agents.kernels.team_dynamic import dyn_inputs, dyn_outputs, trust_observe_rows
+from agents.kernels.team_dynamic import dyn_inputs, dyn_outputs, monitor_observe_rows, trust_observe_rows
 from agents.laws import LawInput
 from agents.pair_estimator import PairEstimator
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
@@ -242,6 +242,14 @@ class TeamCore:
         tails = [round((m.dynamics.avg_window_s + m.dynamics.horizon_s) / float(m.dt)) for m in members]
         self._tr = tr = list(ws.trust_rows(B, D, 0, 0.0, 0.0, max(tails)))
         self.trust: list[EstimateTrust] = []
+        # the innovation monitors: a row per agent (one window length for the team)
+        windows = {d.monitor_window_s for d in (m.dynamics for m in members) if d.monitor_window_s > 0.0}
+        if len(windows) > 1:
+            raise ValueError("a team's innovation monitors share one window (dynamics.monitor_window_s)")
+        mon = None
+        if windows:
+            mon = ws.monitor_rows(B, max(1, int(round(windows.pop() / float(members[0].dt)))), 0.0)
+        self._mon = mon
         for b, m in enumerate(members):
             spec = m.dynamics
             one = ws.trust_rows(1, len(self.nbr_ids[b]), m.estimator.max_age_ticks, spec.trust_min_fresh,
@@ -249,10 +257,16 @@ class TeamCore:
             tr[0][b], tr[1][b], tr[3][b] = one[0][0], one[1][0], one[3][0]
             self.trust.append(EstimateTrust(0, 0, 0.0, spec.trust_alpha, rows=tuple(tr), b=b))
             self._dids[b, :len(self.nbr_ids[b])] = self.nbr_ids[b]
+            if mon is not None:
+                mon[1][b] = ws.monitor_rows(1, 1, spec.monitor_alpha)[1][0]  # its level
             self.dyns.append(DP(self.ids[b], self.nbr_ids[b], int(m.n), float(m.dt), assumed_sigma_v(m), spec,
                                 m.estimator.history_ticks, law=m.law, law_ref=m.control.law,
-                                team=(banks, self._dkin, self._dres, self._dest), b=b))
-        self._py_rows = [d for d in self.dyns if d.python]  # phases with Python of their own every tick
+                                team=(banks, self._dkin, self._dres, self._dest, mon), b=b))
+        self._py_rows = [d for d in self.dyns if d.detect is not None]  # Python of their own every tick
+        # the monitors the team's kernel feeds (the detection's rows feed theirs in Python)
+        self._mon_on = np.array([d.monitor is not None and d.detect is None for d in self.dyns], np.bool_)
+        self._auto = self._mon_on.copy()  # this tick's: those of rows no handler ran for
+        self._full = np.zeros(B, np.int64)
 
     def _grow(self, n: int) -> None:
         """Scratch for a tick of n IN rows."""
@@ -311,16 +325,29 @@ class TeamCore:
         at[:] = DT.AT_BEGIN
         args = (kin, taken, in_ptr, self._late_t, self._late_z, self._lay.lay, self._dids, res, out, self._dest,
                 *self._dbanks)
+        dyns = self.dyns
+        ended = self._py_rows
         if DT.dyn_tick(self._all, at, *args):
-            dyns = self.dyns
+            handled = set()
             while True:
                 stopped = np.flatnonzero(at != DT.AT_END)
                 for b, p in zip(stopped.tolist(), at[stopped].tolist(), strict=True):
                     dyns[b].handle(p)  # type: ignore[union-attr]
+                    handled.add(b)
                 if not DT.dyn_tick(stopped, at, *args):
                     break
-        for d in self._py_rows:
-            d.end(out[d.b])
+            ended = [dyns[b] for b in sorted(handled.union(d.b for d in ended))]
+        for d in ended:
+            d.end(out[d.b])  # type: ignore[union-attr]
+        if self._mon is not None:
+            auto = self._auto
+            for d in ended:
+                auto[d.b] = False  # type: ignore[union-attr]
+            mon_k, _, mon_ws = self._mon
+            for b in self._full[:monitor_observe_rows(auto, res, mon_k, mon_ws, self._full)].tolist():
+                dyns[b].monitor.judge()  # type: ignore[union-attr]
+            if ended:
+                auto[:] = self._mon_on
         w = np.empty((self.B, 3))
         dyn_outputs(res, self._inp, w, self._stage)
         self.stages[:] = self._stage.tolist()

@@ -4,17 +4,19 @@
 (agents/kernels/dynamic_step.py): the tick's values ``kin (B, NK)``, the accepted IN rows as a CSR in taking
 order and the end (-1) of each row's late samples. :func:`dyn_outputs` returns dyn_tick's results to the
 kinematic inputs of the next tick (the feedback) and to the caller (wrenches, stages). :func:`trust_observe_rows`
-is each agent's estimate trust's tick (agents/kernels/window_stats.py) on the states it took.
+is each agent's estimate trust's tick (agents/kernels/window_stats.py) on the states it took,
+:func:`monitor_observe_rows` its innovation monitor's on the filter's update.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from agents.kernels import dynamic as K
 from agents.kernels import dynamic_step as T
 from agents.kernels import jit, register_warm
 from agents.kernels import kinematic as KN
-from agents.kernels.window_stats import trust_observe, trust_rows
+from agents.kernels.window_stats import monitor_observe, monitor_rows, trust_observe, trust_rows
 from net.rows import SENDER, TICK
 
 
@@ -84,6 +86,29 @@ def trust_observe_rows(tr_i, tr_nb, trc, trr, tick, stage, taken, in_ptr, buf): 
         trust_observe(b, tr_i, tr_nb, trc, trr, tick, stage[b], buf[:n])
 
 
+@jit
+def monitor_observe_rows(auto, res, mon_k, mon_ws, full):  # noqa: ANN001, ANN201
+    """The innovation monitor of each row b with ``auto[b]`` (one it has, and no handler has shown it this tick's
+    update): the filter's update if dyn_tick ran it for the observers, then its window dropped on E_BACK (a trial
+    went back to the old filter). The rows whose window is complete (their p-values due: InnovationMonitor.judge)
+    into ``full``; returns their count."""
+    n = 0
+    for b in range(auto.shape[0]):
+        if not auto[b]:
+            continue
+        r = res[b]
+        if r[T.R_OBS] != 0.0:
+            i = T.R_INNOV
+            if monitor_observe(b, mon_k, mon_ws, complex(r[i], r[i + 1]), r[i + 2], r[i + 3], r[i + 4],
+                               complex(r[T.R_VC0], r[T.R_VC0 + 1]), r[T.R_OM0], complex(r[T.R_Q0], r[T.R_Q0 + 1]),
+                               complex(r[T.R_LF], r[T.R_LF + 1])):
+                full[n] = b
+                n += 1
+        if int(r[T.R_EV]) & K.E_BACK:
+            mon_k[b] = 0
+    return n
+
+
 @register_warm
 def warm() -> None:
     B, size = 1, 8
@@ -99,3 +124,7 @@ def warm() -> None:
     dyn_outputs(np.zeros((B, T.NR)), inp, np.zeros((B, 3)), stage)
     tr_i, _, tr_nb, trc, trr = trust_rows(B, 1, 5, 0.5, 1.6, 2)
     trust_observe_rows(tr_i, tr_nb, trc, trr, 3, stage, taken, in_ptr, np.zeros(2, np.int64))
+    mon_k, _, mon_ws = monitor_rows(B, 4, 0.05)
+    res = np.zeros((B, T.NR))
+    res[0, T.R_OBS] = res[0, T.R_INNOV + 2] = res[0, T.R_INNOV + 4] = 1.0
+    monitor_observe_rows(np.ones(B, np.bool_), res, mon_k, mon_ws, np.zeros(B, np.int64))
