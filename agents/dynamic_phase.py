@@ -87,6 +87,7 @@ class DynamicPhase:
         self._r = self._dyn[b]
         self.lay = Layout(True, nch, self.nbk, spec.online_detection, len(ids))
         self._kin[b, T.K_ON] = 3 | int(self._r["declared"])  # the effects in the model without online detection
+
         def ticks(s: float) -> int:
             return max(1, int(round(s / dt)))
 
