@@ -77,4 +77,4 @@ class AgentCore(TeamCore, AgentView):
 
     def estimate(self) -> Estimate:
         """The estimate of the last :meth:`advance`'s tick (valid until the next advance)."""
-        return self._estimate(0)
+        return self.estimates()[0]

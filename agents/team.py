@@ -27,7 +27,7 @@ import numpy as np
 
 import agents.kernels.window_stats as ws
 from agents import dynamic_phase
-from agents.estimate_trust import EstimateTrust
+from agents.estimate_trust import TRUST_NAMES, EstimateTrust
 from agents.kernels import dynamic as DK
 from agents.kernels import dynamic_step as DT
 from agents.kernels.kinematic import (
@@ -49,7 +49,13 @@ from agents.kernels.kinematic import (
 )
 from agents.kernels.message_rows import gather_inbox, write_kin_out
 from agents.kernels.pair import pair_bank, pair_checkpoints
-from agents.kernels.team_dynamic import dyn_inputs, dyn_outputs, monitor_observe_rows, trust_observe_rows
+from agents.kernels.team_dynamic import (
+    dyn_inputs,
+    dyn_outputs,
+    monitor_observe_rows,
+    trust_entries_rows,
+    trust_observe_rows,
+)
 from agents.laws import LawInput
 from agents.pair_estimator import PairEstimator
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
@@ -210,7 +216,6 @@ class TeamCore:
         self._late_cap = D * (H + HOLD_MAX)  # held samples a tick can release
         self._res = np.zeros((B, R_PAIRS + 4 * D))
         self._tick_no = -1
-        self._res_l: list[list[float]] | None = None  # the results of the last tick as Python floats (if made)
         self._grow(0)
 
     def _init_dynamic(self, members: Sequence[Member], D: int) -> None:
@@ -267,6 +272,7 @@ class TeamCore:
         self._mon_on = np.array([d.monitor is not None and d.detect is None for d in self.dyns], np.bool_)
         self._auto = self._mon_on.copy()  # this tick's: those of rows no handler ran for
         self._full = np.zeros(B, np.int64)
+        self._trust_out = np.zeros((B, len(TRUST_NAMES)))
 
     def _grow(self, n: int) -> None:
         """Scratch for a tick of n IN rows."""
@@ -309,7 +315,6 @@ class TeamCore:
         self._tick_no = tick
         out = self.out[tick % self.ring]
         write_kin_out(out, tick, self._id_arr, inp, self._deg, res, lay.lay)
-        self._res_l = None
         if not self._dynamic:
             self.stages[:] = [KINEMATIC if o else SPINUP for o in res[:, R_OM_INIT].tolist()]
             return res[:, R_FX:R_TAU + 1].copy()
@@ -355,16 +360,9 @@ class TeamCore:
         trust_observe_rows(tr[0], tr[2], tr[3], tr[4], tick, self._stage, taken, in_ptr, self._pairs)
         return w
 
-    def _estimate(self, b: int) -> Estimate:
-        """Agent b's estimate of the last tick stepped."""
-        r = self._res_l[b] if self._res_l is not None else self._res[b].tolist()
-        dyn = self.dyns[b]
-        if dyn is None:
-            dyn_est = _NO_DYN
-        else:
-            est = dict(zip(DK.ESTIMATES, self._dest[b].tolist(), strict=True))
-            m_sd, j_sd = dyn.uncertainties()
-            dyn_est = {**est, **self.trust[b].entries(est["m"], m_sd, est["J"], j_sd), **dyn.monitor_entries()}
+    def _estimate(self, b: int, r: list[float], dyn_est: dict[str, float]) -> Estimate:
+        """Agent b's estimate of the last tick stepped from its kinematic results ``r`` and its dynamical
+        entries."""
         values = {
             "phase": float(self.stages[b]),
             "omega": r[R_OMEGA],
@@ -382,7 +380,16 @@ class TeamCore:
 
     def estimates(self) -> list[Estimate]:
         """Every agent's estimate of the last tick stepped (valid until the next step)."""
-        return [self._estimate(b) for b in range(self.B)]
+        res = self._res.tolist()
+        if not self._dynamic:
+            return [self._estimate(b, r, _NO_DYN) for b, r in enumerate(res)]
+        trust_entries_rows(self._tr[1], self._tr[3], self._dest, self._dres, self._trust_out)
+        out = []
+        for b, (r, e, t) in enumerate(zip(res, self._dest.tolist(), self._trust_out.tolist(), strict=True)):
+            dyn_est = {**dict(zip(DK.ESTIMATES, e, strict=True)), **dict(zip(TRUST_NAMES, t, strict=True)),
+                       **self.dyns[b].monitor_entries()}  # type: ignore[union-attr]
+            out.append(self._estimate(b, r, dyn_est))
+        return out
 
     def message(self, tick: int, b: int) -> StateMsg:
         """Agent b's message of ``tick`` (one of the last ``ring`` ticks stepped) as the wire carries it."""

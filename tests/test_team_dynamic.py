@@ -10,7 +10,7 @@ import pytest
 from agents.kernels import team_dynamic as TD
 from tests.test_team_core import FAULTY
 
-KERNELS = ("dyn_inputs", "dyn_outputs", "trust_observe_rows", "monitor_observe_rows")
+KERNELS = ("dyn_inputs", "dyn_outputs", "trust_observe_rows", "monitor_observe_rows", "trust_entries_rows")
 
 
 def _copy(args: tuple) -> tuple:
@@ -55,6 +55,8 @@ def recs() -> dict[str, list]:
             wr = team.step(k, plant.measure(rng).tolist(), handle_inbox(team, k, due))
             for i in range(sc.n):
                 net.send(i, k, (k, i))
+            if k % 7 == 0:
+                team.estimates()
             plant.apply_and_step(wr)
     finally:
         for k, f in orig.items():
@@ -68,6 +70,7 @@ def test_the_recording_covers_the_cases(recs):
     assert any(int(x[1][8][-1]) > 0 for x in ins)  # IN rows taken
     assert any((x[0][2][:, TD.KN.R_NLATE] > 0).any() for x in ins)  # late samples
     assert any(n > 0 for _, _, n in recs["monitor_observe_rows"])  # complete windows
+    assert any((x[1][4][:, 0] == x[1][4][:, 0]).any() for x in recs["trust_entries_rows"])  # m judged
 
 
 @pytest.mark.parametrize("name", KERNELS)

@@ -5,7 +5,8 @@
 order and the end (-1) of each row's late samples. :func:`dyn_outputs` returns dyn_tick's results to the
 kinematic inputs of the next tick (the feedback) and to the caller (wrenches, stages). :func:`trust_observe_rows`
 is each agent's estimate trust's tick (agents/kernels/window_stats.py) on the states it took,
-:func:`monitor_observe_rows` its innovation monitor's on the filter's update.
+:func:`monitor_observe_rows` its innovation monitor's on the filter's update; :func:`trust_entries_rows` the trust
+entries of every row's estimate.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from agents.kernels import dynamic as K
 from agents.kernels import dynamic_step as T
 from agents.kernels import jit, register_warm
 from agents.kernels import kinematic as KN
-from agents.kernels.window_stats import monitor_observe, monitor_rows, trust_observe, trust_rows
+from agents.kernels.window_stats import monitor_observe, monitor_rows, trust_entries, trust_observe, trust_rows
 from net.rows import SENDER, TICK
+
+I_M, I_J = K.ESTIMATES.index("m"), K.ESTIMATES.index("J")  # in dyn_tick's estimates
 
 
 @jit
@@ -87,6 +90,14 @@ def trust_observe_rows(tr_i, tr_nb, trc, trr, tick, stage, taken, in_ptr, buf): 
 
 
 @jit
+def trust_entries_rows(tr_f, trc, est, res, out):  # noqa: ANN001, ANN201
+    """Row b's trust entries (window_stats.trust_entries) into ``out[b]``, for its estimates of m and J
+    (``est[b]``) and their sd (``res[b]``: dyn_tick's results)."""
+    for b in range(out.shape[0]):
+        trust_entries(b, tr_f, trc, est[b, I_M], res[b, T.R_M_SD], est[b, I_J], res[b, T.R_J_SD], out[b])
+
+
+@jit
 def monitor_observe_rows(auto, res, mon_k, mon_ws, full):  # noqa: ANN001, ANN201
     """The innovation monitor of each row b with ``auto[b]`` (one it has, and no handler has shown it this tick's
     update): the filter's update if dyn_tick ran it for the observers, then its window dropped on E_BACK (a trial
@@ -122,8 +133,9 @@ def warm() -> None:
                np.zeros((B, 2), np.int64), kin, in_ptr, taken)
     stage = np.zeros(B, np.int64)
     dyn_outputs(np.zeros((B, T.NR)), inp, np.zeros((B, 3)), stage)
-    tr_i, _, tr_nb, trc, trr = trust_rows(B, 1, 5, 0.5, 1.6, 2)
+    tr_i, tr_f, tr_nb, trc, trr = trust_rows(B, 1, 5, 0.5, 1.6, 2)
     trust_observe_rows(tr_i, tr_nb, trc, trr, 3, stage, taken, in_ptr, np.zeros(2, np.int64))
+    trust_entries_rows(tr_f, trc, np.zeros((B, len(K.ESTIMATES))), np.zeros((B, T.NR)), np.zeros((B, 6)))
     mon_k, _, mon_ws = monitor_rows(B, 4, 0.05)
     res = np.zeros((B, T.NR))
     res[0, T.R_OBS] = res[0, T.R_INNOV + 2] = res[0, T.R_INNOV + 4] = 1.0
