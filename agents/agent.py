@@ -72,10 +72,9 @@ class AgentCore(TeamCore, AgentView):
         inp = self._inp
         inp[0, 0] = vx
         inp[0, 1] = vy
-        w = self._tick(tick, ((vx, vy),), rows, self._in_ptr)
-        fx, fy, tau = w[0] if self._dynamic else w[0].tolist()
+        fx, fy, tau = self._tick(tick, rows, self._in_ptr)[0].tolist()
         return self.message(tick, 0), Wrench(tick, me, fx, fy, tau)
 
     def estimate(self) -> Estimate:
         """The estimate of the last :meth:`advance`'s tick (valid until the next advance)."""
-        return self._estimate(0)
+        return self.estimates()[0]

@@ -114,11 +114,14 @@ class InnovationMonitor:
     def observe(self, e: complex, s00: float, s01: float, s11: float, vc: complex, om: float, q: complex,
                 f: complex) -> None:
         """One update's innovation e with covariance [[s00, s01], [s01, s11]] and the signatures' inputs."""
-        b = self.b
-        if ws.monitor_observe(b, self._k, self._ws, e, s00, s01, s11, vc, om, q, f):
-            # the innovations contiguous, as the p-values' dot products have always seen them
-            p = window_pvalues(np.ascontiguousarray(self.w), self.sig, self.lags)
-            ws.monitor_judge(b, self._f, np.array(p))
+        if ws.monitor_observe(self.b, self._k, self._ws, e, s00, s01, s11, vc, om, q, f):
+            self.judge()
+
+    def judge(self) -> None:
+        """The complete window's p-values and alarm (once :func:`ws.monitor_observe` has filled it)."""
+        # the innovations contiguous, as the p-values' dot products have always seen them
+        p = window_pvalues(np.ascontiguousarray(self.w), self.sig, self.lags)
+        ws.monitor_judge(self.b, self._f, np.array(p))
 
     def entries(self) -> dict[str, float]:
         """The estimate entries (``MONITOR_NAMES``): the last complete window's p-values and alarm, counts."""

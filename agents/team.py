@@ -9,8 +9,10 @@ the receiver's pair block in the sender's OUT row, -1: none). Estimates are buil
 
 A tick: one compiled gather of every IN row from the ring (agents/kernels/message_rows.py), one
 kinematic kernel call for all B agents (agents/kernels/kinematic.py), one write of every OUT row's
-kinematic part, then per agent its dynamical phase (:class:`agents.dynamic_phase.DynamicPhase`) on its
-:class:`agents.tick_records.KinematicTick`, writing its own slots of its OUT row.
+kinematic part; with a dynamical phase, the kinematic results into its tick values
+(agents/kernels/team_dynamic.py), one dyn_tick for all B rows (agents/kernels/dynamic_step.py), the Python
+handlers of only the rows it stopped (:class:`agents.dynamic_phase.DynamicPhase`, row b of the team's
+banks), the feedback into the next tick's kinematic inputs and the estimate trust's tick, compiled.
 """
 
 from __future__ import annotations
@@ -18,34 +20,28 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from statistics import NormalDist
 from typing import NamedTuple
 
 import numpy as np
 
+import agents.kernels.window_stats as ws
 from agents import dynamic_phase
-from agents.estimate_trust import EstimateTrust
+from agents.estimate_trust import TRUST_NAMES, EstimateTrust
+from agents.kernels import dynamic as DK
+from agents.kernels import dynamic_step as DT
 from agents.kernels.kinematic import (
     HOLD_MAX,
-    I_ALPHA,
-    I_HOLD,
     I_OM_MEAS,
-    I_WAITING,
     R_DROPPED_STALE,
     R_DROPPED_UNKNOWN,
     R_FX,
-    R_FY,
-    R_NACC,
-    R_NLATE,
     R_OM_INIT,
     R_OMEGA,
     R_PAIRS,
-    R_PHI,
     R_READY,
     R_TAU,
-    R_TRUSTED,
     R_U,
-    R_U_DEN,
-    R_Y,
     R_ZI,
     kin_bank,
     kin_step,
@@ -53,9 +49,15 @@ from agents.kernels.kinematic import (
 )
 from agents.kernels.message_rows import gather_inbox, write_kin_out
 from agents.kernels.pair import pair_bank, pair_checkpoints
+from agents.kernels.team_dynamic import (
+    dyn_inputs,
+    dyn_outputs,
+    monitor_observe_rows,
+    trust_entries_rows,
+    trust_observe_rows,
+)
 from agents.laws import LawInput
 from agents.pair_estimator import PairEstimator
-from agents.tick_records import KinematicTick
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg
 from net.rows import Layout, state_from_row
@@ -171,37 +173,26 @@ class TeamCore:
         self.ids: list[int] = []
         self.nbr_ids: list[list[int]] = []  # each agent's neighbours, ascending (its pair blocks' order)
         self.dyns: list[dynamic_phase.DynamicPhase | None] = []
-        self._trust: list[EstimateTrust | None] = []
-        lays = set()
+        dyn_members = []
         for m in members:
             if m.agent_id in m.neighbours:
                 raise ValueError("an agent cannot be its own neighbour")
-            ids = sorted(set(int(j) for j in m.neighbours))
-            sig = assumed_sigma_v(m)
-            dyn = trust = None
+            self.ids.append(int(m.agent_id))
+            self.nbr_ids.append(sorted(set(int(j) for j in m.neighbours)))
             if m.dynamics is not None and m.dynamics.algorithm != "none":
-                spec = m.dynamics
-                # an averaging stage is judged on its convergence window and the agreement's horizon
-                tail = round((spec.avg_window_s + spec.horizon_s) / float(m.dt))
-                trust = EstimateTrust(len(ids), m.estimator.max_age_ticks, spec.trust_min_fresh, spec.trust_alpha,
-                                      tail)
-                dyn = dynamic_phase.DynamicPhase(int(m.agent_id), ids, int(m.n), float(m.dt), sig, spec,
-                                                 m.estimator.history_ticks, law=m.law, law_ref=m.control.law)
-                lays.add((True, dyn.lay.nch, dyn.lay.nbk, dyn.lay.detection))
+                dyn_members.append(m)
             elif m.law is not None:
                 raise ValueError("a control law needs the dynamical phase "
                                  "(dynamics.algorithm sequential or background)")
-            else:
-                lays.add((False, 0, 0, False))
-            self.ids.append(int(m.agent_id))
-            self.nbr_ids.append(ids)
-            self.dyns.append(dyn)
-            self._trust.append(trust)
-        if len(lays) > 1:
+        if dyn_members and len(dyn_members) < B:
             raise ValueError("a team's agents share one message layout (all with or all without a dynamical phase)")
         D = max(map(len, self.nbr_ids), default=0)
-        self._lay = Layout(*(lays.pop() if lays else (False, 0, 0, False)), D)
-        self._dynamic = self._lay.dynamic
+        self._dynamic = bool(dyn_members)
+        if self._dynamic:
+            self._init_dynamic(members, D)
+        else:
+            self.dyns = [None] * B
+        self._lay = Layout(*(self._dyn_lay if self._dynamic else (False, 0, 0, False)), D)
         # the kinematic phase: one bank for the team (agents/kernels/kinematic.py) and its pair estimators
         H = max((m.estimator.history_ticks for m in members), default=1)
         self._bank = kin_bank(B, D, H)
@@ -215,21 +206,73 @@ class TeamCore:
                            assumed_sigma_v(m), m.estimator, m.control, self.dyns[b] is not None)
         self._id_arr = np.array(self.ids, np.int64)
         self._deg = np.array([len(ids) for ids in self.nbr_ids], np.int64)
-        # (neighbour, its pair's first slot in a row of the kernel's results) per agent
-        self._pair_slots = [[(j, R_PAIRS + 4 * k) for k, j in enumerate(ids)] for ids in self.nbr_ids]
         # blocks[s][r]: receiver row r's pair block in sender row s's OUT row
         row_of = {j: b for b, j in enumerate(self.ids)}
         self.blocks = [{row_of[j]: k for k, j in enumerate(ids) if j in row_of} for ids in self.nbr_ids]
         self.out = np.zeros((ring, B, self._lay.size_out))  # out[slot, row]: the OUT row of that tick's agent
         self.stages = [SPINUP] * B  # each agent's stage at the last tick
         self._inp = np.zeros((B, 6))  # the kinematic kernel's inputs (agents/kernels/kinematic.py I_*)
-        self._inp[:, I_OM_MEAS] = math.nan  # (agents/tick_records.py DynamicFeedback's defaults)
+        self._inp[:, I_OM_MEAS] = math.nan  # (none before the dynamical phase runs)
         self._late_cap = D * (H + HOLD_MAX)  # held samples a tick can release
         self._res = np.zeros((B, R_PAIRS + 4 * D))
-        self._est: list[dict | None] = [None] * B  # the dynamical phases' estimate entries of the last tick
         self._tick_no = -1
-        self._res_l: list[list[float]] | None = None  # the results of the last tick as Python floats (if made)
         self._grow(0)
+
+    def _init_dynamic(self, members: Sequence[Member], D: int) -> None:
+        """The team's dynamical phase: one set of banks (agents/kernels/dynamic.py) and trust rows
+        (agents/kernels/window_stats.py) for its B rows, the tick's arrays of dyn_tick
+        (agents/kernels/dynamic_step.py), a :class:`agents.dynamic_phase.DynamicPhase` per row (its handlers
+        and a view)."""
+        B = self.B
+        DP = dynamic_phase.DynamicPhase
+        shapes = [DP.shape(int(m.n), float(m.dt), m.dynamics) for m in members]
+        lays = {(s[0], s[3], m.dynamics.online_detection) for s, m in zip(shapes, members, strict=True)}
+        if len(lays) > 1 or len({s[1] for s in shapes}) > 1:
+            raise ValueError("a team's agents share one message layout (all with or all without a dynamical phase)")
+        nch, nbk, det = lays.pop()
+        self._dyn_lay = (True, nch, nbk, det)
+        hist = max(m.estimator.history_ticks for m in members)
+        banks = DK.new_banks(B, D, nch, shapes[0][1], hist, max(s[2] for s in shapes), nbk)
+        self._dbanks = banks
+        self._dkin = np.zeros((B, DT.NK))  # the tick's values
+        self._dres = np.zeros((B, DT.NR))  # its results
+        self._dres[:, DT.R_M_SD] = self._dres[:, DT.R_J_SD] = math.nan
+        self._dest = np.zeros((B, len(DK.ESTIMATES)))  # the estimates' dynamical entries
+        self._dids = np.full((B, D), -1, np.int64)  # the neighbour ids of the slots
+        self._at = np.zeros(B, np.int64)
+        self._all = np.arange(B, dtype=np.int64)
+        self._in_ptr = np.zeros(B + 1, np.int64)
+        self._stage = np.zeros(B, np.int64)
+        # the estimate trust: a row per agent (its degree, the age of a fresh state, its level, the tails)
+        tails = [round((m.dynamics.avg_window_s + m.dynamics.horizon_s) / float(m.dt)) for m in members]
+        self._tr = tr = list(ws.trust_rows(B, D, 0, 0.0, 0.0, max(tails)))
+        self.trust: list[EstimateTrust] = []
+        # the innovation monitors: a row per agent (one window length for the team)
+        windows = {d.monitor_window_s for d in (m.dynamics for m in members) if d.monitor_window_s > 0.0}
+        if len(windows) > 1:
+            raise ValueError("a team's innovation monitors share one window (dynamics.monitor_window_s)")
+        mon = None
+        if windows:
+            mon = ws.monitor_rows(B, max(1, int(round(windows.pop() / float(members[0].dt)))), 0.0)
+        self._mon = mon
+        for b, m in enumerate(members):
+            spec = m.dynamics
+            one = ws.trust_rows(1, len(self.nbr_ids[b]), m.estimator.max_age_ticks, spec.trust_min_fresh,
+                                NormalDist().inv_cdf(1.0 - spec.trust_alpha), tails[b])
+            tr[0][b], tr[1][b], tr[3][b] = one[0][0], one[1][0], one[3][0]
+            self.trust.append(EstimateTrust(0, 0, 0.0, spec.trust_alpha, rows=tuple(tr), b=b))
+            self._dids[b, :len(self.nbr_ids[b])] = self.nbr_ids[b]
+            if mon is not None:
+                mon[1][b] = ws.monitor_rows(1, 1, spec.monitor_alpha)[1][0]  # its level
+            self.dyns.append(DP(self.ids[b], self.nbr_ids[b], int(m.n), float(m.dt), assumed_sigma_v(m), spec,
+                                m.estimator.history_ticks, law=m.law, law_ref=m.control.law,
+                                team=(banks, self._dkin, self._dres, self._dest, mon), b=b))
+        self._py_rows = [d for d in self.dyns if d.detect is not None]  # Python of their own every tick
+        # the monitors the team's kernel feeds (the detection's rows feed theirs in Python)
+        self._mon_on = np.array([d.monitor is not None and d.detect is None for d in self.dyns], np.bool_)
+        self._auto = self._mon_on.copy()  # this tick's: those of rows no handler ran for
+        self._full = np.zeros(B, np.int64)
+        self._trust_out = np.zeros((B, len(TRUST_NAMES)))
 
     def _grow(self, n: int) -> None:
         """Scratch for a tick of n IN rows."""
@@ -238,6 +281,8 @@ class TeamCore:
         self._acc = np.zeros(n, np.int64)
         self._late_t = np.zeros((self.B, n + self._late_cap), np.int64)
         self._late_z = np.zeros((self.B, n + self._late_cap))
+        self._taken = np.zeros((n, self._lay.size_in))  # the accepted IN rows, in taking order
+        self._pairs = np.zeros(2 * n, np.int64)
 
     def agent(self, i: int) -> AgentView:
         """Row i's view (read by tests and tools)."""
@@ -252,13 +297,11 @@ class TeamCore:
         rows = self._rows[:E]
         gather_inbox(self.out, inbox.ref, self._lay.lay, rows)
         self._inp[:, :2] = meas
-        w = self._tick(tick, meas, rows, inbox.ptr)
-        return np.array(w, dtype=np.float64) if self._dynamic else w  # type: ignore[return-value]
+        return self._tick(tick, rows, inbox.ptr)
 
-    def _tick(self, tick: int, meas: Sequence[Sequence[float]], rows: np.ndarray,
-              ptr: np.ndarray) -> np.ndarray | list[tuple[float, float, float]]:
-        """Every agent's tick on its IN rows ``rows[ptr[b]:ptr[b + 1]]`` (``meas`` already in the kernel's
-        inputs); the wrenches: (B, 3) without a dynamical phase, else a list of B (fx, fy, tau)."""
+    def _tick(self, tick: int, rows: np.ndarray, ptr: np.ndarray) -> np.ndarray:
+        """Every agent's tick on its IN rows ``rows[ptr[b]:ptr[b + 1]]`` (the measured velocities already in
+        the kernel's inputs); the wrenches (B, 3)."""
         E = len(rows)
         if E > len(self._order):
             self._grow(E)
@@ -273,61 +316,53 @@ class TeamCore:
         out = self.out[tick % self.ring]
         write_kin_out(out, tick, self._id_arr, inp, self._deg, res, lay.lay)
         if not self._dynamic:
-            self._res_l = None
             self.stages[:] = [KINEMATIC if o else SPINUP for o in res[:, R_OM_INIT].tolist()]
             return res[:, R_FX:R_TAU + 1].copy()
-        wrenches = []
-        stages = self.stages
-        acc = self._acc[:E].tolist()
-        heads = rows[:, :2].tolist()  # (tick, sender) of every IN row: TICK, SENDER are its first slots
-        self._res_l = res_l = res.tolist()
-        for b, (dyn, r, lo) in enumerate(zip(self.dyns, res_l, ptr.tolist(), strict=False)):
-            e = acc[lo:lo + int(r[R_NACC])]
-            # the taken rows: a view where they are consecutive rows in order (as a sorted inbox's are)
-            if not e:
-                taken = rows[lo:lo]
-            elif e == list(range(e[0], e[0] + len(e))):
-                taken = rows[e[0]:e[0] + len(e)]
-            else:
-                taken = rows[e]
-            o = dyn.step(self._kinematic_tick(b, tick, meas[b], r, taken), out[b])  # type: ignore[union-attr]
-            fb = o.feedback  # (by item: a tuple into a row costs more than four items)
-            inp[b, I_OM_MEAS] = fb.om_meas
-            inp[b, I_ALPHA] = fb.alpha
-            inp[b, I_HOLD] = fb.hold_shape
-            inp[b, I_WAITING] = fb.team_waiting
-            stages[b] = stage = o.stage
-            self._trust[b].observe(tick, stage, [(int(heads[i][1]), int(heads[i][0])) for i in e])  # type: ignore
-            self._est[b] = o.estimates
-            wrenches.append(o.wrench)
-        return wrenches
+        return self._dynamic_tick(tick, rows, ptr, out)
 
-    def _kinematic_tick(self, b: int, tick: int, v: Sequence[float], r: list[float],
-                        taken: np.ndarray) -> KinematicTick:
-        """Agent b's kinematic results of the tick as the dynamical phase reads them (``v``: its measured
-        velocity, ``r``: its row of the results, ``taken``: the IN rows whose dynamical states it takes)."""
-        nl = int(r[R_NLATE])
-        late = (tuple(zip(self._late_t[b, :nl].tolist(), self._late_z[b, :nl].tolist(), strict=True)) if nl
-                else ())
-        pairs = tuple((j, complex(r[p], r[p + 1]), complex(r[p + 2], r[p + 3])) for j, p in self._pair_slots[b])
-        vx, vy = v
-        # (KinematicTick's fields in order)
-        return KinematicTick(tick, complex(vx, vy), r[R_U], r[R_U_DEN], late, r[R_OMEGA], r[R_OM_INIT] != 0.0,
-                             r[R_PHI], complex(r[R_Y], r[R_Y + 1]), complex(r[R_ZI], r[R_ZI + 1]), pairs,
-                             int(r[R_READY]), r[R_TRUSTED] != 0.0, (r[R_FX], r[R_FY], r[R_TAU]), taken,
-                             int(r[R_DROPPED_UNKNOWN]), int(r[R_DROPPED_STALE]))
+    def _dynamic_tick(self, tick: int, rows: np.ndarray, ptr: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Every agent's dynamical phase after the kinematic one: the tick's values, one dyn_tick for all rows,
+        the handlers of the rows it stopped (then dyn_tick again on those), the feedback; the wrenches (B, 3)."""
+        kin, res, in_ptr, taken, at = self._dkin, self._dres, self._in_ptr, self._taken, self._at
+        dyn_inputs(tick, self._inp, self._res, ptr, self._acc, rows, self._late_t, kin, in_ptr, taken)
+        for d in self._py_rows:
+            d.begin()
+        at[:] = DT.AT_BEGIN
+        args = (kin, taken, in_ptr, self._late_t, self._late_z, self._lay.lay, self._dids, res, out, self._dest,
+                *self._dbanks)
+        dyns = self.dyns
+        ended = self._py_rows
+        if DT.dyn_tick(self._all, at, *args):
+            handled = set()
+            while True:
+                stopped = np.flatnonzero(at != DT.AT_END)
+                for b, p in zip(stopped.tolist(), at[stopped].tolist(), strict=True):
+                    dyns[b].handle(p)  # type: ignore[union-attr]
+                    handled.add(b)
+                if not DT.dyn_tick(stopped, at, *args):
+                    break
+            ended = [dyns[b] for b in sorted(handled.union(d.b for d in ended))]
+        for d in ended:
+            d.end(out[d.b])  # type: ignore[union-attr]
+        if self._mon is not None:
+            auto = self._auto
+            for d in ended:
+                auto[d.b] = False  # type: ignore[union-attr]
+            mon_k, _, mon_ws = self._mon
+            for b in self._full[:monitor_observe_rows(auto, res, mon_k, mon_ws, self._full)].tolist():
+                dyns[b].monitor.judge()  # type: ignore[union-attr]
+            if ended:
+                auto[:] = self._mon_on
+        w = np.empty((self.B, 3))
+        dyn_outputs(res, self._inp, w, self._stage)
+        self.stages[:] = self._stage.tolist()
+        tr = self._tr
+        trust_observe_rows(tr[0], tr[2], tr[3], tr[4], tick, self._stage, taken, in_ptr, self._pairs)
+        return w
 
-    def _estimate(self, b: int) -> Estimate:
-        """Agent b's estimate of the last tick stepped."""
-        r = self._res_l[b] if self._res_l is not None else self._res[b].tolist()
-        dyn = self.dyns[b]
-        if dyn is None:
-            dyn_est = _NO_DYN
-        else:
-            est = self._est[b]
-            m_sd, j_sd = dyn.uncertainties()
-            dyn_est = {**est, **self._trust[b].entries(est["m"], m_sd, est["J"], j_sd),  # type: ignore
-                       **dyn.monitor_entries()}
+    def _estimate(self, b: int, r: list[float], dyn_est: dict[str, float]) -> Estimate:
+        """Agent b's estimate of the last tick stepped from its kinematic results ``r`` and its dynamical
+        entries."""
         values = {
             "phase": float(self.stages[b]),
             "omega": r[R_OMEGA],
@@ -345,7 +380,16 @@ class TeamCore:
 
     def estimates(self) -> list[Estimate]:
         """Every agent's estimate of the last tick stepped (valid until the next step)."""
-        return [self._estimate(b) for b in range(self.B)]
+        res = self._res.tolist()
+        if not self._dynamic:
+            return [self._estimate(b, r, _NO_DYN) for b, r in enumerate(res)]
+        trust_entries_rows(self._tr[1], self._tr[3], self._dest, self._dres, self._trust_out)
+        out = []
+        for b, (r, e, t) in enumerate(zip(res, self._dest.tolist(), self._trust_out.tolist(), strict=True)):
+            dyn_est = {**dict(zip(DK.ESTIMATES, e, strict=True)), **dict(zip(TRUST_NAMES, t, strict=True)),
+                       **self.dyns[b].monitor_entries()}  # type: ignore[union-attr]
+            out.append(self._estimate(b, r, dyn_est))
+        return out
 
     def message(self, tick: int, b: int) -> StateMsg:
         """Agent b's message of ``tick`` (one of the last ``ring`` ticks stepped) as the wire carries it."""

@@ -1,6 +1,7 @@
 """The dynamical phase as it was in Python before its port to the kernels (agents/kernels/dynamic.py), frozen
 as the oracle of tests/test_dynamic_kernels.py: its recorder runs the team on this class and compares each
-kernel with the method it replaced, bit for bit. Not used by the agent (agents/dynamic_phase.py is the phase).
+kernel with the method it replaced, bit for bit, on a :class:`ReferenceTeam`. Not used by the agent
+(agents/dynamic_phase.py is the phase).
 :meth:`DynamicPhase.step` takes the agent's accepted IN rows and writes its OUT row as the kernels do
 (docs/fast-core-plan.md, S6), so that AgentCore can drive it.
 """
@@ -20,10 +21,11 @@ from agents.consensus import FlowAverage, weighted_average_step
 from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
 from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
+from agents.kernels import kinematic as KN
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import MASK_BITS, StageBarrier
-from agents.tick_records import DynamicFeedback, DynamicOut, KinematicTick
+from agents.team import Member, TeamCore, assumed_sigma_v
 from config.agent_params import DynamicsSpec
 from net.rows import C0, KIN_KEYS, OM, PAIR_HEAD, PHASE, SENDER, TICK, Layout
 from net.vocabulary import (
@@ -36,6 +38,7 @@ from net.vocabulary import (
     M_EXCITE,
     SPINUP,
 )
+from tests.tick_records import DynamicFeedback, DynamicOut, KinematicTick
 
 # Flow-average channels: the mean force (FX, FY: world-fixed, so a common force passes through at once);
 # JG: g_i = k_z q_i . (q_i - z_C), whose mean times s(t) is the J stage's torque (rotation-invariant, fed
@@ -808,3 +811,37 @@ class DynamicPhase:
             "c_local": self.c_local if on & 2 else nan,
             "filter_restarts": float(self.reseeds),
         }
+
+
+class ReferenceTeam(TeamCore):
+    """A team whose dynamical phase is this module's :class:`DynamicPhase`, one per agent, driven as TeamCore drove
+    it before the team's tick was compiled: a :class:`KinematicTick` per agent from the kinematic kernel's results,
+    its DynamicOut's wrench, stage and feedback (the recorder's team; its estimates are not made)."""
+
+    def __init__(self, members: Sequence[Member], ring: int = 2) -> None:
+        super().__init__(members, ring)
+        self.ref = [DynamicPhase(self.ids[b], self.nbr_ids[b], int(m.n), float(m.dt), assumed_sigma_v(m), m.dynamics,
+                                 m.estimator.history_ticks, law=m.law, law_ref=m.control.law)
+                    for b, m in enumerate(members)]
+
+    def _dynamic_tick(self, tick: int, rows: np.ndarray, ptr: np.ndarray, out: np.ndarray) -> np.ndarray:
+        inp = self._inp
+        acc = self._acc[:len(rows)].tolist()
+        w = np.empty((self.B, 3))
+        for b, (dp, r, lo) in enumerate(zip(self.ref, self._res.tolist(), ptr.tolist(), strict=False)):
+            taken = rows[acc[lo:lo + int(r[KN.R_NACC])]]
+            nl = int(r[KN.R_NLATE])
+            late = tuple(zip(self._late_t[b, :nl].tolist(), self._late_z[b, :nl].tolist(), strict=True))
+            pairs = tuple((j, complex(r[p], r[p + 1]), complex(r[p + 2], r[p + 3]))
+                          for j, p in ((j, KN.R_PAIRS + 4 * k) for k, j in enumerate(self.nbr_ids[b])))
+            vx, vy = inp[b, :2].tolist()
+            kt = KinematicTick(tick, complex(vx, vy), r[KN.R_U], r[KN.R_U_DEN], late, r[KN.R_OMEGA],
+                               r[KN.R_OM_INIT] != 0.0, r[KN.R_PHI], complex(r[KN.R_Y], r[KN.R_Y + 1]),
+                               complex(r[KN.R_ZI], r[KN.R_ZI + 1]), pairs, int(r[KN.R_READY]), r[KN.R_TRUSTED] != 0.0,
+                               (r[KN.R_FX], r[KN.R_FY], r[KN.R_TAU]), taken, int(r[KN.R_DROPPED_UNKNOWN]),
+                               int(r[KN.R_DROPPED_STALE]))
+            o = dp.step(kt, out[b])
+            inp[b, KN.I_OM_MEAS:KN.I_WAITING + 1] = o.feedback
+            self.stages[b] = o.stage
+            w[b] = o.wrench
+        return w

@@ -21,8 +21,8 @@ from test_agent_core import Links
 
 from agents.agent import AgentCore
 from agents.kernels.kinematic import I_OM_MEAS
-from agents.tick_records import DynamicFeedback
 from config.agent_params import ControlSpec, EstimatorSpec
+from tests.tick_records import DynamicFeedback
 
 DT = 0.01
 RAMP = 0.03  # rad/s^2

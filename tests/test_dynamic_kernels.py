@@ -10,7 +10,6 @@ import dynamic_reference as DP
 import numpy as np
 import pytest
 
-from agents import dynamic_phase as phase_mod
 from agents.effect_decision import SLOPE
 from agents.kernels import dynamic as K
 from agents.rigid_filter import RigidEKF
@@ -33,7 +32,7 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     """Runs quick-dynamics with ``overrides`` on fault-free links of ``age`` ticks and records (before, args,
     after[, result]) of the replaced methods for agents 1 and 2 on every 3rd tick, and on every tick while a
     shadow or twin filter runs."""
-    from agents.factory import build_team
+    from agents.factory import member
     from agents.team import empty_inbox, lockstep_inboxes
     from simulator.plant import Plant, sensor_rng
 
@@ -140,16 +139,14 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         return out
 
     sc = load_scenario("quick-dynamics", overrides)
-    live = phase_mod.DynamicPhase
     try:
         cls._predict, cls._body_frame, cls._filter_update, cls._note_late = predict, body, update, late
         cls._consensus_inputs, cls._converged, cls._advance_stage, cls._receive = inputs, conv, advance, receive
         DP._dynamic_msg = dynamic_msg
-        phase_mod.DynamicPhase = DP.DynamicPhase  # the team runs the reference
         cls._estimates = estimates
         RigidEKF.start = start
         plant = Plant(sc)
-        team = build_team([sc.agent_view(i) for i in range(sc.n)], age + 1)
+        team = DP.ReferenceTeam([member(sc.agent_view(i)) for i in range(sc.n)], age + 1)
         nbrs = sc.neighbours()  # coload.runs.team.team_ticks with a delay of its own
         inboxes = lockstep_inboxes(team, [[i for i in range(sc.n) if r in nbrs[i]] for r in range(sc.n)], age)
         rng = sensor_rng(sc.seed)
@@ -161,7 +158,6 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
             setattr(cls, m, f)
         RigidEKF.start = orig_start
         DP._dynamic_msg = orig_msg
-        phase_mod.DynamicPhase = live
     return recs
 
 

@@ -22,8 +22,9 @@ SCENARIOS = {
 
 
 def _record(overrides: list[str], age: int) -> list[tuple]:
-    """(arguments before, arguments after, result) of dyn_tick for agents 1 and 2 on every 5th tick and on
-    every call that starts or stops at a Python handler."""
+    """(arguments before, arguments after, result) of agents 1 and 2's rows in the team's dyn_tick calls, each cut
+    to a call of its own (the batch's results as the row's), on every 5th tick and on every call that starts or
+    stops at a Python handler."""
     from agents.factory import build_team
     from agents.team import empty_inbox, lockstep_inboxes
     from simulator.plant import Plant, sensor_rng
@@ -32,12 +33,14 @@ def _record(overrides: list[str], age: int) -> list[tuple]:
     orig = T.dyn_tick
 
     def rec(*args):  # noqa: ANN002, ANN202
-        tick = int(args[2][0, T.K_TICK])
-        me = int(args[10][0, SENDER])
-        before = tuple(a.copy() for a in args) if me in AGENTS else None
+        tick = int(args[2][args[0][0], T.K_TICK])
+        mine = [b for b in args[0].tolist() if int(args[10][b, SENDER]) in AGENTS]
+        before = [_row(args, b) for b in mine]
         left = orig(*args)
-        if before is not None and (tick % 5 == 0 or before[1][0] != T.AT_BEGIN or left):
-            recs.append((before, tuple(a.copy() for a in args), left))
+        for b, x in zip(mine, before, strict=True):
+            stop = int(args[1][b] != T.AT_END)
+            if tick % 5 == 0 or x[1][0] != T.AT_BEGIN or stop:
+                recs.append((x, _row(args, b), stop))
         return left
 
     sc = load_scenario("quick-dynamics", overrides)
@@ -54,6 +57,16 @@ def _record(overrides: list[str], age: int) -> list[tuple]:
     finally:
         T.dyn_tick = orig
     return recs
+
+
+def _row(args: tuple, b: int) -> tuple:
+    """Row b of a team's dyn_tick call as a call of its own (copies)."""
+    rows, at, kin, inbox, in_ptr, late_t, late_z, lay, ids, res, out, est, *banks = args
+    lo, hi = int(in_ptr[b]), int(in_ptr[b + 1])
+    one = (at, kin, None, None, late_t, late_z, None, ids, res, out, est, *banks)
+    cut = tuple(None if a is None else a[b:b + 1].copy() for a in one)
+    return (np.zeros(1, np.int64), cut[0], cut[1], inbox[lo:hi].copy(), np.array([0, hi - lo], np.int64), *cut[4:6],
+            lay.copy(), *cut[7:])
 
 
 @pytest.fixture(scope="module", params=list(SCENARIOS))

@@ -14,19 +14,23 @@ from config.loader import load_scenario
 from config.scenario import Scenario
 from net.link import DelayLine
 from net.rows import SENDER, TICK
+from net.vocabulary import BACKGROUND, J_EXCITE, M_EXCITE, SPINUP
 from simulator.plant import Plant, sensor_rng
 from tests.conftest import SCENARIOS
 
 FAULTY = ["link.delay_ticks=2", "link.jitter_ticks=3", 'link.loss.model="bernoulli"', "link.loss.p=0.2",
           "link.duplicate=0.1"]
 ONLINE = ["plant.friction.viscous=5", "dynamics.online_detection=true"]
+# Algorithm 2 under the user's law (P3 from the background stage on) with the innovation monitor
+LAW = ['dynamics.algorithm="background"', 'control.law="agents.laws:TrackVelocity"',
+       "control.law_params={v_ref=[0.3, 0.0], omega_ref=0.0}", "dynamics.monitor_window_s=2"]
 
 
 def _team_equals_teams_of_one(sc: Scenario) -> int:
     """Steps the scenario's agents as one team (B = n, its messages rows in its OUT ring, its inboxes from
     handles through the link models, as the in-process engine does with faults) and each as an AgentCore (a
     team of one behind the edge codec) fed the StateMsgs the link models deliver; asserts their outputs
-    (wrench, message, estimate, stage) equal at every tick; returns the ticks stepped."""
+    (wrench, message, estimate, stage) equal at every tick; returns the ticks stepped and the last stage reached."""
     n = sc.n
     plant = Plant(sc)
     rng = sensor_rng(sc.seed)
@@ -34,6 +38,7 @@ def _team_equals_teams_of_one(sc: Scenario) -> int:
     views = [sc.agent_view(i) for i in range(n)]
     team = build_team(views, ring=1 + net.reach)
     alone = [build_agent(v) for v in views]
+    stages = set()
     sent: dict[int, list] = {}  # the agents' messages by tick (not a ring: independent of its slots)
     for k in range(sc.ticks):
         meas = plant.measure(rng).tolist()  # Python floats, as the engine gives the agents
@@ -47,27 +52,29 @@ def _team_equals_teams_of_one(sc: Scenario) -> int:
             assert repr(res.state) == repr(team.message(k, i)), (k, i)
             assert repr(res.estimate) == repr(estimates[i]), (k, i)
             assert alone[i].stage == team.stages[i]
+            stages.add(team.stages[i])
             sent[k].append(res.state)
         sent.pop(k - team.ring, None)
         for i in range(n):
             net.send(i, k, (k, i))
         plant.apply_and_step(wrenches)
-    return sc.ticks
+    return sc.ticks, max(stages)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sets, seconds", [
-    (FAULTY, 16),  # into the m stage (from 14 s) with held, reordered and duplicated states
-    (ONLINE, 27),  # past the monitor's first windows and the team's detection decision (at 26 s)
-], ids=["faulty-links", "online-detection"])
-def test_one_team_equals_teams_of_one(sets, seconds):
+@pytest.mark.parametrize("sets, seconds, stage", [
+    (FAULTY, 16, M_EXCITE),  # into the m stage (from 14 s) with held, reordered and duplicated states
+    (ONLINE, 27, J_EXCITE),  # past the monitor's first windows and the team's detection decision (at 26 s)
+    (LAW, 16, BACKGROUND),  # the law's wrench (P3) every tick of the background stage
+], ids=["faulty-links", "online-detection", "background-law"])
+def test_one_team_equals_teams_of_one(sets, seconds, stage):
     sc = load_scenario(SCENARIOS / "quick-dynamics.toml", [f"duration={seconds}", *sets])
-    assert _team_equals_teams_of_one(sc) == 100 * seconds
+    assert _team_equals_teams_of_one(sc) == (100 * seconds, stage)
 
 
 def test_one_team_equals_teams_of_one_kinematic():
     sc = load_scenario(SCENARIOS / "quick.toml", ["duration=1.5", *FAULTY])
-    assert _team_equals_teams_of_one(sc) == 150
+    assert _team_equals_teams_of_one(sc) == (150, SPINUP)
 
 
 def _three(ring: int) -> TeamCore:

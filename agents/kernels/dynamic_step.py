@@ -36,9 +36,9 @@ AT_BEGIN, AT_UPDATE, AT_CONTROL, AT_FINISH, AT_END = range(5)
 NK = 16
 # the tick's results, res[b, :]: events; whether the observers (monitor, detection) see this update and the kf
 # slot they read; the kf's vc, omega, q before the update and the own force of the last prediction; e^{i psi};
-# q_i and z_C (world); the wrench; the stage's tick k; the feedback (agents/tick_records.DynamicFeedback order);
-# the kf's innovation (e0, e1, s00, s01, s11) for the observers; the stage after the tick; the sd of m and J
-# (agents/kernels/uncertainty.py)
+# q_i and z_C (world); the wrench; the stage's tick k; the feedback (om_meas, alpha, hold_shape, team_waiting:
+# kinematic.py's inputs I_OM_MEAS.. of the next tick); the kf's innovation (e0, e1, s00, s01, s11) for the
+# observers; the stage after the tick; the sd of m and J (agents/kernels/uncertainty.py)
 (R_EV, R_OBS, R_KF0, R_VC0, R_OM0, R_Q0, R_LF, R_ROT, R_Q, R_ZC, R_FX, R_FY, R_TAU, R_K, R_OM_MEAS, R_ALPHA, R_HOLD,
  R_WAITING, R_INNOV, R_STAGE, R_M_SD, R_J_SD) = (0, 1, 2, 3, 5, 6, 8, 10, 12, 14, 16, 17, 18, 19, 20, 21, 22, 23, 24,
                                                 29, 30, 31)

@@ -39,7 +39,7 @@ E_TICKS = 1  # kin["error"]: the tick did not increase (the caller raises ValueE
  R_DROPPED_STALE, R_NACC, R_NLATE) = (0, 1, 2, 3, 4, 5, 7, 9, 10, 11, 12, 13, 14, 15, 16, 17)
 R_PAIRS = 18
 # a tick's inputs, inp[b, :]: the own measured velocity, then the dynamical phase's feedback of the
-# previous tick (agents/tick_records.py DynamicFeedback, in its order; NaN om_meas: none)
+# previous tick (dynamic_step.py R_OM_MEAS.., in its order; NaN om_meas: none)
 I_VX, I_VY, I_OM_MEAS, I_ALPHA, I_HOLD, I_WAITING = range(6)
 
 KIN = np.dtype([

@@ -1,4 +1,5 @@
-"""The records one agent tick passes between its kinematic and dynamical phases (docs/agent-step.md).
+"""The records one agent tick passed between its kinematic and dynamical phases before the team's dynamical phase
+was compiled: what tests/dynamic_reference.py (the frozen Python phase) reads and returns.
 
 :class:`KinematicTick` goes from the kinematic phase to the dynamical phase, :class:`DynamicOut` back
 to the agent (the phase's states go into the agent's OUT row), and its :class:`DynamicFeedback` into the
