@@ -1,7 +1,7 @@
 """The consensus updates the agent runs: one agent's update from its own state and its neighbours'.
 
-* :func:`average_step` -- x_i + eps sum_j (x_j - x_i): the body-frame angle phi; with per-edge weights
-  (:func:`weighted_average_step`) the dynamical phase's body-frame angle psi.
+* :func:`average_step` -- x_i + eps sum_j (x_j - x_i): the body-frame angle phi (with per-edge Metropolis
+  weights it is the dynamical phase's psi, agents/kernels/dynamic.py ``body_frame``).
 * :func:`lowpass_step` -- x_i + eps sum_j (x_j - x_i) + beta (u_i - x_i): omega_hat (a low-pass
   consensus filter: it averages the per-tick noise over time and over the graph).
 * :func:`flow_step` -- one edge of flow-updating average consensus, F_ij = (F_ij - F_ji)/2 + eps d_ij,
@@ -30,7 +30,7 @@ from agents.kernels.agreement import DEG, FLOW, HEARD, U, X, flow_average_bank, 
 # decorator returns the function itself, which has no py_func)
 flow_step = getattr(agreement.flow_step, "py_func", agreement.flow_step)
 
-__all__ = ["FlowAverage", "average_step", "disagreement", "flow_step", "lowpass_step", "weighted_average_step"]
+__all__ = ["FlowAverage", "average_step", "disagreement", "flow_step", "lowpass_step"]
 
 T = TypeVar("T", float, complex)
 
@@ -46,14 +46,6 @@ def disagreement(x_i: T, neighbours: Iterable[T]) -> T:
 def average_step(x_i: T, neighbours: Iterable[T], eps: float) -> T:
     """One static average-consensus update of agent i; eps * max_degree < 1 for stability."""
     return x_i + eps * disagreement(x_i, neighbours)
-
-
-def weighted_average_step(x_i: T, neighbours: Iterable[tuple[T, float]]) -> T:
-    """x_i + sum_j eps_ij (x_j - x_i) over ``neighbours`` = [(x_j, eps_ij)] (Metropolis weights: psi)."""
-    acc = 0.0
-    for x_j, eps_ij in neighbours:
-        acc += eps_ij * (x_j - x_i)
-    return x_i + acc
 
 
 def lowpass_step(x_i: T, neighbours: Iterable[T], eps: float, beta: float, u_i: T | None) -> T:

@@ -24,7 +24,6 @@ The counts run compiled (agents/kernels/window_stats.py); the classes here are v
 from __future__ import annotations
 
 import array
-import math
 from collections.abc import Iterable
 from itertools import chain
 from statistics import NormalDist
@@ -50,18 +49,6 @@ def wilson_upper(k: int, n: int, alpha: float, z: float | None = None) -> float:
 def poor(fresh: int, slots: int, min_fresh: float, alpha: float, z: float | None = None) -> bool:
     """The stage's data are too poor: fewer than ``min_fresh`` of its ``slots`` fresh, at level ``alpha``."""
     return ws.poor(fresh, slots, min_fresh, NormalDist().inv_cdf(1.0 - alpha) if z is None else z)
-
-
-def spread_sd(own: float, neighbours: Iterable[float]) -> float:
-    """Root-mean-square difference between the own consensus value and the neighbours' latest ones (0.0
-    without neighbour values): what the averaging has not yet removed."""
-    acc = 0.0
-    k = 0
-    for v in neighbours:
-        if v == v:
-            acc += (v - own) ** 2
-            k += 1
-    return math.sqrt(acc / k) if k else 0.0
 
 
 class StageCount:

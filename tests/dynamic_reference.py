@@ -11,15 +11,14 @@ from __future__ import annotations
 import copy
 import math
 import statistics
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from math import cos, sin
 from typing import NamedTuple
 
 import numpy as np
 
-from agents.consensus import FlowAverage, weighted_average_step
+from agents.consensus import FlowAverage
 from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
-from agents.estimate_trust import spread_sd
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.kernels import kinematic as KN
 from agents.laws import ControlLawError, LawInput, checked_wrench
@@ -53,6 +52,27 @@ N_CH_AUG = 15
 # online detection (DynamicsSpec.online_detection): the pooled window statistics (agents/effect_decision.py)
 CH_POOL = N_CH_AUG
 CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG + N_POOL))  # their names in StateMsg.shared
+
+
+
+def weighted_average_step(x_i: complex | float, neighbours: Iterable[tuple[float, float]]) -> float:
+    """x_i + sum_j eps_ij (x_j - x_i) over ``neighbours`` = [(x_j, eps_ij)] (Metropolis weights: psi)."""
+    acc = 0.0
+    for x_j, eps_ij in neighbours:
+        acc += eps_ij * (x_j - x_i)
+    return x_i + acc
+
+
+def spread_sd(own: float, neighbours: Iterable[float]) -> float:
+    """Root-mean-square difference between the own consensus value and the neighbours' latest ones (0.0
+    without neighbour values): what the averaging has not yet removed."""
+    acc = 0.0
+    k = 0
+    for v in neighbours:
+        if v == v:
+            acc += (v - own) ** 2
+            k += 1
+    return math.sqrt(acc / k) if k else 0.0
 
 
 class DynamicMsg(NamedTuple):

@@ -12,8 +12,6 @@ import dynamic_reference as DP
 import numpy as np
 import pytest
 
-from agents import dynamic_phase as phase_mod
-from agents.estimate_trust import spread_sd
 from agents.kernels import uncertainty as K
 from agents.kernels.agreement import FLOW, X, flow_average_bank
 from config.loader import load_scenario
@@ -27,18 +25,17 @@ def _record(overrides: list[str], loss: float, loss_until: int, seed: int) -> li
     ``loss_until`` (so that neighbours are first heard out of id order), and records at every tick each
     agent's (flow-average row in a bank of D slots, slots in first-heard order, m_local_sd, j_local_sd,
     DynamicPhase.uncertainties())."""
-    from agents.factory import build_team
+    from agents.factory import member
     from agents.team import handle_inbox
     from simulator.plant import Plant, sensor_rng
 
     recs: list[tuple] = []
-    orig = DP.DynamicPhase.uncertainties
 
-    def uncertainties(self):  # noqa: ANN001, ANN202
-        out = orig(self)
+    def record(self):  # noqa: ANN001, ANN202
+        out = self.uncertainties()
         avg = self.avg
         slot = {j: k for k, j in enumerate(avg.ids)}
-        spreads = tuple(spread_sd(avg.x[num] / avg.x[wch], (xj[num] / xj[wch] for xj in avg.nx.values()
+        spreads = tuple(DP.spread_sd(avg.x[num] / avg.x[wch], (xj[num] / xj[wch] for xj in avg.nx.values()
                                                             if xj[wch] > 0.0)) if avg.x[wch] > 0.0 else None
                         for num, wch in PAIRS)  # as the phase computes them
         recs.append((_row_in_bank(avg._F[avg._b], avg.deg), [slot[j] for j in avg.nx], self.m_local_sd,
@@ -49,21 +46,15 @@ def _record(overrides: list[str], loss: float, loss_until: int, seed: int) -> li
     nbrs = sc.neighbours()
     senders = [[i for i in range(sc.n) if r in nbrs[i]] for r in range(sc.n)]
     drop = np.random.default_rng(seed)
-    live = phase_mod.DynamicPhase
-    try:
-        DP.DynamicPhase.uncertainties = uncertainties
-        phase_mod.DynamicPhase = DP.DynamicPhase  # the team runs the reference
-        plant = Plant(sc)
-        team = build_team([sc.agent_view(i) for i in range(sc.n)], 2)
-        rng = sensor_rng(sc.seed)
-        for k in range(sc.ticks):
-            due = [[(k - 1, s) for s in row if k > loss_until or drop.random() >= loss] if k else [] for row in senders]
-            wr = team.step(k, plant.measure(rng).tolist(), handle_inbox(team, k, due))
-            team.estimates()
-            plant.apply_and_step(wr)
-    finally:
-        DP.DynamicPhase.uncertainties = orig
-        phase_mod.DynamicPhase = live
+    plant = Plant(sc)
+    team = DP.ReferenceTeam([member(sc.agent_view(i)) for i in range(sc.n)], 2)  # the team runs the reference
+    rng = sensor_rng(sc.seed)
+    for k in range(sc.ticks):
+        due = [[(k - 1, s) for s in row if k > loss_until or drop.random() >= loss] if k else [] for row in senders]
+        wr = team.step(k, plant.measure(rng).tolist(), handle_inbox(team, k, due))
+        for dp in team.ref:
+            record(dp)
+        plant.apply_and_step(wr)
     return recs
 
 
