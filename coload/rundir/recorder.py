@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from coload.rundir import format as fmt
 import numpy as np
 
+from coload.rundir import format as fmt
 from config.loader import dump_scenario
 from config.scenario import Scenario
 from net.messages import Estimate
@@ -132,16 +133,28 @@ class Recorder:
         )
 
     def estimate(self, est: Estimate) -> None:
-        if not self.keeps(est.tick):
-            return
-        t = _f(est.tick * self.dt)
         vals = est.values
-        self._estimates.add(
-            f"{t},{est.agent}," + ",".join(_f(vals.get(name, math.nan)) for name in self.estimate_names)
-        )
-        for j, (x, y) in sorted(est.pairs.items()):
-            self._pairs.add(f"{t},{est.agent},{j},{_f(x)},{_f(y)}")
-        self.estimates_recorded += 1
+        self.estimate_rows(est.tick, [est.agent], [[float(vals.get(name, math.nan)) for name in self.estimate_names]],
+                           [sorted((j, float(x), float(y)) for j, (x, y) in est.pairs.items())])
+
+    def estimate_rows(
+        self,
+        tick: int,
+        agents: Sequence[int],
+        values: Sequence[Sequence[float]],
+        pairs: Sequence[Sequence[tuple[int, float, float]]],
+    ) -> None:
+        """Estimates of one tick as rows (agents/team.py ``TeamCore.estimate_rows``): agent ``agents[i]``'s
+        ``values[i]`` in the order of ``estimate_names`` (NaN: none) and ``pairs[i]`` (neighbour, z_ij x,
+        z_ij y) by neighbour, all Python floats."""
+        if not self.keeps(tick):
+            return
+        t = _f(tick * self.dt)
+        for agent, row, agent_pairs in zip(agents, values, pairs, strict=True):
+            self._estimates.add(f"{t},{agent}," + ",".join([repr(x) if x == x else "" for x in row]))
+            for j, x, y in agent_pairs:
+                self._pairs.add(f"{t},{agent},{j},{_f(x)},{_f(y)}")
+        self.estimates_recorded += len(values)
 
     def flush(self) -> None:
         self._format_samples()

@@ -176,8 +176,7 @@ def run_inproc(
                 for i in range(n):
                     send(i, k, (k, i))
             if keep:
-                for est in team.estimates():
-                    rec.estimate(est)  # type: ignore[union-attr]
+                rec.estimate_rows(k, team.ids, *team.estimate_rows())  # type: ignore[union-attr]
             if watch:
                 for i, stage in enumerate(team.stages):
                     stop.see(k, i, float(stage))  # type: ignore[union-attr]
