@@ -63,8 +63,14 @@ from net.messages import Estimate, StateMsg
 from net.rows import Layout, state_from_row
 from net.vocabulary import ESTIMATE_NAMES, KINEMATIC, SPINUP
 
-_DYN_NAMES = ESTIMATE_NAMES[ESTIMATE_NAMES.index("J"):]
-_NO_DYN = dict.fromkeys(_DYN_NAMES, math.nan)
+# where each estimate entry comes from: the kinematic results, the dynamical kernel's, the trust's
+_COL = {name: c for c, name in enumerate(ESTIMATE_NAMES)}
+_KIN_COLS = [_COL[n] for n in ("omega", "omega_local", "zi_x", "zi_y")]
+_KIN_RES = [R_OMEGA, R_U, R_ZI, R_ZI + 1]
+_COUNT_COLS = [_COL[n] for n in ("pairs_ready", "dropped_unknown", "dropped_stale")]
+_COUNT_RES = [R_READY, R_DROPPED_UNKNOWN, R_DROPPED_STALE]
+_DEST_COLS = [_COL[n] for n in DK.ESTIMATES]
+_TRUST_COLS = [_COL[n] for n in TRUST_NAMES]
 
 
 class Member(NamedTuple):
@@ -360,36 +366,33 @@ class TeamCore:
         trust_observe_rows(tr[0], tr[2], tr[3], tr[4], tick, self._stage, taken, in_ptr, self._pairs)
         return w
 
-    def _estimate(self, b: int, r: list[float], dyn_est: dict[str, float]) -> Estimate:
-        """Agent b's estimate of the last tick stepped from its kinematic results ``r`` and its dynamical
-        entries."""
-        values = {
-            "phase": float(self.stages[b]),
-            "omega": r[R_OMEGA],
-            "omega_local": r[R_U],
-            "zi_x": r[R_ZI],
-            "zi_y": r[R_ZI + 1],
-            "pairs_ready": float(int(r[R_READY])),
-            "dropped_unknown": float(int(r[R_DROPPED_UNKNOWN])),
-            "dropped_stale": float(int(r[R_DROPPED_STALE])),
-            **dyn_est,
-        }
-        p = R_PAIRS
-        pairs = {j: (r[p + 4 * k], r[p + 4 * k + 1]) for k, j in enumerate(self.nbr_ids[b])}
-        return Estimate(self._tick_no, self.ids[b], values, pairs)
+    def estimate_rows(self) -> tuple[list[list[float]], list[list[tuple[int, float, float]]]]:
+        """Every agent's estimate of the last tick stepped as rows: its values in ``ESTIMATE_NAMES``' order (NaN
+        where it has none) and its pairs (neighbour id, z_ij x, z_ij y) by neighbour id."""
+        res = self._res
+        vals = np.full((self.B, len(ESTIMATE_NAMES)), math.nan)
+        vals[:, _COL["phase"]] = self.stages
+        vals[:, _KIN_COLS] = res[:, _KIN_RES]
+        vals[:, _COUNT_COLS] = np.trunc(res[:, _COUNT_RES])  # whole counts
+        if self._dynamic:
+            trust_entries_rows(self._tr[1], self._tr[3], self._dest, self._dres, self._trust_out)
+            vals[:, _DEST_COLS] = self._dest
+            vals[:, _TRUST_COLS] = self._trust_out
+            for d in self.dyns:
+                if d.monitor is not None or d.detect is not None:  # type: ignore[union-attr]
+                    for name, x in d.monitor_entries().items():  # type: ignore[union-attr]
+                        vals[d.b, _COL[name]] = x  # type: ignore[union-attr]
+        pairs = []
+        for r, ids in zip(res[:, R_PAIRS:].tolist(), self.nbr_ids, strict=True):
+            pairs.append(sorted((j, r[4 * k], r[4 * k + 1]) for k, j in enumerate(ids)))
+        return vals.tolist(), pairs
 
     def estimates(self) -> list[Estimate]:
         """Every agent's estimate of the last tick stepped (valid until the next step)."""
-        res = self._res.tolist()
-        if not self._dynamic:
-            return [self._estimate(b, r, _NO_DYN) for b, r in enumerate(res)]
-        trust_entries_rows(self._tr[1], self._tr[3], self._dest, self._dres, self._trust_out)
-        out = []
-        for b, (r, e, t) in enumerate(zip(res, self._dest.tolist(), self._trust_out.tolist(), strict=True)):
-            dyn_est = {**dict(zip(DK.ESTIMATES, e, strict=True)), **dict(zip(TRUST_NAMES, t, strict=True)),
-                       **self.dyns[b].monitor_entries()}  # type: ignore[union-attr]
-            out.append(self._estimate(b, r, dyn_est))
-        return out
+        rows, pairs = self.estimate_rows()
+        return [Estimate(self._tick_no, self.ids[b], dict(zip(ESTIMATE_NAMES, row, strict=True)),
+                         {j: (x, y) for j, x, y in agent_pairs})
+                for b, (row, agent_pairs) in enumerate(zip(rows, pairs, strict=True))]
 
     def message(self, tick: int, b: int) -> StateMsg:
         """Agent b's message of ``tick`` (one of the last ``ring`` ticks stepped) as the wire carries it."""

@@ -1,7 +1,8 @@
 """Writes a run directory as the run goes (see docs/run-directory.md).
 
-Rows are buffered and flushed in blocks so that recording stays a small share of a tick; floats are
-written with ``repr`` so that they read back bit-identical (the engine-equality test relies on it), and
+Rows are buffered and flushed in blocks so that recording stays a small share of a tick (the samples, a
+row per agent every tick, are kept as numbers in a preallocated block and formatted a block at a time); floats
+are written with ``repr`` so that they read back bit-identical (the engine-equality test relies on it), and
 a missing value (NaN) as an empty cell.
 """
 
@@ -13,12 +14,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from coload.rundir import format as fmt
 from config.loader import dump_scenario
 from config.scenario import Scenario
 from net.messages import Estimate
 
 _FLUSH_ROWS = 20_000
+_SAMPLE_TICKS = 2_000  # ticks of samples held as numbers before they are formatted
 
 
 class _Table:
@@ -29,6 +33,11 @@ class _Table:
 
     def add(self, row: str) -> None:
         self._rows.append(row)
+        if len(self._rows) >= _FLUSH_ROWS:
+            self.flush()
+
+    def add_rows(self, rows: list[str]) -> None:
+        self._rows += rows
         if len(self._rows) >= _FLUSH_ROWS:
             self.flush()
 
@@ -69,6 +78,8 @@ class Recorder:
         self._pairs = _Table(self.run_dir / fmt.PAIRS_CSV, fmt.PAIRS_HEADER)
         self._truth = _Table(self.run_dir / fmt.TRUTH_CSV, fmt.truth_header(scenario.n))
         self._tables = (self._samples, self._estimates, self._pairs, self._truth)
+        self._sample_ticks: list[int] = []  # the ticks in _sample_block, not yet formatted
+        self._sample_block: np.ndarray | None = None  # (_SAMPLE_TICKS, agents, vx vy fx fy tau), on first use
         self.estimates_recorded = 0
         self._closed = False
         self.ticks_done = 0  # ticks whose samples are recorded
@@ -76,15 +87,34 @@ class Recorder:
     def keeps(self, tick: int) -> bool:
         return tick % self.every == 0
 
-    def samples(
-        self, tick: int, velocities: Sequence[tuple[float, float]], wrenches: Sequence[tuple[float, float, float]]
-    ) -> None:
-        """One tick of measured data: every agent's measured velocity and applied wrench (Python floats)."""
+    def samples(self, tick: int, velocities: Any, wrenches: Any) -> None:
+        """One tick of measured data: every agent's measured velocity (agents, 2) and applied wrench (agents, 3),
+        arrays or sequences of floats."""
         self.ticks_done = tick + 1
-        t = repr(tick * self.dt)
-        add = self._samples.add
-        for agent, ((vx, vy), (fx, fy, tau)) in enumerate(zip(velocities, wrenches)):
-            add(f"{t},{agent},{vx!r},{vy!r},{fx!r},{fy!r},{tau!r}")
+        velocities = np.asarray(velocities, dtype=float)
+        if self._sample_block is None:
+            self._sample_block = np.empty((_SAMPLE_TICKS, len(velocities), 5))
+        row = self._sample_block[len(self._sample_ticks)]
+        row[:, :2] = velocities
+        row[:, 2:] = wrenches
+        self._sample_ticks.append(tick)
+        if len(self._sample_ticks) == _SAMPLE_TICKS:
+            self._format_samples()
+
+    def _format_samples(self) -> None:
+        """The held ticks of samples as rows of samples.csv (``tolist`` gives Python floats, whose repr is
+        the number's shortest round-trip text)."""
+        ticks = self._sample_ticks
+        if not ticks:
+            return
+        dt = self.dt
+        rows: list[str] = []
+        for tick, agents in zip(ticks, self._sample_block[: len(ticks)].tolist(), strict=True):  # type: ignore[index]
+            t = repr(tick * dt)
+            rows += [f"{t},{agent},{vx!r},{vy!r},{fx!r},{fy!r},{tau!r}"
+                     for agent, (vx, vy, fx, fy, tau) in enumerate(agents)]
+        self._samples.add_rows(rows)
+        ticks.clear()
 
     def truth(self, truth: Any) -> None:
         if not self.keeps(truth.tick):
@@ -103,18 +133,31 @@ class Recorder:
         )
 
     def estimate(self, est: Estimate) -> None:
-        if not self.keeps(est.tick):
-            return
-        t = _f(est.tick * self.dt)
         vals = est.values
-        self._estimates.add(
-            f"{t},{est.agent}," + ",".join(_f(vals.get(name, math.nan)) for name in self.estimate_names)
-        )
-        for j, (x, y) in sorted(est.pairs.items()):
-            self._pairs.add(f"{t},{est.agent},{j},{_f(x)},{_f(y)}")
-        self.estimates_recorded += 1
+        self.estimate_rows(est.tick, [est.agent], [[float(vals.get(name, math.nan)) for name in self.estimate_names]],
+                           [sorted((j, float(x), float(y)) for j, (x, y) in est.pairs.items())])
+
+    def estimate_rows(
+        self,
+        tick: int,
+        agents: Sequence[int],
+        values: Sequence[Sequence[float]],
+        pairs: Sequence[Sequence[tuple[int, float, float]]],
+    ) -> None:
+        """Estimates of one tick as rows (agents/team.py ``TeamCore.estimate_rows``): agent ``agents[i]``'s
+        ``values[i]`` in the order of ``estimate_names`` (NaN: none) and ``pairs[i]`` (neighbour, z_ij x,
+        z_ij y) by neighbour, all Python floats."""
+        if not self.keeps(tick):
+            return
+        t = _f(tick * self.dt)
+        for agent, row, agent_pairs in zip(agents, values, pairs, strict=True):
+            self._estimates.add(f"{t},{agent}," + ",".join([repr(x) if x == x else "" for x in row]))
+            for j, x, y in agent_pairs:
+                self._pairs.add(f"{t},{agent},{j},{_f(x)},{_f(y)}")
+        self.estimates_recorded += len(values)
 
     def flush(self) -> None:
+        self._format_samples()
         for table in self._tables:
             table.flush()
 
@@ -126,6 +169,7 @@ class Recorder:
             return
         self._closed = True
         tick = self.ticks_done
+        self._format_samples()
         for table in self._tables:
             table.close()
         (self.run_dir / fmt.INTERRUPTED_JSON).write_text(json.dumps(
@@ -141,6 +185,7 @@ class Recorder:
         """Closes the tables and writes ``summary`` as summary.json; the application adds the error
         metrics afterwards (coload.analysis.summary)."""
         self._closed = True
+        self._format_samples()
         for table in self._tables:
             table.close()
         write_summary(self.run_dir, summary)

@@ -159,7 +159,7 @@ def run_inproc(
                 lag = wall0 + k * dt - time.perf_counter()
                 if lag > 0:
                     time.sleep(lag)
-            meas = plant.measure(rng).tolist()
+            meas = plant.measure(rng)  # (n, 2)
             # only recorded ticks need the truth and the estimates
             keep = keeps is not None and keeps(k)
             watch = stop is not None and k % every == 0  # the agents' stages, on the recording grid
@@ -176,13 +176,12 @@ def run_inproc(
                 for i in range(n):
                     send(i, k, (k, i))
             if keep:
-                for est in team.estimates():
-                    rec.estimate(est)  # type: ignore[union-attr]
+                rec.estimate_rows(k, team.ids, *team.estimate_rows())  # type: ignore[union-attr]
             if watch:
                 for i, stage in enumerate(team.stages):
                     stop.see(k, i, float(stage))  # type: ignore[union-attr]
             if rec is not None:
-                rec.samples(k, meas, wrenches.tolist())
+                rec.samples(k, meas, wrenches)
             plant.apply_and_step(wrenches)
             if progress is not None and (k % report_every == 0 or k == ticks - 1):
                 progress(k + 1, ticks)
