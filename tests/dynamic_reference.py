@@ -18,9 +18,36 @@ from typing import NamedTuple
 import numpy as np
 
 from agents.consensus import FlowAverage
-from agents.effect_decision import ALL, DETECT_NAMES, EFFECTS, N_POOL, SLOPE, OnlineDetection
+from agents.dynamic_phase import CH_KEYS, CH_POOL
+from agents.effect_decision import (
+    ALL,
+    DETECT_NAMES,
+    EFFECTS,
+    N_POOL,
+    SLOPE,
+    OnlineDetection,
+)
 from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.kernels import kinematic as KN
+from agents.kernels.dynamic import (
+    CH_BN,
+    CH_CN,
+    CH_DT,
+    CH_FBX,
+    CH_FBY,
+    CH_FN,
+    CH_FX,
+    CH_FY,
+    CH_JG,
+    CH_JN,
+    CH_JW,
+    CH_MN,
+    CH_MW,
+    CH_ZX,
+    CH_ZY,
+    N_CH,
+    N_CH_AUG,
+)
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation
 from agents.stage_agreement import MASK_BITS, StageBarrier
@@ -38,21 +65,6 @@ from net.vocabulary import (
     SPINUP,
 )
 from tests.tick_records import DynamicFeedback, DynamicOut, KinematicTick
-
-# Flow-average channels: the mean force (FX, FY: world-fixed, so a common force passes through at once);
-# JG: g_i = k_z q_i . (q_i - z_C), whose mean times s(t) is the J stage's torque (rotation-invariant, fed
-# from the m stage on, so it has converged when the J stage starts and s(t) flips); DT: q_i x (f_i - fbar)
-# + tau_i; z_C in the shared body frame (ZX, ZY); numerator and weight of the averages of m and J
-CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(10)
-N_CH = 10
-# augmented model (DynamicsSpec.estimate_effects): the local b, c, F_c and f (x, y) numerators; their weights
-# are the m and J weight channels (b, F_c and f are offered exactly when m is, c when J is)
-CH_BN, CH_CN, CH_FN, CH_FBX, CH_FBY = 10, 11, 12, 13, 14
-N_CH_AUG = 15
-# online detection (DynamicsSpec.online_detection): the pooled window statistics (agents/effect_decision.py)
-CH_POOL = N_CH_AUG
-CH_KEYS = tuple(f"c{c}" for c in range(N_CH_AUG + N_POOL))  # their names in StateMsg.shared
-
 
 
 def weighted_average_step(x_i: complex | float, neighbours: Iterable[tuple[float, float]]) -> float:

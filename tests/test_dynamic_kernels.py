@@ -33,8 +33,8 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
     after[, result]) of the replaced methods for agents 1 and 2 on every 3rd tick, and on every tick while a
     shadow or twin filter runs."""
     from agents.factory import member
-    from agents.team import empty_inbox, lockstep_inboxes
-    from simulator.plant import Plant, sensor_rng
+    from coload.runs.team import team_ticks
+    from simulator.plant import Plant
 
     recs: dict[str, list] = {"predict": [], "body": [], "update": [], "late": [], "inputs": [], "converged": [],
                              "advance": [], "receive": [], "estimates": []}
@@ -145,14 +145,9 @@ def _record(overrides: list[str], age: int) -> dict[str, list]:
         DP._dynamic_msg = dynamic_msg
         cls._estimates = estimates
         RigidEKF.start = start
-        plant = Plant(sc)
         team = DP.ReferenceTeam([member(sc.agent_view(i)) for i in range(sc.n)], age + 1)
-        nbrs = sc.neighbours()  # coload.runs.team.team_ticks with a delay of its own
-        inboxes = lockstep_inboxes(team, [[i for i in range(sc.n) if r in nbrs[i]] for r in range(sc.n)], age)
-        rng = sensor_rng(sc.seed)
-        for k in range(sc.ticks):
-            wr = team.step(k, plant.measure(rng).tolist(), inboxes[k % team.ring] if k >= age else empty_inbox(team))
-            plant.apply_and_step(wr)
+        for _ in team_ticks(sc, Plant(sc), team, age):
+            pass
     finally:
         for m, f in orig.items():
             setattr(cls, m, f)

@@ -26,8 +26,8 @@ def _record(overrides: list[str], age: int) -> list[tuple]:
     to a call of its own (the batch's results as the row's), on every 5th tick and on every call that starts or
     stops at a Python handler."""
     from agents.factory import build_team
-    from agents.team import empty_inbox, lockstep_inboxes
-    from simulator.plant import Plant, sensor_rng
+    from coload.runs.team import team_ticks
+    from simulator.plant import Plant
 
     recs: list[tuple] = []
     orig = T.dyn_tick
@@ -46,14 +46,9 @@ def _record(overrides: list[str], age: int) -> list[tuple]:
     sc = load_scenario("quick-dynamics", overrides)
     T.dyn_tick = rec
     try:
-        plant = Plant(sc)
         team = build_team([sc.agent_view(i) for i in range(sc.n)], age + 1)
-        nbrs = sc.neighbours()
-        inboxes = lockstep_inboxes(team, [[i for i in range(sc.n) if r in nbrs[i]] for r in range(sc.n)], age)
-        rng = sensor_rng(sc.seed)
-        for k in range(sc.ticks):
-            wr = team.step(k, plant.measure(rng).tolist(), inboxes[k % team.ring] if k >= age else empty_inbox(team))
-            plant.apply_and_step(wr)
+        for _ in team_ticks(sc, Plant(sc), team, age):
+            pass
     finally:
         T.dyn_tick = orig
     return recs

@@ -72,10 +72,18 @@ from net.rows import (
     Layout,
 )
 
-# the stages (net/vocabulary.py) and the channels (agents/dynamic_phase.py) the kernels read
+# the stages (net/vocabulary.py) the kernels read
 SPINUP, KINEMATIC, M_EXCITE, M_AVERAGE, J_EXCITE, J_AVERAGE, DONE, BACKGROUND = range(8)
+# Flow-average channels: the mean force (FX, FY: world-fixed, so a common force passes through at once);
+# JG: g_i = k_z q_i . (q_i - z_C), whose mean times s(t) is the J stage's torque (rotation-invariant, fed
+# from the m stage on, so it has converged when the J stage starts and s(t) flips); DT: q_i x (f_i - fbar)
+# + tau_i; z_C in the shared body frame (ZX, ZY); numerator and weight of the averages of m and J
 CH_FX, CH_FY, CH_JG, CH_DT, CH_ZX, CH_ZY, CH_MN, CH_MW, CH_JN, CH_JW = range(10)
+N_CH = 10
+# augmented model (DynamicsSpec.estimate_effects): the local b, c, F_c and f (x, y) numerators; their weights
+# are the m and J weight channels (b, F_c and f are offered exactly when m is, c when J is)
 CH_BN, CH_CN, CH_FN, CH_FBX, CH_FBY = range(10, 15)
+N_CH_AUG = 15
 KF, SHADOW, TWIN = 0, 1, 2  # the slots the builder gives the filters (the indices in DYN may swap)
 # event flags a kernel returns for the Python side (docs/fast-core-plan.md, section 3)
 E_RESEED = 1  # the lock check asks for a restart on trial: P2 fits (omega, q_i), then dyn_reseed, hold_shape_check

@@ -21,9 +21,8 @@ import numpy as np
 
 from agents.kernels import jit, register_warm
 from agents.kernels.agreement import FLOW, X, flow_average_bank
+from agents.kernels.dynamic import CH_JN, CH_JW, CH_MN, CH_MW
 from agents.kernels.libm import pow_libm
-
-CH_MN, CH_MW, CH_JN, CH_JW = 6, 7, 8, 9  # agents/dynamic_phase.py's channels: m's and J's numerator, weight
 
 
 @jit
