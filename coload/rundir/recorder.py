@@ -52,11 +52,15 @@ class _Table:
         self._file.close()
 
 
-def _f(x: float) -> str:
-    # no value (NaN) is an empty cell, which every CSV reader takes for missing (a "nan" cell turns a
-    # column into strings for some); repr reads back bit-identical
-    x = float(x)
+def _cell(x: float) -> str:
+    """A Python float's cell: no value (NaN) is an empty cell, which every CSV reader takes for missing (a
+    "nan" cell turns a column into strings for some); repr reads back bit-identical."""
     return repr(x) if x == x else ""
+
+
+def _f(x: float) -> str:
+    """Any number's cell (:func:`_cell` of it as a Python float)."""
+    return _cell(float(x))
 
 
 class Recorder:
@@ -151,7 +155,7 @@ class Recorder:
             return
         t = _f(tick * self.dt)
         for agent, row, agent_pairs in zip(agents, values, pairs, strict=True):
-            self._estimates.add(f"{t},{agent}," + ",".join([repr(x) if x == x else "" for x in row]))
+            self._estimates.add(f"{t},{agent}," + ",".join([_cell(x) for x in row]))
             for j, x, y in agent_pairs:
                 self._pairs.add(f"{t},{agent},{j},{_f(x)},{_f(y)}")
         self.estimates_recorded += len(values)
