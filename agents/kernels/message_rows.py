@@ -32,6 +32,7 @@ from net.rows import (
     L_PS,
     L_SK,
     MALFORMED,
+    MASK_BITS,
     N_DECISION_CODES,
     OI,
     OM,
@@ -49,7 +50,7 @@ from net.rows import (
 )
 from net.vocabulary import KINEMATIC, SPINUP
 
-_CHUNK_END = 2.0**50  # net.rows.MASK_BITS
+_CHUNK_END = 2.0**MASK_BITS  # a mask chunk is an integer below this
 
 
 @jit
