@@ -27,11 +27,11 @@ from agents.innovation_monitor import MONITOR_NAMES, InnovationMonitor
 from agents.kernels import dynamic as K
 from agents.kernels import dynamic_step as T
 from agents.kernels import filter as F
-from agents.kernels.agreement import DEG, HORIZON, SBITS, SWITCH, TMAX, U, X
+from agents.kernels.agreement import DEG, HORIZON, U, X
 from agents.kernels.dynamic import CH_JN, CH_JW, CH_MN, CH_MW, CH_ZX, CH_ZY, N_CH, N_CH_AUG
 from agents.laws import ControlLawError, LawInput, checked_wrench
 from agents.rigid_filter import RigidEKF, fit_rotation, init_slot
-from agents.stage_agreement import MASK_BITS, StageBarrier, mask_keys
+from agents.stage_agreement import StageBarrier, mask_keys
 from config.agent_params import DynamicsSpec
 from net.rows import Layout
 from net.vocabulary import DONE
@@ -132,12 +132,9 @@ class DynamicPhase:
 
     @property
     def barrier(self) -> StageBarrier:
-        """The stage barrier (a copy of its row)."""
-        S = self._S[self.b].tolist()
-        bar = StageBarrier(self.id, self.n, S[HORIZON])
-        bar.mask = sum(int(c) << (k * MASK_BITS) for k, c in enumerate(S[SBITS:]))
-        bar.tmax, bar.switch = S[TMAX], S[SWITCH]
-        return bar
+        """The stage barrier (a view of a copy of its row)."""
+        b = self.b
+        return StageBarrier(self.id, self.n, int(self._S[b, HORIZON]), bank=self._S[b:b + 1].copy())
 
     @property
     def nbr_stage(self) -> dict[int, int]:
