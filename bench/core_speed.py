@@ -15,6 +15,9 @@ Columns (a row per tree, then here / base):
   x real     (a) paper-fig4, n = 10, the whole of Algorithm 1 (120 s simulated; ``--real-duration``), in process as
              ``coload run paper-fig4 --engine inproc --no-report --no-batch-fit --quiet`` runs it (recording
              included): simulated seconds per wall second, summary.json's sim_s / wall_s. Best: the highest.
+  x task     (a') the same run as a campaign's worker runs it (coload.analysis.campaign.run_task: recorded, scored,
+             the run directory packed, without the CSV tables a campaign does not keep), after a short one
+             (a worker's imports): simulated seconds per wall second of the whole task. Best: the highest.
   step5 us,  (b) the engine's own ``agent_step_us`` (time inside the team's step per agent per tick) on the
   step40 us  campaign scenario at n = 5 and n = 40 (bench/agent_step.py's ``one``: paper-fig4 resized, sigma
              0.3, seed 12345), ``--duration`` simulated seconds. Best: the lowest of each.
@@ -38,7 +41,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parents[1]
 PKGS = ("agents", "coload", "config", "net", "simulator", "hinf")
-COLUMNS = ("x real", "step5 us", "step40 us", "40/5", "plant %", "warm s")
+COLUMNS = ("x real", "x task", "step5 us", "step40 us", "40/5", "plant %", "warm s")
 
 
 # ------------------------------------------------------------------------ worker: one measurement, one tree
@@ -82,6 +85,19 @@ def worker(kind: str, tree: Path, duration: float) -> dict:
         _check_tree(tree)
         return {"x real": s["sim_s"] / s["wall_s"], "warm s": warm}
     _warm()
+    if kind == "task":
+        import time
+
+        from coload.analysis.campaign import run_task
+        from config.loader import load_scenario
+
+        scenario = load_scenario("paper-fig4", ["record.batch_fit=false", f"duration={duration}"])
+        run_task(load_scenario("paper-fig4", ["record.batch_fit=false", "duration=5"]))  # a worker's imports
+        t0 = time.perf_counter()
+        files = run_task(scenario)
+        wall = time.perf_counter() - t0
+        _check_tree(tree)
+        return {"x task": json.loads(files["summary.json"])["sim_s"] / wall}
     if kind == "step":
         one = _bench_module("agent_step").one
         res = {f"step{n} us": one(n, duration, False)[0] for n in (5, 40)}
@@ -115,7 +131,7 @@ def measure(tree: Path, kind: str, duration: float) -> dict:
 
 def best(runs: list[dict]) -> dict:
     """The best of the repetitions, per number (module docstring)."""
-    out = {"x real": max(r["x real"] for r in runs)}
+    out = {"x real": max(r["x real"] for r in runs), "x task": max(r["x task"] for r in runs)}
     out["warm s"] = next(r["warm s"] for r in runs if r["x real"] == out["x real"])
     out["step5 us"] = min(r["step5 us"] for r in runs)
     out["step40 us"] = min(r["step40 us"] for r in runs)
@@ -126,7 +142,7 @@ def best(runs: list[dict]) -> dict:
 
 def table(res: dict[str, dict]) -> str:
     ratio = {c: res["here"][c] / res["base"][c] if res["base"][c] else float("nan") for c in COLUMNS}
-    digits = {"x real": 2, "step5 us": 1, "step40 us": 1, "40/5": 2, "plant %": 1, "warm s": 2}
+    digits = {"x real": 2, "x task": 2, "step5 us": 1, "step40 us": 1, "40/5": 2, "plant %": 1, "warm s": 2}
     lines = [f"{'':>12}" + "".join(f"{c:>11}" for c in COLUMNS)]
     for name, row in (("base", res["base"]), ("here", res["here"]), ("here / base", ratio)):
         lines.append(f"{name:>12}" + "".join(f"{row[c]:>11.{3 if name == 'here / base' else digits[c]}f}"
@@ -143,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plant-duration", type=float, default=120.0, help="simulated s of the plant run (c)")
     ap.add_argument("--real-duration", type=float, default=120.0, help="simulated s of the x-real run (a)")
     ap.add_argument("--json", help="also write the results (every repetition, and the best) here; - : stdout")
-    ap.add_argument("--worker", choices=("real", "step", "plant"), help=argparse.SUPPRESS)
+    ap.add_argument("--worker", choices=("real", "task", "step", "plant"), help=argparse.SUPPRESS)
     ap.add_argument("--tree", type=Path, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.worker:
@@ -160,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     for rep in range(a.reps):
         order = ("base", "here") if rep % 2 == 0 else ("here", "base")
         row = {name: {} for name in trees}
-        for kind, duration in (("real", a.real_duration), ("step", a.duration), ("plant", a.plant_duration)):
+        for kind, duration in (("real", a.real_duration), ("task", a.real_duration), ("step", a.duration),
+                               ("plant", a.plant_duration)):
             for name in order:
                 row[name].update(measure(trees[name], kind, duration))
         for name in trees:

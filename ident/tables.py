@@ -270,6 +270,18 @@ def _read(path: Path, required: Sequence[str], build: Callable[[_Csv], T]) -> T:
     return table
 
 
+def from_rows(path: Path, header: Sequence[str], rows: np.ndarray, build: Callable[[_Csv], T]) -> T:
+    """The table a file of ``header`` and the float ``rows`` (one per line, NaN for an empty cell) reads as,
+    built without the file: a recorder's rows that nobody keeps as CSV (``path`` names them in errors).
+    The build is the reader's, on the numbers the file's ``repr`` text parses back to, so the table is
+    the one :func:`_read` gives."""
+    csvf = _Csv(path, list(header), matrix=np.asarray(rows, dtype=float).reshape(-1, len(header)))
+    try:
+        return build(csvf)
+    except _SlowPath:  # a time that is not finite or an agent that is not an integer
+        raise RunFormatError(f"{path}: rows held in memory are not a valid table") from None
+
+
 def _read_csv(path: Path, required: Sequence[str]) -> _Csv:
     # utf-8-sig: a byte-order mark (spreadsheet exports) is not part of the first column's name;
     # errors="replace": text in another encoding in an extra column is ignored as the format allows,
@@ -356,6 +368,11 @@ def read_agent_csv(path: Path, required: Sequence[str], n: int) -> AgentTable:
     kept when numeric and ignored otherwise. Duplicate (t, agent) rows keep the later one in file
     order (a restarted agent re-reporting a tick).
     """
+    return _read(path, required, agent_table(required, n))
+
+
+def agent_table(required: Sequence[str], n: int) -> Callable[[_Csv], AgentTable]:
+    """The builder of :func:`read_agent_csv` (for :func:`from_rows` too)."""
     strict = set(required) | set(KNOWN_ESTIMATE_NAMES)
 
     def build(csvf: _Csv) -> AgentTable:
@@ -374,11 +391,16 @@ def read_agent_csv(path: Path, required: Sequence[str], n: int) -> AgentTable:
             columns[name] = table
         return AgentTable(t=grid, columns=columns, warnings=csvf.warnings)
 
-    return _read(path, required, build)
+    return build
 
 
 def read_truth_csv(path: Path, n: int) -> TruthTable:
     """Read truth.csv (one row per tick) sorted by time; requires the z_i columns of all n agents."""
+    return _read(path, truth_header(n), truth_table(n))
+
+
+def truth_table(n: int) -> Callable[[_Csv], TruthTable]:
+    """The builder of :func:`read_truth_csv` (for :func:`from_rows` too)."""
     strict = set(truth_header(n))
 
     def build(csvf: _Csv) -> TruthTable:
@@ -392,4 +414,4 @@ def read_truth_csv(path: Path, n: int) -> TruthTable:
         zi = np.stack([np.stack([columns[f"z{i}_x"], columns[f"z{i}_y"]], axis=1) for i in range(n)], axis=1)
         return TruthTable(t=columns["t"], columns=columns, zi=zi.reshape(len(t), n, 2), warnings=csvf.warnings)
 
-    return _read(path, truth_header(n), build)
+    return build

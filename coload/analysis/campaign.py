@@ -270,20 +270,21 @@ def finished_summary(run: PlannedRun) -> dict[str, Any] | None:
 
 
 BULK_FILES = ("samples.csv", "pairs.csv", "truth.csv", "estimates.csv")
-"""Dropped after a run unless ``keep_data``: the full grid would fill ~90 GB with them, and any run
+"""Not written by a campaign's run unless ``keep_data``: the full grid would fill ~90 GB with them, and any run
 is reproduced bit for bit by ``coload run OUT/runs/NAME/run.toml --engine inproc``."""
 
 
 def run_task(scenario: Scenario, keep_data: bool = False) -> dict[str, bytes]:
     """Worker: one in-process run in a private temporary directory; returns the run directory as
-    data (:func:`coload.runs.sweep.pack_dir`, without :data:`BULK_FILES` unless ``keep_data``), for
-    the driver to write: a worker needs no filesystem shared with the driver."""
+    data (:func:`coload.runs.sweep.pack_dir`; :data:`BULK_FILES` only with ``keep_data``, else the run
+    never writes them: its summary comes from the tables in memory), for the driver to write: a worker
+    needs no filesystem shared with the driver."""
     from coload.runs.engine import run_inproc
 
     with tempfile.TemporaryDirectory(prefix="coload-campaign-") as tmp:
         path = Path(tmp) / "run"
-        run_inproc(scenario, path)
-        return pack_dir(path, skip=() if keep_data else BULK_FILES)
+        run_inproc(scenario, path, tables=keep_data)
+        return pack_dir(path)
 
 
 def _scalar(x: Any) -> float | None:

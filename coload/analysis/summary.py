@@ -24,12 +24,15 @@ from coload.rundir.recorder import write_summary
 from config.scenario import Scenario
 
 
-def complete_summary(run_dir: Path, scenario: Scenario, summary: dict[str, Any]) -> dict[str, Any]:
+def complete_summary(
+    run_dir: Path, scenario: Scenario, summary: dict[str, Any], held: fmt.RunData | None = None
+) -> dict[str, Any]:
     """Adds ``errors`` (and, with ``record.batch_fit``, the centralized blocks) and ``versions`` to
-    ``summary`` and rewrites summary.json. A run too short to score still keeps its summary, with the reason."""
+    ``summary`` and rewrites summary.json. The tables are read from ``run_dir``, or are ``held`` (the
+    recorder's, in memory: ``Recorder.held``). A run too short to score still keeps its summary, with the reason."""
     run = None
     try:
-        run = fmt.read_run(run_dir)
+        run = fmt.read_run(run_dir) if held is None else held
         summary["errors"] = final_errors(run)
         trust = trust_block(run)
         if trust:

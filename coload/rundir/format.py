@@ -9,6 +9,7 @@ the same constants is what stops the format from drifting. The format is documen
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -31,10 +32,13 @@ from ident.tables import (  # noqa: F401  (re-exported: the run directory's form
     _read,
     _read_json,
     _time_grid,
+    agent_table,
+    from_rows,
     read_agent_csv,
     read_config,
     read_truth_csv,
     truth_header,
+    truth_table,
 )
 from net.vocabulary import ESTIMATE_NAMES as AGENT_ESTIMATE_NAMES
 
@@ -117,25 +121,44 @@ def read_run(run_dir: str | Path) -> RunData:
         raise RunFormatError(f"{path}: not a directory")
     config = read_config(path / RUN_TOML)
     n = config["n"]
-    edges = tuple((int(i), int(j)) for i, j in config["edges"])
-    samples = read_agent_csv(path / SAMPLES_CSV, SAMPLES_HEADER, n)
-    estimates = _optional(path / ESTIMATES_CSV, lambda p: read_agent_csv(p, ESTIMATES_KEY, n))
-    pairs = _optional(path / PAIRS_CSV, lambda p: read_pairs_csv(p, n))
-    truth = _optional(path / TRUTH_CSV, lambda p: read_truth_csv(p, n))
-    summary = _optional(path / SUMMARY_JSON, _read_json)
-    return RunData(
-        path=path,
-        config=config,
-        n=n,
-        dt=float(config["dt"]),
-        edges=edges,
-        samples=samples,
-        estimates=estimates,
-        pairs=pairs,
-        truth=truth,
-        summary=summary,
-        name=str(config.get("name", path.name)),
-    )
+    return _run(path, config,
+                samples=read_agent_csv(path / SAMPLES_CSV, SAMPLES_HEADER, n),
+                estimates=_optional(path / ESTIMATES_CSV, lambda p: read_agent_csv(p, ESTIMATES_KEY, n)),
+                pairs=_optional(path / PAIRS_CSV, lambda p: read_pairs_csv(p, n)),
+                truth=_optional(path / TRUTH_CSV, lambda p: read_truth_csv(p, n)),
+                summary=_optional(path / SUMMARY_JSON, _read_json))
+
+
+def run_from_rows(
+    run_dir: str | Path, tables: dict[str, tuple[Sequence[str], np.ndarray]], summary: dict[str, Any] | None
+) -> RunData:
+    """The run :func:`read_run` reads from ``run_dir`` (its run.toml) if its CSV files held ``tables[file name]
+    = (header, float rows)``, without the files: a recorder's tables that nobody keeps (``from_rows``).
+    samples.csv is required; ``summary`` stands for summary.json."""
+    path = Path(run_dir)
+    config = read_config(path / RUN_TOML)
+    n = config["n"]
+
+    def table(name: str, build: Callable[[_Csv], Any]) -> Any:
+        if name not in tables:
+            return None
+        header, rows = tables[name]
+        return from_rows(path / name, header, rows, build)
+
+    if SAMPLES_CSV not in tables:
+        raise RunFormatError(f"{path / SAMPLES_CSV}: missing")
+    return _run(path, config,
+                samples=table(SAMPLES_CSV, agent_table(SAMPLES_HEADER, n)),
+                estimates=table(ESTIMATES_CSV, agent_table(ESTIMATES_KEY, n)),
+                pairs=table(PAIRS_CSV, pair_table(n)),
+                truth=table(TRUTH_CSV, truth_table(n)),
+                summary=summary)
+
+
+def _run(path: Path, config: dict[str, Any], **tables: Any) -> RunData:
+    return RunData(path=path, config=config, n=config["n"], dt=float(config["dt"]),
+                   edges=tuple((int(i), int(j)) for i, j in config["edges"]),
+                   name=str(config.get("name", path.name)), **tables)
 
 
 def _optional(path: Path, reader: Any) -> Any:
@@ -144,6 +167,11 @@ def _optional(path: Path, reader: Any) -> Any:
 
 def read_pairs_csv(path: Path, n: int) -> PairTable:
     """Read pairs.csv into one (T, 2) array per directed pair (agent, neighbour)."""
+    return _read(path, PAIRS_HEADER, pair_table(n))
+
+
+def pair_table(n: int) -> Callable[[_Csv], PairTable]:
+    """The builder of :func:`read_pairs_csv` (for ``from_rows`` too)."""
 
     def build(csvf: _Csv) -> PairTable:
         grid, ti = _time_grid(csvf)
@@ -166,4 +194,4 @@ def read_pairs_csv(path: Path, n: int) -> PairTable:
             zij[(int(key // n), int(key % n))] = arr
         return PairTable(t=grid, zij=zij)
 
-    return _read(path, PAIRS_HEADER, build)
+    return build

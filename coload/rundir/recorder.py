@@ -3,7 +3,9 @@
 Rows are buffered and flushed in blocks so that recording stays a small share of a tick (the samples, a
 row per agent every tick, are kept as numbers in a preallocated block and formatted a block at a time); floats
 are written with ``repr`` so that they read back bit-identical (the engine-equality test relies on it), and
-a missing value (NaN) as an empty cell.
+a missing value (NaN) as an empty cell. A recorder made with ``tables=False`` writes run.toml and summary.json
+only and keeps the tables as numbers, read with :meth:`Recorder.held`: a campaign's runs, whose tables are
+dropped, compute their summary from the same numbers without formatting and parsing them.
 """
 
 from __future__ import annotations
@@ -64,9 +66,10 @@ def _f(x: float) -> str:
 
 
 class Recorder:
-    """One run directory. ``estimate_names`` fixes the columns of estimates.csv."""
+    """One run directory. ``estimate_names`` fixes the columns of estimates.csv; ``tables=False`` keeps the
+    tables in memory instead of writing their CSV files (module docstring)."""
 
-    def __init__(self, run_dir: Path, scenario: Scenario, estimate_names: tuple[str, ...]) -> None:
+    def __init__(self, run_dir: Path, scenario: Scenario, estimate_names: tuple[str, ...], tables: bool = True) -> None:
         self.run_dir = Path(run_dir)
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "logs").mkdir(exist_ok=True)
@@ -77,11 +80,18 @@ class Recorder:
         for name in fmt.DERIVED_FILES:  # a previous run's, in a re-used directory
             (self.run_dir / name).unlink(missing_ok=True)
         (self.run_dir / fmt.RUN_TOML).write_text(dump_scenario(scenario), encoding="utf-8")
-        self._samples = _Table(self.run_dir / fmt.SAMPLES_CSV, fmt.SAMPLES_HEADER)
-        self._estimates = _Table(self.run_dir / fmt.ESTIMATES_CSV, ["t", "agent", *estimate_names])
-        self._pairs = _Table(self.run_dir / fmt.PAIRS_CSV, fmt.PAIRS_HEADER)
-        self._truth = _Table(self.run_dir / fmt.TRUTH_CSV, fmt.truth_header(scenario.n))
-        self._tables = (self._samples, self._estimates, self._pairs, self._truth)
+        self._headers = {fmt.SAMPLES_CSV: fmt.SAMPLES_HEADER, fmt.ESTIMATES_CSV: ("t", "agent", *estimate_names),
+                         fmt.PAIRS_CSV: fmt.PAIRS_HEADER, fmt.TRUTH_CSV: fmt.truth_header(scenario.n)}
+        self.files = tables
+        self._tables: tuple[_Table, ...] = ()
+        if tables:
+            self._samples, self._estimates, self._pairs, self._truth = self._tables = tuple(
+                _Table(self.run_dir / name, list(header)) for name, header in self._headers.items())
+        else:
+            for name in self._headers:  # a previous run's, which would contradict this one's summary
+                (self.run_dir / name).unlink(missing_ok=True)
+        # tables=False: the rows as numbers (samples: (rows, 7) blocks; the others: lists of Python floats)
+        self._held: dict[str, list[Any]] = {name: [] for name in self._headers}
         self._sample_ticks: list[int] = []  # the ticks in _sample_block, not yet formatted
         self._sample_block: np.ndarray | None = None  # (_SAMPLE_TICKS, agents, vx vy fx fy tau), on first use
         self.estimates_recorded = 0
@@ -112,6 +122,15 @@ class Recorder:
         if not ticks:
             return
         dt = self.dt
+        if not self.files:
+            n = self._sample_block.shape[1]  # type: ignore[union-attr]
+            block = np.empty((len(ticks), n, 7))
+            block[:, :, 0] = (np.array(ticks) * dt)[:, None]  # the products repr(tick * dt) writes
+            block[:, :, 1] = np.arange(n)
+            block[:, :, 2:] = self._sample_block[: len(ticks)]  # type: ignore[index]
+            self._held[fmt.SAMPLES_CSV].append(block.reshape(-1, 7))
+            ticks.clear()
+            return
         rows: list[str] = []
         for tick, agents in zip(ticks, self._sample_block[: len(ticks)].tolist(), strict=True):  # type: ignore[index]
             t = repr(tick * dt)
@@ -123,18 +142,14 @@ class Recorder:
     def truth(self, truth: Any) -> None:
         if not self.keeps(truth.tick):
             return
-        zs = ",".join(f"{_f(x)},{_f(y)}" for x, y in truth.zi)
-        self._truth.add(
-            ",".join(
-                _f(v)
-                for v in (
-                    truth.t, truth.x, truth.y, truth.angle, truth.vc[0], truth.vc[1], truth.omega,
-                    truth.zc[0], truth.zc[1], truth.pg[0], truth.pg[1], truth.mass, truth.inertia,
-                )
-            )
-            + ","
-            + zs
-        )
+        row = [float(v) for v in (
+            truth.t, truth.x, truth.y, truth.angle, truth.vc[0], truth.vc[1], truth.omega,
+            truth.zc[0], truth.zc[1], truth.pg[0], truth.pg[1], truth.mass, truth.inertia)]
+        row += [float(c) for z in truth.zi for c in z]
+        if self.files:
+            self._truth.add(",".join([_cell(x) for x in row]))
+        else:
+            self._held[fmt.TRUTH_CSV].append(row)
 
     def estimate(self, est: Estimate) -> None:
         vals = est.values
@@ -153,12 +168,19 @@ class Recorder:
         z_ij y) by neighbour, all Python floats."""
         if not self.keeps(tick):
             return
+        self.estimates_recorded += len(values)
+        if not self.files:
+            t = float(tick * self.dt)
+            est, pr = self._held[fmt.ESTIMATES_CSV], self._held[fmt.PAIRS_CSV]
+            for agent, row, agent_pairs in zip(agents, values, pairs, strict=True):
+                est.append([t, agent, *row])
+                pr += [[t, agent, j, x, y] for j, x, y in agent_pairs]
+            return
         t = _f(tick * self.dt)
         for agent, row, agent_pairs in zip(agents, values, pairs, strict=True):
             self._estimates.add(f"{t},{agent}," + ",".join([_cell(x) for x in row]))
             for j, x, y in agent_pairs:
                 self._pairs.add(f"{t},{agent},{j},{_f(x)},{_f(y)}")
-        self.estimates_recorded += len(values)
 
     def flush(self) -> None:
         self._format_samples()
@@ -179,6 +201,22 @@ class Recorder:
         (self.run_dir / fmt.INTERRUPTED_JSON).write_text(json.dumps(
             {"tick": tick, "t": tick * self.dt, "reason": reason, "duration": self.scenario.duration}, indent=1) + "\n",
             encoding="utf-8")
+
+    def held(self) -> fmt.RunData:
+        """The run as :func:`coload.rundir.format.read_run` reads it, from the tables held in memory (a
+        recorder made with ``tables=False``, after :meth:`close`)."""
+        if self.files or not self._closed:
+            raise RuntimeError("held(): only a closed recorder made with tables=False holds its tables")
+        tables = {}
+        for name, header in self._headers.items():
+            rows = self._held[name]
+            if name == fmt.SAMPLES_CSV:
+                matrix = np.concatenate(rows) if rows else np.empty((0, len(header)))
+            else:
+                matrix = np.array(rows, dtype=float).reshape(-1, len(header))
+            tables[name] = (header, matrix)
+        summary = json.loads((self.run_dir / fmt.SUMMARY_JSON).read_text(encoding="utf-8"))
+        return fmt.run_from_rows(self.run_dir, tables, summary)
 
     @property
     def journal_path(self) -> Path:

@@ -116,10 +116,12 @@ def run_inproc(
     run_dir: Path | None,
     progress: Progress | None = None,
     pace: bool | None = None,
+    tables: bool = True,
 ) -> dict[str, Any]:
     """Runs the scenario in this process; writes ``run_dir`` when given; returns the summary.
 
-    ``pace`` holds each tick to wall-clock time (default: only in real-time mode).
+    ``pace`` holds each tick to wall-clock time (default: only in real-time mode). ``tables=False`` writes
+    run.toml and summary.json only: the summary is computed from the recorder's tables in memory.
     """
     n, dt, ticks, mode = scenario.n, scenario.dt, scenario.ticks, scenario.mode
     pace = (mode == "realtime") if pace is None else pace
@@ -128,7 +130,7 @@ def run_inproc(
     neighbours = scenario.neighbours()
     net = LinkNetwork(scenario, mode)
     team = build_team([scenario.agent_view(i) for i in range(n)], ring=1 + net.reach)
-    rec = Recorder(run_dir, scenario, ESTIMATE_NAMES) if run_dir is not None else None
+    rec = Recorder(run_dir, scenario, ESTIMATE_NAMES, tables=tables) if run_dir is not None else None
     pops = net.pops
     send = net.send
     keeps = rec.keeps if rec is not None else None
@@ -196,5 +198,6 @@ def run_inproc(
     summary = base_summary("inproc", scenario, mode, ticks, wall, net.close(ticks))
     summary["agent_step_us"] = 1e6 * step_s / max(1, ticks * n)
     if rec is not None:
-        summary = complete_summary(run_dir, scenario, rec.close(summary))
+        summary = rec.close(summary)
+        summary = complete_summary(run_dir, scenario, summary, None if tables else rec.held())
     return summary
