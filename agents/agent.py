@@ -3,8 +3,9 @@
 :meth:`AgentCore.step` (tick, own measured velocity, neighbour messages) -> :class:`StepResult`
 (message to the neighbours, wrench to the plant, estimate): deterministic, no clock, socket or RNG.
 It is an :class:`agents.team.TeamCore` of one agent: the inbox's :class:`net.messages.StateMsg`\\ s become
-IN rows (net/rows.py ``row_values``), the team's tick runs on them, and the agent's OUT row becomes its
-message (``state_from_row``). The wire content: docs/agent-step.md; the estimate names:
+IN rows (agents/kernels/message_rows.py ``in_rows``: decoded by net/rows.py ``raw_values``, checked by the
+compiled ``check_rows``, the checks an in-process team's gather runs), the team's tick runs on them, and the
+agent's OUT row becomes its message (``state_from_row``). The wire content: docs/agent-step.md; the estimate names:
 :data:`net.vocabulary.ESTIMATE_NAMES`.
 """
 
@@ -15,11 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from agents.kernels.message_rows import in_rows
 from agents.laws import LawInput
 from agents.team import AgentView, Member, TeamCore, assumed_sigma_v
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net.messages import Estimate, StateMsg, Wrench
-from net.rows import row_values
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,7 +68,7 @@ class AgentCore(TeamCore, AgentView):
         lay = self._lay
         me = self.ids[0]
         n = len(inbox)
-        rows = np.array([row_values(m, me, lay) for m in inbox], np.float64) if n else self._no_rows
+        rows = in_rows(inbox, me, lay) if n else self._no_rows
         self._in_ptr[1] = n
         inp = self._inp
         inp[0, 0] = vx

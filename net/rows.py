@@ -2,27 +2,36 @@
 
 The kernels read and write messages as float64 rows whose slots are fixed per team by :class:`Layout`
 (docs/fast-core-plan.md section 2); the wire keeps its msgpack dicts, converted here at the edge:
-:func:`row_from_state` (a decoded message -> the IN row of one receiver), :func:`state_from_row` (an
-agent's OUT row -> the message it sends), :func:`estimate_from_row` (its estimate row -> :class:`Estimate`).
+:func:`raw_values` (a decoded message -> the raw row of one receiver, which the compiled core checks into its
+IN row: agents/kernels/message_rows.py ``check_rows``), :func:`state_from_row` (an agent's OUT row -> the
+message it sends), :func:`estimate_from_row` (its estimate row -> :class:`Estimate`).
 
 Row slots: ``TICK, SENDER, VX, VY, PHASE, STATUS, HAS_PAIR``, a spare, then the shared states in the order
 the agent writes them (``om, oi, ph, yx, yy``; with the dynamical phase ``c0.. dg, Sk, ps, B0.. Bt, Bs`` and
 with online detection ``Ds, De, Dz``), then the pair blocks from ``Layout.p0`` on, ``Layout.block`` floats
 each: ``zx, zy, Fx, Fy`` (and the ``nch`` flows): in an OUT row one block per neighbour in the sender's
-neighbour order, in an IN row the one block meant for the receiver.
+neighbour order, in a raw or IN row the one block meant for the receiver.
 
-``STATUS`` says what today's receive path (``AgentCore.step``: the inbox's try-block and the dynamical
-phase's decoder) does with a message whose header it accepts: :data:`OK` (both parts taken, unless a value
-is NaN or infinite: the receiving kernel checks that), :data:`MALFORMED` (dropped: a key missing, a pair of
-the wrong length, a value its decoder rejects), :data:`KIN_MALFORMED` (its dynamical states are taken, then
-the message is dropped: a kinematic value that is not a number). A message overtaken on its link is used
-for its velocity alone, whatever its status: ``VX, VY`` hold it (NaN if not a number).
+``STATUS`` says what the receive path does with a message whose header it accepts: :data:`OK` (both parts
+taken, unless a value is NaN or infinite: the receiving kernel checks that), :data:`MALFORMED` (dropped: a key
+missing, a pair of the wrong length, a value its conversion or its check rejects), :data:`KIN_MALFORMED` (its
+dynamical states are taken, then the message is dropped: a kinematic value that is not a number).
+
+Here only the types decide: each value is taken as the old receive path took it: ``float()`` for the channels,
+``ps``, ``Ds, De, Dz``, the flows and, with the dynamical phase, ``om``; ``int()`` for ``dg, Sk, Bt, Bs`` and,
+with the dynamical phase, the stage; a comparison with a float for ``oi`` and the mask chunks (a real number
+only); the kinematic values as they are. A conversion that raises makes the message MALFORMED. The values'
+ranges (finite, integral, a mask chunk in [0, 2^MASK_BITS), a decision code) are checked once, by the compiled
+core, for a daemon's inbox and an in-process team's alike. A message overtaken on its link is used for its
+velocity alone, whatever its status: ``VX, VY`` hold it (NaN if not a number); of a MALFORMED row nothing else
+is read.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import numbers
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,7 +49,6 @@ PAIR_HEAD = 4  # zx, zy, Fx, Fy before a block's flows
 # (agents.stage_agreement.MASK_BITS), a flooded decision's effect codes [-1, 2 N_EFF) (agents.effect_decision)
 MASK_BITS = 50
 N_DECISION_CODES = 8
-_CHUNK_END = 2.0**MASK_BITS
 
 # the kernels' view of a Layout: lay[L_*] (int64)
 (L_DYNAMIC, L_NCH, L_NBK, L_DETECT, L_DEGREE, L_DG, L_SK, L_PS, L_B0, L_BT, L_BS, L_DS, L_DE, L_DZ, L_P0, L_BLOCK,
@@ -74,6 +82,8 @@ class Layout:
     p0: int = field(init=False)  # the first pair block
     block: int = field(init=False)  # floats per pair block
     lay: np.ndarray = field(init=False, repr=False, compare=False)  # the kernels' offset table (L_*)
+    # the dynamical states' (slot, name, conversion) as the receive path takes them (raw_values)
+    taking: tuple[tuple[int, str, Callable[[object], float]], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.detection and not self.dynamic:
@@ -102,6 +112,7 @@ class Layout:
                         p0 + self.degree * block, p0 + block], dtype=np.int64)
         lay.flags.writeable = False
         put(self, "lay", lay)
+        put(self, "taking", tuple((OM + k, key, _taking(key)) for k, key in enumerate(keys) if k >= len(KIN_KEYS)))
 
     @property
     def size_out(self) -> int:
@@ -125,15 +136,44 @@ def _num(x: object) -> float:
         return math.nan
 
 
-def row_from_state(msg: StateMsg, me: int, lay: Layout) -> np.ndarray:
-    """The IN row of ``msg`` for receiver ``me`` (:func:`row_values`)."""
-    return np.array(row_values(msg, me, lay))
+def _is_number(x: object) -> bool:
+    """Whether ``x`` adds to a float (the kinematic values' finiteness sum raises on anything else)."""
+    return type(x) is float or isinstance(x, numbers.Real)
 
 
-def row_values(msg: StateMsg, me: int, lay: Layout) -> list[float]:
-    """The IN row of ``msg`` for receiver ``me``, as a list (many rows become one array at once). Its
-    statements are the receive path's (the inbox's try-block, then the dynamical phase's decoder), in
-    that order; the first raise decides ``STATUS``."""
+def _real(x: object) -> float:
+    """A value the receive path compares with a float (``oi``, a mask chunk): a real number as a float, anything
+    else raises TypeError (as the comparison does)."""
+    if type(x) is float:
+        return x
+    if isinstance(x, numbers.Real):
+        return float(x)
+    raise TypeError(f"not a number: {type(x).__name__}")
+
+
+def _integer(x: object) -> float:
+    """A value the receive path takes with ``int()`` (``dg, Sk, Bt, Bs``, the stage): a float as it is (the check
+    rejects NaN and infinities and truncates it), anything else as ``int()`` makes it (a str parsed; raises where
+    int() raises)."""
+    return x if type(x) is float else float(int(x))  # type: ignore[call-overload]
+
+
+def _taking(key: str) -> Callable[[object], float]:
+    """How the receive path takes a dynamical state: ``int()``, a comparison (a mask chunk) or ``float()``."""
+    if key in ("dg", "Sk", "Bt", "Bs"):
+        return _integer
+    if key[0] == "B" and key[1:].isdigit():
+        return _real
+    return float
+
+
+def raw_values(msg: StateMsg, me: int, lay: Layout) -> list[float]:
+    """The raw row of ``msg`` for receiver ``me``, as a list (many rows become one array at once): the type-level
+    decode of the receive path. Each value as the float it stands for, in the IN row's slots (the shared states
+    as sent, the receiver's pair block, ``HAS_PAIR``: 0 when there is none); ``STATUS`` only for what is not a
+    number at all: :data:`MALFORMED` (a key missing, a pair of the wrong length, a value its conversion
+    rejects: the module docstring), :data:`KIN_MALFORMED` (a kinematic value that is not a number). The values'
+    checks are the compiled core's (agents/kernels/message_rows.py ``check_rows``), which makes the IN row."""
     v = [0.0] * lay.size_in
     v[TICK] = msg.tick
     v[SENDER] = msg.sender
@@ -143,81 +183,37 @@ def row_values(msg: StateMsg, me: int, lay: Layout) -> list[float]:
     p = lay.p0
     try:
         sh = msg.shared
-        s_om = sh["om"]
-        s_ph = sh["ph"]
-        yx = sh["yx"]
-        yy = sh["yy"]
-        v[OI] = 1.0 if sh["oi"] > 0.0 else 0.0  # the one use of "oi": a bool, so store what it decides
+        om, oi, ph, yx, yy = sh["om"], sh["oi"], sh["ph"], sh["yx"], sh["yy"]
+        v[OI] = _real(oi)
         pz = msg.pair.get(me)
-        if not lay.dynamic:
-            if pz is None:
-                zx = zy = fx = fy = 0.0
-            else:
-                zx, zy, fx, fy = pz
+        fl: list = []
+        if pz is None:
+            zx = zy = fx = fy = 0.0
+        elif lay.dynamic:
+            zx, zy, fx, fy, *fl = pz
         else:
-            if pz is None:
-                zx = zy = fx = fy = 0.0
-                fl = None
-            else:
-                zx, zy, fx, fy, *fl = pz
-            _decode_dynamic(v, lay, msg.phase, sh, fl)
+            zx, zy, fx, fy = pz
+        if lay.dynamic:
+            float(om)  # the dynamical phase's decoder takes om with float()
+            v[PHASE] = _integer(msg.phase)
+            for slot, key, take in lay.taking:
+                v[slot] = take(sh[key])
+            if pz is not None:
+                if len(fl) != lay.nch:
+                    raise ValueError("flows of the wrong length")
+                v[p + PAIR_HEAD:p + lay.block] = [float(x) for x in fl]
     except _MALFORMED:
         v[STATUS] = MALFORMED
-    else:
-        v[HAS_PAIR] = 0.0 if pz is None else 1.0
-        try:
-            chk = s_om + s_ph + yx + yy + zx + zy + fx + fy + msg.vx + msg.vy
-            chk - chk  # noqa: B018 (the old finiteness test: raises on a type the sum let through)
-        except _MALFORMED:
-            v[STATUS] = KIN_MALFORMED
-        if not lay.dynamic:
-            v[OM] = _num(s_om)
-        v[PH] = _num(s_ph)
-        v[YX] = _num(yx)
-        v[YY] = _num(yy)
-        v[p:p + PAIR_HEAD] = _num(zx), _num(zy), _num(fx), _num(fy)
+        return v
+    v[HAS_PAIR] = 0.0 if pz is None else 1.0
+    v[OM] = _num(om)
+    v[PH] = _num(ph)
+    v[YX] = _num(yx)
+    v[YY] = _num(yy)
+    v[p:p + PAIR_HEAD] = _num(zx), _num(zy), _num(fx), _num(fy)
+    if not all(map(_is_number, (om, ph, yx, yy, zx, zy, fx, fy, msg.vx, msg.vy))):
+        v[STATUS] = KIN_MALFORMED
     return v
-
-
-def _decode_dynamic(v: list[float], lay: Layout, phase: object, sh: dict, fl: Sequence[float] | None) -> None:
-    """The dynamical states of ``sh`` (and the flows ``fl`` meant for the receiver, None: none sent yet)
-    into the row values ``v``, checked as the dynamical phase's decoder checks them (it raises where that
-    raises)."""
-    nch = lay.nch
-    psi = float(sh["ps"])
-    degj = sh["dg"]
-    xj = [float(sh[k]) for k in lay.ch_keys]
-    if psi - psi != 0.0:
-        raise ValueError("non-finite")
-    om = float(sh.get("om", math.nan))
-    degj = int(degj)
-    flows = [0.0] * nch if fl is None else list(map(float, fl))
-    if degj < 1 or len(flows) != nch:
-        raise ValueError("bad dynamic state")
-    b = lay.b0
-    for key in lay.mask_keys:
-        x = sh[key]
-        if not (0.0 <= x < _CHUNK_END) or x != int(x):
-            raise ValueError("bad mask chunk")
-        v[b] = int(x)
-        b += 1
-    v[lay.bt] = int(sh["Bt"])
-    v[lay.bs] = int(sh["Bs"])
-    if not all(map(math.isfinite, xj)):
-        raise ValueError("non-finite")
-    if lay.detection:
-        s, e, z = float(sh["Ds"]), float(sh["De"]), float(sh["Dz"])
-        if s != int(s) or e != int(e) or not (-1 <= e < N_DECISION_CODES) or z - z != 0.0:
-            raise ValueError("bad decision")
-        v[lay.ds:lay.ds + 3] = s, e, z
-    v[PHASE] = int(phase)  # type: ignore[call-overload]
-    v[lay.sk] = int(sh["Sk"])
-    v[OM] = om
-    v[C0:C0 + nch] = xj
-    v[lay.dg] = degj
-    v[lay.ps] = psi
-    p = lay.p0 + PAIR_HEAD
-    v[p:p + nch] = flows
 
 
 def state_from_row(row: np.ndarray, lay: Layout, nbr_ids: Sequence[int]) -> StateMsg:

@@ -104,8 +104,8 @@ class DynamicMsg(NamedTuple):
 
 
 def _dynamic_msg(v: list[float], lay: Layout) -> DynamicMsg:
-    """A neighbour's dynamical states from its IN row's values (net/rows.py row_values), whose status
-    says they were decoded and checked."""
+    """A neighbour's dynamical states from its IN row's values (agents/kernels/message_rows.py in_rows), whose
+    status says they were decoded and checked."""
     nch = lay.nch
     mask = 0
     for c in range(lay.nbk):

@@ -31,11 +31,12 @@ def test_flow_edge_is_antisymmetric_after_one_exchange(f_ij: float, f_ji: float,
 
 
 def test_dynamic_states_are_decoded_and_checked_at_the_edge() -> None:
-    """A neighbour's dynamical states are checked as a whole by the edge codec (net/rows.py): one bad
-    value or missing key marks the row malformed (nothing of it is taken); the flows default to zeros
-    when it sent none for us yet."""
+    """A neighbour's dynamical states are checked as a whole by the receive path (net/rows.py's decode, the
+    compiled check of agents/kernels/message_rows.py): one bad value or missing key marks the row malformed
+    (nothing of it is taken); the flows default to zeros when it sent none for us yet."""
     from agents.kernels import dynamic as K
     from agents.kernels.agreement import FLOW
+    from agents.kernels.message_rows import in_rows
     from config.agent_params import DynamicsSpec
     from net import rows as R
     from net.messages import StateMsg
@@ -50,8 +51,8 @@ def test_dynamic_states_are_decoded_and_checked_at_the_edge() -> None:
     flows = [0.5] * nch
 
     def row(sh: dict, fl: list | None = flows) -> np.ndarray:
-        return R.row_from_state(StateMsg(5, 0, 0.0, 0.0, K.KINEMATIC, sh, {} if fl is None else {1: (0, 0, 0, 0, *fl)}),
-                                1, lay)
+        return in_rows([StateMsg(5, 0, 0.0, 0.0, K.KINEMATIC, sh, {} if fl is None else {1: (0, 0, 0, 0, *fl)})], 1,
+                       lay)[0]
 
     def receive(v: np.ndarray) -> None:  # neighbour 0's row into its slot 0
         b = dyn._banks

@@ -22,10 +22,11 @@ from test_agent_core import Links
 
 from agents.agent import AgentCore
 from agents.kernels.kinematic import HOLD_MAX, I_ALPHA, I_OM_MEAS, R_PAIRS, kin_bank, kin_step, set_kin_params
+from agents.kernels.message_rows import in_rows
 from agents.kernels.pair import pair_bank, pair_checkpoints
 from config.agent_params import ControlSpec, EstimatorSpec
 from net.messages import StateMsg
-from net.rows import Layout, row_from_state
+from net.rows import Layout
 
 N = 4
 NBRS = line_neighbours(N)
@@ -73,7 +74,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for c, (i, tick, vx, vy, inbox) in enumerate(calls):
         assert (tick, i) == divmod(c, N)
         meas[tick, i] = vx, vy
-        rows.extend(row_from_state(m, i, LAY) for m in inbox)
+        rows.extend(in_rows(inbox, i, LAY))
         ptr[tick, i + 1] = len(rows)
     path = tmp_path_factory.mktemp("kin") / "inboxes.npz"
     np.savez(path, meas=meas, ptr=ptr, rows=np.array(rows))

@@ -1,7 +1,13 @@
-"""agents/kernels/message_rows.py: an in-process IN row gathered from a sender's OUT row equals, bit for bit,
-the row the edge codec makes of the message that OUT row stands for (``row_values(state_from_row(out))``),
-for valid rows and rows with NaN, infinite, fractional, negative-zero and out-of-range values in any slot;
-compiled == interpreted."""
+"""agents/kernels/message_rows.py: a received message's IN row is one compiled check of its values, in process and
+over the wire alike.
+
+An in-process IN row gathered from a sender's OUT row equals, bit for bit, the row a daemon makes of the message
+that OUT row stands for (``in_rows([state_from_row(out)])``: net.rows.raw_values, then check_rows), for valid
+rows and rows with NaN, infinite, fractional, negative-zero and out-of-range values in any slot. A daemon's row
+of any message, forged ones included (strings, None, bools, ints, missing keys, pairs of the wrong length), is
+the old receive path's (tests/wire_oracle.py, frozen): the same STATUS; every slot when the message is not
+dropped; the header and velocity (all that is read of it) when it is. Compiled == interpreted.
+"""
 
 from __future__ import annotations
 
@@ -13,8 +19,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agents.kernels.kinematic import R_OM_INIT, R_OMEGA, R_PAIRS, R_PHI, R_Y
-from agents.kernels.message_rows import gather_inbox, write_kin_out
+from agents.kernels.message_rows import check_rows, gather_inbox, in_rows, write_kin_out
 from net import rows as R
+from net.messages import StateMsg
+from tests.wire_oracle import row_values as old_row_values
 
 JIT = hasattr(gather_inbox, "py_func")
 NBRS = [10, 11, 12]  # the sender's neighbours; the receiver is one of them or 99 (no pair block)
@@ -60,14 +68,15 @@ def cases(draw: st.DrawFn) -> tuple[R.Layout, np.ndarray, int]:
 
 
 def _expected(lay: R.Layout, out: np.ndarray, blk: int) -> np.ndarray:
+    """A daemon's IN row of the message OUT row ``out`` stands for, as the receiver of block ``blk``."""
     nbrs = NBRS[:lay.degree]
     me = nbrs[blk] if blk >= 0 else 99
-    return np.array(R.row_values(R.state_from_row(out, lay, nbrs), me, lay), np.float64)
+    return in_rows([R.state_from_row(out, lay, nbrs)], me, lay)[0]
 
 
 @settings(max_examples=400, deadline=None, derandomize=True)
 @given(case=cases())
-def test_a_gathered_row_is_the_edge_codec_s_row_of_the_message(case: tuple[R.Layout, np.ndarray, int]) -> None:
+def test_a_gathered_row_is_a_daemon_s_row_of_the_message(case: tuple[R.Layout, np.ndarray, int]) -> None:
     lay, out, blk = case
     ring = out.reshape(1, 1, -1)
     ref = np.array([[0, 0, blk]], np.int64)
@@ -97,6 +106,111 @@ def test_each_rejected_value_marks_the_row_malformed() -> None:
     got = np.zeros((1, lay.size_in))
     gather_inbox(base.reshape(1, 1, -1), np.array([[0, 0, 0]], np.int64), lay.lay, got)
     assert got[0, R.STATUS] == R.OK and got[0, R.HAS_PAIR] == 1.0
+    # the stage, which only a message from outside can spoil: int() of it, with the dynamical phase only
+    raw = np.zeros((2, lay.size_in))
+    raw[:, lay.dg] = 2.0
+    raw[:, R.PHASE] = math.nan, 2.5
+    got = np.zeros_like(raw)
+    check_rows(raw, lay.lay, got)
+    assert got[:, R.STATUS].tolist() == [R.MALFORMED, R.OK] and got[1, R.PHASE] == 2.0
+    kin = R.Layout(False, 0, 0, False, 2)
+    got = np.zeros((2, kin.size_in))
+    check_rows(raw[:, :kin.size_in].copy(), kin.lay, got)
+    assert got[:, R.STATUS].tolist() == [R.OK, R.OK] and got[1, R.PHASE] == 2.5
+
+
+# what a forged message may hold where a float belongs: edge floats, ints (msgpack's range), bools, strings (some
+# int() or float() parse), bytes, None, containers
+FORGED = [*EDGE, True, False, 0, 1, -1, 3, 2**50 - 1, 2**50, 2**53 + 1, 2**63, -(2**63), 2**64 - 1, "x", "1.5", "3",
+          "-0", "nan", "inf", "", b"2", None, [], [1.0], {}, {"a": 1.0}]
+forged = st.one_of(st.sampled_from(FORGED), st.floats(), st.integers(-(2**63), 2**64 - 1))
+
+
+@st.composite
+def forged_msgs(draw: st.DrawFn) -> tuple[R.Layout, StateMsg, int]:
+    """A valid message (of a valid OUT row) for receiver ``me``, with up to four of its parts forged: a shared
+    value replaced or dropped, the receiver's pair entry replaced, cut, lengthened, spoilt or dropped, the
+    velocity or stage replaced, the shared map or the pair map not a map."""
+    lay, out, blk = draw(cases())
+    nbrs = NBRS[:lay.degree]
+    me = nbrs[blk] if blk >= 0 else 99
+    m = R.state_from_row(out, lay, nbrs)
+    sh, pair, head = dict(m.shared), dict(m.pair), {"vx": m.vx, "vy": m.vy, "phase": m.phase}
+    pz = list(pair.get(nbrs[0]))
+    maps = False
+    for _ in range(draw(st.integers(0, 4))):
+        what = draw(st.sampled_from(["value", "value", "value", "drop", "pair", "pair", "head", "maps"]))
+        if what == "value":
+            sh[draw(st.sampled_from(lay.keys if draw(st.booleans()) else R.KIN_KEYS))] = draw(forged)
+        elif what == "drop":
+            sh.pop(draw(st.sampled_from(lay.keys)), None)
+        elif what == "pair":
+            kind = draw(st.sampled_from(["spoil", "spoil", "cut", "long", "none", "drop", "str", "int"]))
+            if kind == "spoil":
+                pz[draw(st.integers(0, len(pz) - 1))] = draw(forged)
+            pair[me] = {"spoil": tuple(pz), "cut": tuple(pz[:-1]), "long": (*pz, 0.0), "none": None,
+                        "str": "1" * len(pz), "int": 5, "drop": None}[kind]
+            if kind == "drop":
+                del pair[me]
+        elif what == "head":
+            head[draw(st.sampled_from(sorted(head)))] = draw(forged)
+        else:
+            maps = True
+    if maps:
+        sh, pair = draw(st.sampled_from([(sh, [pz]), (None, pair), (list(sh.values()), pair), ("x", pair)]))
+    return lay, StateMsg(m.tick, m.sender, head["vx"], head["vy"], head["phase"], sh, pair), me
+
+
+@settings(max_examples=1000, deadline=None, derandomize=True)
+@given(case=forged_msgs())
+def test_a_forged_message_s_row_is_the_old_receive_path_s(case: tuple[R.Layout, StateMsg, int]) -> None:
+    """The type-level decode + the one value check == the old receive path (_assert_old_row), up to four parts of a
+    message forged at once; compiled == interpreted."""
+    lay, msg, me = case
+    _assert_old_row(lay, msg, me)
+    if JIT:
+        raw = np.array([R.raw_values(msg, me, lay)])
+        interp = np.full_like(raw, 7.0)
+        check_rows.py_func(raw, lay.lay, interp)
+        assert interp.tobytes() == in_rows([msg], me, lay).tobytes()
+
+
+def _assert_old_row(lay: R.Layout, msg: StateMsg, me: int) -> None:
+    """The message's IN row is the old receive path's: the same STATUS; all its slots unless it is dropped, else
+    those the kernels read of a dropped message (agents/kernels/kinematic.py: its order, its sender, an overtaken
+    message's velocity)."""
+    got = in_rows([msg], me, lay)[0]
+    want = np.array(old_row_values(msg, me, lay), np.float64)
+    assert got[R.STATUS] == want[R.STATUS], (msg, got.tolist(), want.tolist())
+    read = slice(None) if want[R.STATUS] != R.MALFORMED else [R.TICK, R.SENDER, R.VX, R.VY]
+    assert got[read].tobytes() == want[read].tobytes(), (msg, got.tolist(), want.tolist())
+
+
+@pytest.mark.parametrize("lay", LAYOUTS, ids=["kinematic", "dynamic", "detection", "detection-1"])
+def test_every_single_forgery_gives_the_old_row(lay: R.Layout) -> None:
+    """Each part of a valid message forged alone, with every value of FORGED: each shared value, each slot of
+    the receiver's pair entry, the velocity and the stage; each shared key dropped; the pair entry cut,
+    lengthened, None, dropped."""
+    out = np.zeros(lay.size_out)
+    out[R.PHASE] = 3.0
+    if lay.dynamic:
+        out[lay.dg] = 2.0
+    nbrs = NBRS[:lay.degree]
+    m = R.state_from_row(out, lay, nbrs)
+    me = nbrs[0]
+    pz = m.pair[me]
+    msgs = [StateMsg(1, 2, m.vx, m.vy, m.phase, {q: v for q, v in m.shared.items() if q != k}, m.pair)
+            for k in lay.keys]
+    msgs += [StateMsg(1, 2, m.vx, m.vy, m.phase, m.shared, {**m.pair, me: p}) for p in (pz[:-1], (*pz, 0.0), None)]
+    for bad in FORGED:
+        msgs += [StateMsg(1, 2, m.vx, m.vy, m.phase, {**m.shared, k: bad}, m.pair) for k in lay.keys]
+        msgs += [StateMsg(1, 2, m.vx, m.vy, m.phase, m.shared, {me: (*pz[:c], bad, *pz[c + 1:])})
+                 for c in range(len(pz))]
+        msgs += [StateMsg(1, 2, bad, m.vy, m.phase, m.shared, m.pair),
+                 StateMsg(1, 2, m.vx, bad, m.phase, m.shared, m.pair),
+                 StateMsg(1, 2, m.vx, m.vy, bad, m.shared, m.pair)]  # type: ignore[arg-type]
+    for msg in msgs:
+        _assert_old_row(lay, msg, me)
 
 
 @pytest.mark.parametrize("lay", LAYOUTS[:3], ids=["kinematic", "dynamic", "detection"])

@@ -1,9 +1,10 @@
 """net/rows.py: a state message as a float row and back, and what the row says of a malformed message.
 
-Valid messages round-trip (message -> row -> message, equal by repr: Python floats and ints, the same key
-order); an estimate round-trips through its row. A malformed message's row classifies it as the receive
-path does: dropped, its dynamical states taken only, or taken; the cases are a frozen table, checked here
-against ``AgentCore.step`` and, through the table, against any later receive path.
+Valid messages round-trip (message -> IN row -> message, equal by repr: Python floats and ints, the same key
+order); an estimate round-trips through its row. A malformed message's IN row (agents/kernels/message_rows.py
+``in_rows``: net/rows.py's decode, then the compiled check) classifies it as the receive path does: dropped, its
+dynamical states taken only, or taken; the cases are a frozen table, checked here against ``AgentCore.step``
+and, through the table, against any later receive path.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from hypothesis import strategies as st
 
 from agents.agent import AgentCore
 from agents.effect_decision import N_EFF
+from agents.kernels.message_rows import in_rows
 from agents.stage_agreement import MASK_BITS, mask_keys
 from config.agent_params import ControlSpec, DynamicsSpec, EstimatorSpec
 from net import rows as R
@@ -157,7 +159,7 @@ def _out_row(msg: StateMsg, lay: R.Layout, nbrs: list[int]) -> np.ndarray:
     """An OUT row of ``msg``: its head and every neighbour's block, as the sending kernel lays them out."""
     out = np.zeros(lay.size_out)
     for k, j in enumerate(nbrs):
-        row = R.row_from_state(msg, j, lay)
+        row = in_rows([msg], j, lay)[0]
         assert row[R.STATUS] == R.OK and row[R.HAS_PAIR] == 1.0
         out[:lay.p0] = row[:lay.p0]
         out[lay.p0 + k * lay.block:lay.p0 + (k + 1) * lay.block] = row[lay.p0:]
@@ -213,11 +215,11 @@ def _valid(draw, dyn: bool) -> StateMsg:
 def test_valid_messages_round_trip(msg: tuple[bool, StateMsg]) -> None:
     dyn, m = msg
     lay = _layout(dyn, 1)
-    row = R.row_from_state(m, 5, lay)
+    row = in_rows([m], 5, lay)[0]
     assert row[R.STATUS] == R.OK and row[R.HAS_PAIR] == 1.0 and _row_class(row, lay) == "taken"
     assert repr(R.state_from_row(row, lay, [5])) == repr(m)
     # a receiver the sender has sent nothing for yet: zeros in its block
-    none = R.row_from_state(m, 6, lay)
+    none = in_rows([m], 6, lay)[0]
     assert none[R.HAS_PAIR] == 0.0 and not none[lay.p0:].any() and (none[:R.HAS_PAIR] == row[:R.HAS_PAIR]).all()
 
 
@@ -228,7 +230,7 @@ def test_malformed_messages_are_classified_as_the_receive_path_does() -> None:
         seen = set()
         for name, msg in _mutations(base, dyn):
             seen.add(name)
-            row = R.row_from_state(msg, 1, lay)
+            row = in_rows([msg], 1, lay)[0]
             want = "dropped" if table[name] == "raises" else table[name]
             assert _row_class(row, lay) == want, (dyn, name)
             assert _outcome(dyn, msg) == want, (dyn, name)

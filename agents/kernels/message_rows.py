@@ -5,16 +5,20 @@ agents read from the OUT ring (net/rows.py layout; docs/fast-core-plan.md sectio
 each neighbour's pair head (z_ij as sent, F_ij), from :func:`agents.kernels.kinematic.kin_step`'s
 results; the dynamical phase writes its own slots after it. :func:`gather_inbox` builds each receiver's
 IN rows from the senders' OUT rows: the header and shared slots, the receiver's pair block, and the
-``STATUS`` that ``net.rows.row_values`` gives the message ``net.rows.state_from_row`` makes of that OUT
-row (the same values, in the same order, with the same early stop at the first value it rejects).
+``STATUS`` of the values' checks. :func:`check_rows` runs the same checks (one :func:`_gather_row`) on the raw
+rows a daemon decodes from its inbox's messages (``net.rows.raw_values``: the values as floats, ``STATUS``
+for what is not a number), so a message's IN row is the same in process and over the wire: :func:`in_rows`.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 
 from agents.kernels import jit, register_warm
 from agents.kernels.kinematic import R_OM_INIT, R_OMEGA, R_PAIRS, R_PHI, R_Y
+from net.messages import StateMsg
 from net.rows import (
     C0,
     HAS_PAIR,
@@ -47,6 +51,7 @@ from net.rows import (
     YX,
     YY,
     Layout,
+    raw_values,
 )
 from net.vocabulary import KINEMATIC, SPINUP
 
@@ -90,8 +95,11 @@ def write_kin_out(out, tick, ids, meas, deg, res, lay) -> None:
 
 @jit
 def _decode_dynamic(src, fl, lay, v) -> bool:
-    """The dynamical slots of OUT row ``src`` (its flows to the receiver from ``fl``, -1: none) into IN row
-    ``v``, checked in net.rows._decode_dynamic's order; False where that raises (what was written stays)."""
+    """The dynamical slots of OUT row ``src`` (its flows to the receiver from ``fl``, -1: none) and its stage into
+    IN row ``v``, each value checked as the dynamical phase needs it (finite; ``dg, Sk, Bt, Bs``, the stage and
+    the decision integral, as int() takes them; a mask chunk an integer in [0, 2^MASK_BITS); ``dg`` >= 1; a
+    decision code in [-1, N_DECISION_CODES)); False at the first value rejected (what was written stays: a
+    MALFORMED row's slots past its header are not read)."""
     nch = lay[L_NCH]
     psi = src[lay[L_PS]]
     if psi - psi != 0.0:
@@ -129,6 +137,10 @@ def _decode_dynamic(src, fl, lay, v) -> bool:
         v[ds] = s
         v[ds + 1] = e
         v[ds + 2] = z
+    x = src[PHASE]
+    if x - x != 0.0:
+        return False
+    v[PHASE] = _int(x)
     x = src[lay[L_SK]]
     if x - x != 0.0:
         return False
@@ -171,7 +183,7 @@ def _gather_row(src, blk, lay, v) -> None:
             return
     else:
         v[OM] = src[OM]
-    # (float values throughout: the finiteness sum of the receive path cannot raise, no KIN_MALFORMED)
+    # (float values throughout: a kinematic value that is not a number is a raw row's STATUS, check_rows)
     v[HAS_PAIR] = 1.0 if blk >= 0 else 0.0
     v[PH] = src[PH]
     v[YX] = src[YX]
@@ -180,6 +192,28 @@ def _gather_row(src, blk, lay, v) -> None:
     v[p0 + 1] = zy
     v[p0 + 2] = fx
     v[p0 + 3] = fy
+
+
+@jit
+def check_rows(raw, lay, rows) -> None:
+    """rows[e] = the IN row of the raw row ``raw[e]`` (``net.rows.raw_values``, a one-block OUT row whose
+    ``HAS_PAIR`` says whether its block was sent): its values checked as an OUT row's, its own ``STATUS`` kept
+    where the checks pass (MALFORMED, KIN_MALFORMED: not numbers)."""
+    for e in range(raw.shape[0]):
+        src = raw[e]
+        v = rows[e]
+        _gather_row(src, 0 if src[HAS_PAIR] != 0.0 else -1, lay, v)
+        if v[STATUS] != MALFORMED:
+            v[STATUS] = src[STATUS]
+
+
+def in_rows(msgs: Sequence[StateMsg], me: int, lay: Layout) -> np.ndarray:
+    """The IN rows (len(msgs), lay.size_in) of received messages for receiver ``me``: decoded
+    (``net.rows.raw_values``), then checked (:func:`check_rows`)."""
+    raw = np.array([raw_values(m, me, lay) for m in msgs], np.float64).reshape(len(msgs), lay.size_in)
+    rows = np.empty_like(raw)
+    check_rows(raw, lay.lay, rows)
+    return rows
 
 
 @jit
@@ -199,3 +233,4 @@ def warm() -> None:
         write_kin_out(ring[0], 1, np.array([0, 1], np.int64), np.zeros((2, 2)), np.array([1, 1], np.int64), res,
                       lay.lay)
         gather_inbox(ring, np.array([[0, 1, 0], [0, 0, -1]], np.int64), lay.lay, np.zeros((2, lay.size_in)))
+        check_rows(np.zeros((2, lay.size_in)), lay.lay, np.zeros((2, lay.size_in)))
