@@ -90,7 +90,8 @@ class Recorder:
         else:
             for name in self._headers:  # a previous run's, which would contradict this one's summary
                 (self.run_dir / name).unlink(missing_ok=True)
-        # tables=False: the rows as numbers (samples: (rows, 7) blocks; the others: lists of Python floats)
+        # tables=False: the rows as numbers (samples, estimates, pairs: float64 blocks of rows; truth: a list of
+        # rows, one per recorded tick)
         self._held: dict[str, list[Any]] = {name: [] for name in self._headers}
         self._sample_ticks: list[int] = []  # the ticks in _sample_block, not yet formatted
         self._sample_block: np.ndarray | None = None  # (_SAMPLE_TICKS, agents, vx vy fx fy tau), on first use
@@ -169,12 +170,19 @@ class Recorder:
         if not self.keeps(tick):
             return
         self.estimates_recorded += len(values)
-        if not self.files:
+        if not self.files:  # a block of float64 rows per tick (8 bytes a value, where a list holds ~32)
+            if not values:
+                return
             t = float(tick * self.dt)
-            est, pr = self._held[fmt.ESTIMATES_CSV], self._held[fmt.PAIRS_CSV]
-            for agent, row, agent_pairs in zip(agents, values, pairs, strict=True):
-                est.append([t, agent, *row])
-                pr += [[t, agent, j, x, y] for j, x, y in agent_pairs]
+            est = np.empty((len(values), len(self.estimate_names) + 2))
+            est[:, 0] = t
+            est[:, 1] = agents
+            est[:, 2:] = np.array(values, dtype=float).reshape(len(values), -1)
+            self._held[fmt.ESTIMATES_CSV].append(est)
+            pr = [[t, agent, j, x, y]
+                  for agent, agent_pairs in zip(agents, pairs, strict=True) for j, x, y in agent_pairs]
+            if pr:
+                self._held[fmt.PAIRS_CSV].append(np.array(pr, dtype=float))
             return
         t = _f(tick * self.dt)
         for agent, row, agent_pairs in zip(agents, values, pairs, strict=True):
@@ -210,10 +218,10 @@ class Recorder:
         tables = {}
         for name, header in self._headers.items():
             rows = self._held[name]
-            if name == fmt.SAMPLES_CSV:
-                matrix = np.concatenate(rows) if rows else np.empty((0, len(header)))
-            else:
+            if name == fmt.TRUTH_CSV:
                 matrix = np.array(rows, dtype=float).reshape(-1, len(header))
+            else:
+                matrix = np.concatenate(rows) if rows else np.empty((0, len(header)))
             tables[name] = (header, matrix)
         summary = json.loads((self.run_dir / fmt.SUMMARY_JSON).read_text(encoding="utf-8"))
         return fmt.run_from_rows(self.run_dir, tables, summary)
