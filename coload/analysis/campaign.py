@@ -269,16 +269,12 @@ def finished_summary(run: PlannedRun) -> dict[str, Any] | None:
     return summary
 
 
-BULK_FILES = ("samples.csv", "pairs.csv", "truth.csv", "estimates.csv")
-"""Not written by a campaign's run unless ``keep_data``: the full grid would fill ~90 GB with them, and any run
-is reproduced bit for bit by ``coload run OUT/runs/NAME/run.toml --engine inproc``."""
-
-
 def run_task(scenario: Scenario, keep_data: bool = False) -> dict[str, bytes]:
     """Worker: one in-process run in a private temporary directory; returns the run directory as
-    data (:func:`coload.runs.sweep.pack_dir`; :data:`BULK_FILES` only with ``keep_data``, else the run
-    never writes them: its summary comes from the tables in memory), for the driver to write: a worker
-    needs no filesystem shared with the driver."""
+    data (:func:`coload.runs.sweep.pack_dir`), for the driver to write: a worker needs no filesystem shared
+    with the driver. The CSV tables only with ``keep_data``: otherwise the run never writes them (its summary
+    comes from the tables in memory): the full grid would fill ~90 GB with them, and any run is reproduced
+    bit for bit by ``coload run OUT/runs/NAME/run.toml --engine inproc``."""
     from coload.runs.engine import run_inproc
 
     with tempfile.TemporaryDirectory(prefix="coload-campaign-") as tmp:
@@ -465,7 +461,7 @@ def run_campaign(
     the plots here, in the driver.
 
     ``keep_data`` keeps each run's CSV tables (otherwise only run.toml, summary.json and logs/ stay, see
-    :data:`BULK_FILES`). A run that raises is reported in ``failed`` and the others go on; its directory
+    :func:`run_task`). A run that raises is reported in ``failed`` and the others go on; its directory
     stays without a summary, so a later call retries it. ``progress(done, total, note)`` follows the
     runs (``note``: the workers). ``task`` is the worker function (:func:`run_task`; benchmarks pass a
     stand-in). Raises ValueError, with nothing written, if the executor cannot be used.
