@@ -112,7 +112,11 @@ class Layout:
                         p0 + self.degree * block, p0 + block], dtype=np.int64)
         lay.flags.writeable = False
         put(self, "lay", lay)
-        put(self, "taking", tuple((OM + k, key, _taking(key)) for k, key in enumerate(keys) if k >= len(KIN_KEYS)))
+        # int() for the integer states, a comparison for the mask chunks, float() for the rest (the channels, ps,
+        # the decision)
+        ints, chunks = (dg, sk, bt, bs), range(b0, b0 + nbk)
+        put(self, "taking", tuple((slot, key, _integer if slot in ints else _real if slot in chunks else float)
+                                  for slot, key in enumerate(keys[len(KIN_KEYS):], C0)))
 
     @property
     def size_out(self) -> int:
@@ -156,15 +160,6 @@ def _integer(x: object) -> float:
     rejects NaN and infinities and truncates it), anything else as ``int()`` makes it (a str parsed; raises where
     int() raises)."""
     return x if type(x) is float else float(int(x))  # type: ignore[call-overload]
-
-
-def _taking(key: str) -> Callable[[object], float]:
-    """How the receive path takes a dynamical state: ``int()``, a comparison (a mask chunk) or ``float()``."""
-    if key in ("dg", "Sk", "Bt", "Bs"):
-        return _integer
-    if key[0] == "B" and key[1:].isdigit():
-        return _real
-    return float
 
 
 def raw_values(msg: StateMsg, me: int, lay: Layout) -> list[float]:
