@@ -90,8 +90,7 @@ class Recorder:
         else:
             for name in self._headers:  # a previous run's, which would contradict this one's summary
                 (self.run_dir / name).unlink(missing_ok=True)
-        # tables=False: the rows as numbers (samples, estimates, pairs: float64 blocks of rows; truth: a list of
-        # rows, one per recorded tick)
+        # tables=False: each table's rows as float64 blocks (a block of samples ticks, a recorded tick's rows)
         self._held: dict[str, list[Any]] = {name: [] for name in self._headers}
         self._sample_ticks: list[int] = []  # the ticks in _sample_block, not yet formatted
         self._sample_block: np.ndarray | None = None  # (_SAMPLE_TICKS, agents, vx vy fx fy tau), on first use
@@ -150,7 +149,7 @@ class Recorder:
         if self.files:
             self._truth.add(",".join([_cell(x) for x in row]))
         else:
-            self._held[fmt.TRUTH_CSV].append(row)
+            self._held[fmt.TRUTH_CSV].append(np.array([row]))
 
     def estimate(self, est: Estimate) -> None:
         vals = est.values
@@ -218,11 +217,7 @@ class Recorder:
         tables = {}
         for name, header in self._headers.items():
             rows = self._held[name]
-            if name == fmt.TRUTH_CSV:
-                matrix = np.array(rows, dtype=float).reshape(-1, len(header))
-            else:
-                matrix = np.concatenate(rows) if rows else np.empty((0, len(header)))
-            tables[name] = (header, matrix)
+            tables[name] = (header, np.concatenate(rows) if rows else np.empty((0, len(header))))
         summary = json.loads((self.run_dir / fmt.SUMMARY_JSON).read_text(encoding="utf-8"))
         return fmt.run_from_rows(self.run_dir, tables, summary)
 
